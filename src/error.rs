@@ -1,0 +1,76 @@
+//! The crate's error type: misuse and bad input are errors; numerical outcomes are statuses.
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong before a computation starts, or that makes its input unusable.
+///
+/// Non-convergence is *not* an error: solvers and estimators report it through a `Status`
+/// in their report (see DESIGN.md, "Misuse is an error, non-convergence is a status").
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// Two objects that must agree in size do not.
+    #[error("dimension mismatch in {what}: expected {expected}, got {got}")]
+    DimensionMismatch {
+        /// What was being checked.
+        what: String,
+        /// The size that was expected.
+        expected: usize,
+        /// The size that was found.
+        got: usize,
+    },
+    /// An option or argument has a value outside its domain.
+    #[error("invalid option `{name}`: {reason}")]
+    InvalidOption {
+        /// The option's name.
+        name: String,
+        /// Why the value is rejected.
+        reason: String,
+    },
+    /// A name (model, parameter, state, output, likelihood) that is not known.
+    #[error("unknown {kind} `{name}`{}", if .known.is_empty() { String::new() } else { format!(" (known: {})", .known.join(", ")) })]
+    UnknownName {
+        /// What kind of name it is ("model", "parameter", ...).
+        kind: String,
+        /// The name that was given.
+        name: String,
+        /// The names that would have been accepted.
+        known: Vec<String>,
+    },
+    /// A numerical input is NaN or infinite where a finite value is required.
+    #[error("non-finite value in {what}")]
+    NonFinite {
+        /// Where the value was found.
+        what: String,
+    },
+    /// The diffusion matrix G(θ) is singular or not finite.
+    #[error("singular diffusion matrix G(theta): {reason}")]
+    SingularDiffusion {
+        /// Why it is rejected.
+        reason: String,
+    },
+    /// A data file is malformed; names the file, line and (when known) column.
+    #[error("{}:{line}{}: {reason}", .path.display(), match .column { Some(c) => format!(", column {c}"), None => String::new() })]
+    Data {
+        /// The file being read or written.
+        path: PathBuf,
+        /// 1-based line number (the header is line 1).
+        line: usize,
+        /// 1-based column number or name, when the problem is in one cell.
+        column: Option<String>,
+        /// What is wrong.
+        reason: String,
+    },
+    /// An I/O error, with the path it concerns.
+    #[error("{}: {source}", .path.display())]
+    Io {
+        /// The file concerned.
+        path: PathBuf,
+        /// The underlying error.
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// Shorthand for `Result<T, onsager::Error>`.
+pub type Result<T> = std::result::Result<T, Error>;

@@ -1,0 +1,199 @@
+//! Forward-mode automatic differentiation helpers over the crate's generic scalar.
+//!
+//! Models and likelihoods are written once, generic over [`Scalar`]; the functions here
+//! evaluate them with [`Dual64`] (first derivatives, one pass per input) and
+//! [`HyperDual64`] (second derivatives, one pass per pair of inputs) and return plain `f64`
+//! values and `nalgebra` matrices. Dual numbers stop at this layer (DESIGN.md).
+//!
+//! Because Rust closures cannot be generic, a differentiable function is a type implementing
+//! [`ScalarFn`] or [`VectorFn`].
+
+use nalgebra::DMatrix;
+use num_dual::{Dual64, HyperDual64};
+
+use super::Scalar;
+
+/// A scalar function of a vector, generic over the scalar type.
+pub trait ScalarFn {
+    /// Number of inputs.
+    fn dim_in(&self) -> usize;
+    /// φ(w).
+    fn eval<D: Scalar>(&self, w: &[D]) -> D;
+}
+
+/// A vector function of a vector, generic over the scalar type.
+pub trait VectorFn {
+    /// Number of inputs.
+    fn dim_in(&self) -> usize;
+    /// Number of outputs.
+    fn dim_out(&self) -> usize;
+    /// out = φ(w).
+    fn eval<D: Scalar>(&self, w: &[D], out: &mut [D]);
+}
+
+fn lift<D: Scalar>(w: &[f64]) -> Vec<D> {
+    w.iter().map(|&v| D::from(v)).collect()
+}
+
+/// Value and gradient of `f` at `w`, one [`Dual64`] pass per input.
+pub fn gradient<F: ScalarFn + ?Sized>(f: &F, w: &[f64]) -> (f64, Vec<f64>) {
+    let n = w.len();
+    let mut wd: Vec<Dual64> = lift(w);
+    let mut grad = vec![0.0; n];
+    let mut value = if n == 0 { f.eval::<f64>(w) } else { 0.0 };
+    for i in 0..n {
+        wd[i].eps = 1.0;
+        let r = f.eval(&wd);
+        wd[i].eps = 0.0;
+        value = r.re;
+        grad[i] = r.eps;
+    }
+    (value, grad)
+}
+
+/// Value, gradient and (symmetric, dense) Hessian of `f` at `w`, one [`HyperDual64`] pass per
+/// pair i ≤ j.
+pub fn hessian<F: ScalarFn + ?Sized>(f: &F, w: &[f64]) -> (f64, Vec<f64>, DMatrix<f64>) {
+    let n = w.len();
+    let mut wd: Vec<HyperDual64> = lift(w);
+    let mut grad = vec![0.0; n];
+    let mut hess = DMatrix::zeros(n, n);
+    let mut value = if n == 0 { f.eval::<f64>(w) } else { 0.0 };
+    for i in 0..n {
+        for j in i..n {
+            wd[i].eps1 = 1.0;
+            wd[j].eps2 = 1.0;
+            let r = f.eval(&wd);
+            wd[i].eps1 = 0.0;
+            wd[j].eps2 = 0.0;
+            value = r.re;
+            if j == i {
+                grad[i] = r.eps1;
+            }
+            hess[(i, j)] = r.eps1eps2;
+            hess[(j, i)] = r.eps1eps2;
+        }
+    }
+    (value, grad, hess)
+}
+
+/// Value and Jacobian (`dim_out × dim_in`) of `f` at `w`, one [`Dual64`] pass per input.
+pub fn jacobian<F: VectorFn + ?Sized>(f: &F, w: &[f64]) -> (Vec<f64>, DMatrix<f64>) {
+    let n = w.len();
+    let m = f.dim_out();
+    let mut wd: Vec<Dual64> = lift(w);
+    let mut out = vec![Dual64::from(0.0); m];
+    let mut jac = DMatrix::zeros(m, n);
+    let mut value = vec![0.0; m];
+    if n == 0 {
+        f.eval::<f64>(w, &mut value);
+    }
+    for j in 0..n {
+        wd[j].eps = 1.0;
+        f.eval(&wd, &mut out);
+        wd[j].eps = 0.0;
+        for i in 0..m {
+            value[i] = out[i].re;
+            jac[(i, j)] = out[i].eps;
+        }
+    }
+    (value, jac)
+}
+
+/// Solves the small dense system `A u = b` in place by Gaussian elimination with partial
+/// pivoting (pivots chosen on the real parts), generic over the scalar so it can be
+/// differentiated. `a` is `n × n`, column-major, and is overwritten by its LU factors.
+///
+/// Returns ln |det A|, or `None` when a pivot is zero or not finite.
+pub fn lu_solve_in_place<D: Scalar>(a: &mut [D], b: &mut [D]) -> Option<D> {
+    let n = b.len();
+    debug_assert_eq!(a.len(), n * n);
+    let mut log_det = D::from(0.0);
+    for k in 0..n {
+        let (mut p, mut best) = (k, a[k + k * n].re().abs());
+        for i in k + 1..n {
+            let v = a[i + k * n].re().abs();
+            if v > best {
+                p = i;
+                best = v;
+            }
+        }
+        if best == 0.0 || !best.is_finite() {
+            return None;
+        }
+        if p != k {
+            for j in 0..n {
+                a.swap(k + j * n, p + j * n);
+            }
+            b.swap(k, p);
+        }
+        let pivot = a[k + k * n];
+        log_det += pivot.abs().ln();
+        for i in k + 1..n {
+            let l = a[i + k * n] / pivot;
+            a[i + k * n] = l;
+            for j in k + 1..n {
+                let akj = a[k + j * n];
+                a[i + j * n] -= l * akj;
+            }
+            let bk = b[k];
+            b[i] -= l * bk;
+        }
+    }
+    for k in (0..n).rev() {
+        let mut s = b[k];
+        for j in k + 1..n {
+            s -= a[k + j * n] * b[j];
+        }
+        b[k] = s / a[k + k * n];
+    }
+    Some(log_det)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use approx::assert_relative_eq;
+
+    struct Rosen;
+    impl ScalarFn for Rosen {
+        fn dim_in(&self) -> usize {
+            2
+        }
+        fn eval<D: Scalar>(&self, w: &[D]) -> D {
+            let a = D::from(1.0) - w[0];
+            let b = w[1] - w[0] * w[0];
+            a * a + b * b * 100.0
+        }
+    }
+
+    #[test]
+    fn rosenbrock_gradient_and_hessian_match_closed_form() {
+        // Closed form: ∇f = (−2(1−x) − 400x(y−x²), 200(y−x²)),
+        // ∇²f = [[2 − 400(y − 3x²), −400x], [−400x, 200]].
+        let (x, y) = (-1.2, 1.0);
+        let (v, g, h) = hessian(&Rosen, &[x, y]);
+        assert_relative_eq!(v, (1.0f64 - x).powi(2) + 100.0 * (y - x * x).powi(2));
+        assert_relative_eq!(g[0], -2.0 * (1.0 - x) - 400.0 * x * (y - x * x));
+        assert_relative_eq!(g[1], 200.0 * (y - x * x));
+        assert_relative_eq!(h[(0, 0)], 2.0 - 400.0 * (y - 3.0 * x * x));
+        assert_relative_eq!(h[(0, 1)], -400.0 * x);
+        assert_relative_eq!(h[(1, 1)], 200.0);
+        let (v2, g2) = gradient(&Rosen, &[x, y]);
+        assert_eq!(v, v2);
+        assert_eq!(g, g2);
+    }
+
+    #[test]
+    fn lu_solve_matches_known_solution_and_determinant() {
+        // A = [[0, 2], [3, 1]] (column-major [0, 3, 2, 1]); det = −6; A [1, 2]ᵀ = [4, 5]ᵀ.
+        let mut a = [0.0, 3.0, 2.0, 1.0];
+        let mut b = [4.0, 5.0];
+        let ld = lu_solve_in_place(&mut a, &mut b).unwrap();
+        assert_relative_eq!(b[0], 1.0, epsilon = 1e-14);
+        assert_relative_eq!(b[1], 2.0, epsilon = 1e-14);
+        assert_relative_eq!(ld, 6.0f64.ln(), epsilon = 1e-14);
+        let mut s = [1.0, 2.0, 2.0, 4.0];
+        assert!(lu_solve_in_place(&mut s, &mut [1.0, 1.0]).is_none());
+    }
+}

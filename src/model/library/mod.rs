@@ -1,0 +1,475 @@
+//! Built-in models and the registry of presets the CLI and the examples use.
+//!
+//! Each model is a unit struct implementing [`Sde`], written once and generic over the scalar,
+//! with θ passed in (so every derivative comes by automatic differentiation). The registry
+//! ([`preset`], [`NAMES`]) bundles a model with its nominal θ, priors, measurement model and
+//! simulation settings, each default documented with its source. See `docs/models.md` for the
+//! equations and the conventions.
+//!
+//! | name | model | source |
+//! |---|---|---|
+//! | `ou` | [`Ou`] | closed-form reference (our defaults) |
+//! | `tanh` | [`Tanh`] | `001_8aefdf0570c96f51.txt` Sec. 2 |
+//! | `van-der-pol` | [`VanDerPol`] | `001_8aefdf0570c96f51.txt` Sec. 9 |
+//! | `duffing` | [`Duffing`] | `000_74b95e149527c64e.txt` Sec. 4.1.1, (4.2), Table 4.1 |
+//! | `holmes-rand` | [`HolmesRand`] | `000_74b95e149527c64e.txt` Sec. 4.1.3, (4.8), Table 4.3 |
+//! | `double-well` | [`DoubleWell`] | `003_d2fc48a470e528fc.txt (0.1)` notation (our defaults) |
+//! | `lorenz63` | [`Lorenz63`] | Lorenz (1963) drift (our noise defaults) |
+
+mod double_well;
+mod duffing;
+mod holmes_rand;
+mod lorenz63;
+mod ou;
+mod tanh;
+mod van_der_pol;
+
+#[cfg(test)]
+mod tests;
+
+pub use double_well::DoubleWell;
+pub use duffing::Duffing;
+pub use holmes_rand::HolmesRand;
+pub use lorenz63::Lorenz63;
+pub use ou::Ou;
+pub use tanh::Tanh;
+pub use van_der_pol::VanDerPol;
+
+use super::observation::{Noise, StateMeasurement};
+use super::prior::Prior;
+use super::{check_len, Dims, Param, Scalar, Sde};
+use crate::{Error, Result};
+
+/// Owned names from string literals.
+fn names(list: &[&str]) -> Vec<String> {
+    list.iter().map(|s| s.to_string()).collect()
+}
+
+/// The names [`preset`] accepts, in the order of the table in the module documentation.
+pub const NAMES: &[&str] =
+    &["ou", "tanh", "van-der-pol", "duffing", "holmes-rand", "double-well", "lorenz63"];
+
+/// One of the built-in models, chosen at run time. Implements [`Sde`] by delegating to the
+/// model it holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BuiltinModel {
+    /// [`Ou`], `ou`.
+    Ou(Ou),
+    /// [`Tanh`], `tanh`.
+    Tanh(Tanh),
+    /// [`VanDerPol`], `van-der-pol`.
+    VanDerPol(VanDerPol),
+    /// [`Duffing`], `duffing`.
+    Duffing(Duffing),
+    /// [`HolmesRand`], `holmes-rand`.
+    HolmesRand(HolmesRand),
+    /// [`DoubleWell`], `double-well`.
+    DoubleWell(DoubleWell),
+    /// [`Lorenz63`], `lorenz63`.
+    Lorenz63(Lorenz63),
+}
+
+/// Runs `$body` with `$m` bound to the model inside a [`BuiltinModel`].
+macro_rules! delegate {
+    ($self:expr, $m:ident => $body:expr) => {
+        match $self {
+            BuiltinModel::Ou($m) => $body,
+            BuiltinModel::Tanh($m) => $body,
+            BuiltinModel::VanDerPol($m) => $body,
+            BuiltinModel::Duffing($m) => $body,
+            BuiltinModel::HolmesRand($m) => $body,
+            BuiltinModel::DoubleWell($m) => $body,
+            BuiltinModel::Lorenz63($m) => $body,
+        }
+    };
+}
+
+impl BuiltinModel {
+    /// The model's registry name (one of [`NAMES`]).
+    pub fn name(&self) -> &'static str {
+        match self {
+            BuiltinModel::Ou(_) => "ou",
+            BuiltinModel::Tanh(_) => "tanh",
+            BuiltinModel::VanDerPol(_) => "van-der-pol",
+            BuiltinModel::Duffing(_) => "duffing",
+            BuiltinModel::HolmesRand(_) => "holmes-rand",
+            BuiltinModel::DoubleWell(_) => "double-well",
+            BuiltinModel::Lorenz63(_) => "lorenz63",
+        }
+    }
+}
+
+impl Sde for BuiltinModel {
+    fn dims(&self) -> Dims {
+        delegate!(self, m => m.dims())
+    }
+
+    fn noisy_names(&self) -> Vec<String> {
+        delegate!(self, m => m.noisy_names())
+    }
+
+    fn clean_names(&self) -> Vec<String> {
+        delegate!(self, m => m.clean_names())
+    }
+
+    fn param_names(&self) -> Vec<String> {
+        delegate!(self, m => m.param_names())
+    }
+
+    fn drift<D: Scalar>(&self, t: D, x: &[D], z: &[D], theta: &[D], out: &mut [D]) {
+        delegate!(self, m => m.drift(t, x, z, theta, out))
+    }
+
+    fn clean_drift<D: Scalar>(&self, t: D, x: &[D], z: &[D], theta: &[D], out: &mut [D]) {
+        delegate!(self, m => m.clean_drift(t, x, z, theta, out))
+    }
+
+    fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
+        delegate!(self, m => m.diffusion(theta, out))
+    }
+}
+
+/// A built-in model with everything needed to simulate it and to estimate its states and
+/// parameters: nominal θ, priors, measurement model, horizon and sampling. Every default is
+/// documented with its source in [`preset`] and `docs/models.md`.
+///
+/// Measurement times are `first_sample + k · sample_every` for k = 0, 1, … while ≤ `t_end`
+/// (up to rounding); the state path starts at t = 0.
+#[derive(Debug, Clone)]
+pub struct Preset {
+    /// Registry name (one of [`NAMES`]).
+    pub name: &'static str,
+    /// One-line description.
+    pub description: &'static str,
+    /// Where the model and its defaults come from (paper file and section/equation/table).
+    pub source: &'static str,
+    /// The dynamics.
+    pub model: BuiltinModel,
+    /// Nominal parameter vector θ (dynamics and measurement parameters), in the order of
+    /// [`Sde::param_names`].
+    pub theta: Vec<f64>,
+    /// Prior of each component of θ (same length as `theta`). Parameters the source treats as
+    /// known have flat priors and `estimate = false`.
+    pub theta_prior: Vec<Prior>,
+    /// Whether the source estimates each component of θ (the default set of estimated
+    /// parameters; same length as `theta`).
+    pub estimate: Vec<bool>,
+    /// Prior of each noisy initial state x(0) (length `dims().noisy`); also the distribution
+    /// initial states are simulated from.
+    pub x0_prior: Vec<Prior>,
+    /// Prior of each clean initial state z(0) (length `dims().clean`).
+    pub z0_prior: Vec<Prior>,
+    /// The measurement model; its state indices refer to s = [x; z].
+    pub observation: StateMeasurement,
+    /// Final time of the experiment (the path starts at t = 0).
+    pub t_end: f64,
+    /// Simulation time step (of the SDE integrator, not of the estimators' grids).
+    pub dt: f64,
+    /// Time of the first measurement.
+    pub first_sample: f64,
+    /// Time between measurements.
+    pub sample_every: f64,
+}
+
+impl Preset {
+    /// The model's dimensions.
+    pub fn dims(&self) -> Dims {
+        self.model.dims()
+    }
+
+    /// Names of the parameters θ, in order.
+    pub fn param_names(&self) -> Vec<String> {
+        self.model.param_names()
+    }
+
+    /// Index of the parameter called `name` in θ; [`Error::UnknownName`] (kind
+    /// `"parameter"`) when the model has no such parameter.
+    pub fn param_index(&self, name: &str) -> Result<usize> {
+        let known = self.param_names();
+        known.iter().position(|p| p == name).ok_or_else(|| Error::UnknownName {
+            kind: "parameter".into(),
+            name: name.into(),
+            known,
+        })
+    }
+
+    /// Sets the nominal value of the parameter called `name`. Errors: [`Error::UnknownName`]
+    /// for an unknown parameter, [`Error::NonFinite`] for a NaN or infinite value.
+    pub fn set_param(&mut self, name: &str, value: f64) -> Result<()> {
+        let i = self.param_index(name)?;
+        if !value.is_finite() {
+            return Err(Error::NonFinite { what: format!("value of parameter `{name}`") });
+        }
+        self.theta[i] = value;
+        Ok(())
+    }
+
+    /// The measurement times `first_sample + k · sample_every`, k = 0, 1, …, up to `t_end`
+    /// (a time within 10⁻⁹ · `sample_every` of `t_end` counts as reaching it, so that rounding
+    /// does not drop the last measurement). Computed as products, not by accumulation, so the
+    /// times are exact multiples up to one rounding. Empty when the settings are invalid
+    /// (see [`Preset::validate`]).
+    pub fn measurement_times(&self) -> Vec<f64> {
+        let (t0, h, t1) = (self.first_sample, self.sample_every, self.t_end);
+        if !(t0.is_finite() && h.is_finite() && t1.is_finite() && h > 0.0 && t0 <= t1) {
+            return Vec::new();
+        }
+        let n = ((t1 - t0) / h + 1e-9).floor() as usize;
+        (0..=n).map(|k| t0 + k as f64 * h).collect()
+    }
+
+    /// Checks the preset after user changes: lengths of θ, priors and flags against the
+    /// model's dimensions ([`Error::DimensionMismatch`]), finite θ ([`Error::NonFinite`]),
+    /// every prior ([`Prior::validate`]), the measurement model
+    /// ([`StateMeasurement::validate`]), G(θ) finite and invertible
+    /// ([`Error::SingularDiffusion`]), and the time settings: `t_end`, `dt`, `sample_every`
+    /// positive and finite, `first_sample` in [0, `t_end`] ([`Error::InvalidOption`]).
+    pub fn validate(&self) -> Result<()> {
+        let d = self.dims();
+        check_len("theta", d.params, self.theta.len())?;
+        check_len("theta priors", d.params, self.theta_prior.len())?;
+        check_len("estimate flags", d.params, self.estimate.len())?;
+        check_len("x0 priors", d.noisy, self.x0_prior.len())?;
+        check_len("z0 priors", d.clean, self.z0_prior.len())?;
+        if let Some(i) = self.theta.iter().position(|v| !v.is_finite()) {
+            return Err(Error::NonFinite { what: format!("parameter `{}`", self.param_names()[i]) });
+        }
+        for prior in self.theta_prior.iter().chain(&self.x0_prior).chain(&self.z0_prior) {
+            prior.validate()?;
+        }
+        self.observation.validate(d, &self.theta)?;
+        self.model.diffusion_matrix(&self.theta)?;
+        let positive = |name: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(Error::InvalidOption {
+                    name: name.into(),
+                    reason: format!("must be positive and finite, got {v}"),
+                })
+            }
+        };
+        positive("t_end", self.t_end)?;
+        positive("dt", self.dt)?;
+        positive("sample_every", self.sample_every)?;
+        if !(0.0..=self.t_end).contains(&self.first_sample) {
+            return Err(Error::InvalidOption {
+                name: "first_sample".into(),
+                reason: format!("must lie in [0, t_end = {}], got {}", self.t_end, self.first_sample),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// A prior N(mean, sd²).
+fn normal(mean: f64, sd: f64) -> Prior {
+    Prior::gaussian(mean, sd)
+}
+
+/// A flat prior on (0, ∞), for scale parameters the source treats as known.
+fn positive() -> Prior {
+    Prior::flat().with_bounds(0.0, f64::INFINITY)
+}
+
+/// Gaussian measurements y = s[state] + ε, ε ~ N(0, sigma²), with one output named `y`.
+fn gaussian_of(state: usize, sigma: Param) -> StateMeasurement {
+    StateMeasurement::new(vec![state], names(&["y"]), Noise::Gaussian { sigma })
+}
+
+/// The preset called `name` (one of [`NAMES`]); [`Error::UnknownName`] (kind `"model"`)
+/// otherwise.
+///
+/// Defaults and their sources:
+///
+/// - `ou` — [`Ou`], θ = (θ, σ) = (1, 0.5), x0 ~ N(0, 1), y ~ N(x, 0.2²) every 0.1 from t = 0
+///   to 10, simulation step 0.01. All our choice (no paper fixes them): a linear-Gaussian
+///   reference with a closed-form solution.
+/// - `tanh` — [`Tanh`], σ = 1, x0 ~ N(0, 0.16), a single measurement y ~ N(x(5), 0.16) at
+///   t = 5 (`first_sample = sample_every = t_end = 5`), `001_8aefdf0570c96f51.txt` Sec. 2 (the
+///   paper's data is the single value y = 1.5); simulation step 0.005 (our choice).
+/// - `van-der-pol` — [`VanDerPol`], μ = 2, σ = 0.1, x0 ~ N(0, 0.01 I), T = 16, measurements of
+///   u every 0.1 from t = 0 from the mixture (1 − p_o) N(u, 0.5²) + p_o N(u, σ_o²) with
+///   p_o = 0.25, σ_o = 3 (Fig. 4), simulation step 5·10⁻⁴ (the paper's, with the order 1.5
+///   scheme), all `001_8aefdf0570c96f51.txt` Sec. 9. The mixture parameters are fixed
+///   (`Param::Fixed`); the paper estimates with a Student-t likelihood instead (its (ν = 4,
+///   scale σ_y) log-likelihood), which the CLI selects with `--likelihood`.
+/// - `duffing` — [`Duffing`], `000_74b95e149527c64e.txt` Sec. 4.1.1, (4.2)–(4.7), Table 4.1:
+///   a = 1, b = −1, d = 0.2, γ = 0.3, σ_D = 0.1, Σ_y = 0.1; x0, z0 ~ N(0, 0.4²);
+///   a, b, d ~ N(0, 10²) (4.4); Σ_y ~ Gamma(shape 1.1, scale 10) (4.5); γ, σ_D known (flat
+///   priors, not estimated); y ~ N(z, Σ_y²) every t_s = 0.1 from t = 0; t_f = 100 (the thesis
+///   uses 50, 100 and 200); simulation step 0.005 (Sec. 4.1).
+/// - `holmes-rand` — [`HolmesRand`], `000_74b95e149527c64e.txt` Sec. 4.1.3, (4.8), Table 4.3:
+///   a = 0.2, b = −1, γ = 0.2, d = 1, φ = 0.4, σ_D = 0.1, Σ_y = 0.005 (Figs. 4.15–4.16; the
+///   thesis varies it); x0, z0 ~ N(0, 0.1²); a, b, γ, d ~ N(0, 10²); Σ_y ~ Gamma(4, l_b/3);
+///   φ, σ_D known; measurements of z rounded to multiples of l_b = 0.05 after Gaussian noise
+///   of sd Σ_y, every 0.1 from t = 0 to t_f = 50 (501 measurements); simulation step 0.005
+///   (Sec. 4.1).
+/// - `double-well` — [`DoubleWell`], D = 0.5, x0 ~ N(−1, 0.2²) (the left well),
+///   y ~ N(x, 0.4²) every 0.5 from t = 0 to 20, simulation step 0.005. Our choice: 003 gives
+///   the notation (`003_d2fc48a470e528fc.txt (0.1)`) but no numerical example.
+/// - `lorenz63` — [`Lorenz63`], s = 10, r = 28, b = 8/3 (Lorenz 1963), σ_w = 1,
+///   x0 ~ N((1, 1, 1), I), all three states measured as y1, y2, y3 ~ N(x_i, 1) every 0.1 from
+///   t = 0 to 10, simulation step 0.001. Noise levels, initial prior and sampling are our
+///   choice.
+pub fn preset(name: &str) -> Result<Preset> {
+    let unknown = || Error::UnknownName { kind: "model".into(), name: name.into(), known: names(NAMES) };
+    let p = match name {
+        "ou" => Preset {
+            name: "ou",
+            description: "Ornstein-Uhlenbeck process dX = -theta X dt + sigma dW, Gaussian measurements of x",
+            source: "closed-form reference model; defaults are our choice",
+            model: BuiltinModel::Ou(Ou),
+            theta: Ou::NOMINAL.to_vec(),
+            theta_prior: vec![Prior::flat(), positive()],
+            estimate: vec![false; 2],
+            x0_prior: vec![normal(0.0, 1.0)],
+            z0_prior: vec![],
+            observation: gaussian_of(0, Param::Fixed(0.2)),
+            t_end: 10.0,
+            dt: 0.01,
+            first_sample: 0.0,
+            sample_every: 0.1,
+        },
+        "tanh" => Preset {
+            name: "tanh",
+            description: "dX = tanh(X) dt + sigma dW with one measurement at t = 5",
+            source: "001_8aefdf0570c96f51.txt Sec. 2 (motivating example, Fig. 1)",
+            model: BuiltinModel::Tanh(Tanh),
+            theta: Tanh::NOMINAL.to_vec(),
+            theta_prior: vec![positive()],
+            estimate: vec![false],
+            // X0 ~ N(0, 0.16): sd 0.4.
+            x0_prior: vec![normal(0.0, 0.4)],
+            z0_prior: vec![],
+            // Y | X5 ~ N(X5, 0.16): sd 0.4.
+            observation: gaussian_of(0, Param::Fixed(0.4)),
+            t_end: 5.0,
+            dt: 0.005,
+            first_sample: 5.0,
+            sample_every: 5.0,
+        },
+        "van-der-pol" => Preset {
+            name: "van-der-pol",
+            description: "stochastic Van der Pol oscillator, u measured with Gaussian-mixture outliers",
+            source: "001_8aefdf0570c96f51.txt Sec. 9 (Figs. 3-4)",
+            model: BuiltinModel::VanDerPol(VanDerPol),
+            theta: VanDerPol::NOMINAL.to_vec(),
+            theta_prior: vec![Prior::flat(), positive()],
+            estimate: vec![false; 2],
+            // N([0, 0], I/100): sd 0.1 each.
+            x0_prior: vec![normal(0.0, 0.1), normal(0.0, 0.1)],
+            z0_prior: vec![],
+            observation: StateMeasurement::new(
+                vec![0],
+                names(&["y"]),
+                Noise::Mixture {
+                    p_outlier: Param::Fixed(0.25),
+                    sigma: Param::Fixed(0.5),
+                    sigma_outlier: Param::Fixed(3.0),
+                },
+            ),
+            t_end: 16.0,
+            dt: 5e-4,
+            first_sample: 0.0,
+            sample_every: 0.1,
+        },
+        "duffing" => Preset {
+            name: "duffing",
+            description: "forced stochastic Duffing oscillator, noisy velocity x, clean position z measured",
+            source: "000_74b95e149527c64e.txt Sec. 4.1.1, eqs. (4.2)-(4.7), Table 4.1",
+            model: BuiltinModel::Duffing(Duffing),
+            theta: Duffing::NOMINAL.to_vec(),
+            // (4.4): N(0, sigma_theta^2), sigma_theta = 10; (4.5): Gamma(r = 1.1, s = 10).
+            theta_prior: vec![
+                normal(0.0, 10.0),
+                normal(0.0, 10.0),
+                normal(0.0, 10.0),
+                Prior::flat(),
+                positive(),
+                Prior::gamma(1.1, 10.0),
+            ],
+            estimate: vec![true, true, true, false, false, true],
+            x0_prior: vec![normal(0.0, 0.4)],
+            z0_prior: vec![normal(0.0, 0.4)],
+            observation: gaussian_of(1, Param::Theta(Duffing::SIGMA_Y)),
+            t_end: 100.0,
+            dt: 0.005,
+            first_sample: 0.0,
+            sample_every: 0.1,
+        },
+        "holmes-rand" => Preset {
+            name: "holmes-rand",
+            description:
+                "forced stochastic Holmes-Rand oscillator, clean position z measured with quantization",
+            source: "000_74b95e149527c64e.txt Sec. 4.1.3, eq. (4.8), Table 4.3",
+            model: BuiltinModel::HolmesRand(HolmesRand),
+            theta: HolmesRand::NOMINAL.to_vec(),
+            // N(0, sigma_theta^2), sigma_theta = 10; Sigma_y ~ Gamma(r = 4, l_b / 3).
+            theta_prior: vec![
+                normal(0.0, 10.0),
+                normal(0.0, 10.0),
+                normal(0.0, 10.0),
+                normal(0.0, 10.0),
+                Prior::flat(),
+                positive(),
+                Prior::gamma(4.0, HOLMES_RAND_BIT / 3.0),
+            ],
+            estimate: vec![true, true, true, true, false, false, true],
+            x0_prior: vec![normal(0.0, 0.1)],
+            z0_prior: vec![normal(0.0, 0.1)],
+            observation: StateMeasurement::new(
+                vec![1],
+                names(&["y"]),
+                Noise::Quantized { sigma: Param::Theta(HolmesRand::SIGMA_Y), bit: HOLMES_RAND_BIT },
+            ),
+            t_end: 50.0,
+            dt: 0.005,
+            first_sample: 0.0,
+            sample_every: 0.1,
+        },
+        "double-well" => Preset {
+            name: "double-well",
+            description:
+                "double-well diffusion dX = (4X - 4X^3) dt + sqrt(2D) dW, Gaussian measurements of x",
+            source: "notation of 003_d2fc48a470e528fc.txt (0.1); defaults are our choice",
+            model: BuiltinModel::DoubleWell(DoubleWell),
+            theta: DoubleWell::NOMINAL.to_vec(),
+            theta_prior: vec![positive()],
+            estimate: vec![false],
+            x0_prior: vec![normal(-1.0, 0.2)],
+            z0_prior: vec![],
+            observation: gaussian_of(0, Param::Fixed(0.4)),
+            t_end: 20.0,
+            dt: 0.005,
+            first_sample: 0.0,
+            sample_every: 0.5,
+        },
+        "lorenz63" => Preset {
+            name: "lorenz63",
+            description: "Lorenz-63 system with additive noise sigma_w I, all three states measured",
+            source: "Lorenz (1963) drift; noise and sampling defaults are our choice",
+            model: BuiltinModel::Lorenz63(Lorenz63),
+            theta: Lorenz63::NOMINAL.to_vec(),
+            theta_prior: vec![Prior::flat(), Prior::flat(), Prior::flat(), positive()],
+            estimate: vec![false; 4],
+            x0_prior: vec![normal(1.0, 1.0), normal(1.0, 1.0), normal(1.0, 1.0)],
+            z0_prior: vec![],
+            observation: StateMeasurement::new(
+                vec![0, 1, 2],
+                names(&["y1", "y2", "y3"]),
+                Noise::Gaussian { sigma: Param::Fixed(1.0) },
+            ),
+            t_end: 10.0,
+            dt: 0.001,
+            first_sample: 0.0,
+            sample_every: 0.1,
+        },
+        _ => return Err(unknown()),
+    };
+    Ok(p)
+}
+
+/// Bit length l_b of the Holmes–Rand quantized measurements, `000_74b95e149527c64e.txt`
+/// Table 4.3.
+const HOLMES_RAND_BIT: f64 = 0.05;

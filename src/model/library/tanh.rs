@@ -1,0 +1,48 @@
+//! The tanh motivating example of `001_8aefdf0570c96f51.txt` Sec. 2.
+
+use super::names;
+use crate::model::{Dims, Scalar, Sde};
+
+/// The scalar SDE of the motivating example, `001_8aefdf0570c96f51.txt` Sec. 2 (Fig. 1):
+///
+/// $$ dX = \tanh(X)\,dt + \sigma\,dW, $$
+///
+/// one noisy state `x`, parameter θ = (`sigma`), σ = 1 in the paper. Its transition density is
+/// known exactly (Daum, 1986, cited there). The divergence
+/// $\operatorname{div} f = 1 - \tanh^2 x$ is largest at the origin, which is why the Euler
+/// (minimum-energy) and Onsager–Machlup MAP paths differ visibly for this model.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Tanh;
+
+impl Tanh {
+    /// Parameter names, in the order of θ.
+    pub const PARAMS: [&'static str; 1] = ["sigma"];
+    /// Nominal values: σ = 1 (`001_8aefdf0570c96f51.txt` Sec. 2, the SDE has unit noise).
+    pub const NOMINAL: [f64; 1] = [1.0];
+    /// Index of `sigma` in θ.
+    pub const SIGMA: usize = 0;
+}
+
+impl Sde for Tanh {
+    fn dims(&self) -> Dims {
+        Dims { noisy: 1, clean: 0, params: 1 }
+    }
+
+    fn noisy_names(&self) -> Vec<String> {
+        names(&["x"])
+    }
+
+    fn param_names(&self) -> Vec<String> {
+        names(&Self::PARAMS)
+    }
+
+    /// $f(x) = \tanh x$.
+    fn drift<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], _theta: &[D], out: &mut [D]) {
+        out[0] = x[0].tanh();
+    }
+
+    /// $G = [\sigma]$.
+    fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
+        out[0] = theta[Self::SIGMA];
+    }
+}

@@ -1,0 +1,433 @@
+//! Tests of the built-in models: automatic derivatives against central finite differences for
+//! every model (the argmin practice, STYLE.md), closed-form divergences, and the consistency
+//! of every preset.
+
+use approx::relative_eq;
+use nalgebra::{DMatrix, DVector};
+use rand::rngs::StdRng;
+use rand::{Rng, RngExt, SeedableRng};
+
+use super::*;
+use crate::model::Observation;
+
+/// Random points per model for the derivative tests.
+const N_POINTS: usize = 50;
+/// Relative tolerance of AD against central differences (the brief's 1e-6).
+const MAX_RELATIVE: f64 = 1e-6;
+/// Absolute floor of the same comparison, for derivatives that are (close to) zero: with the
+/// step below, central differences carry a rounding error of order 1e-16·|φ|/h ≲ 1e-8 for
+/// |φ| ≲ 1e3 and a truncation error of order h²|φ'''| ≲ 1e-8, both far below this floor.
+const EPSILON: f64 = 1e-6;
+
+/// Finite-difference step for a variable of value v: 1e-6·max(1, |v|).
+fn step(v: f64) -> f64 {
+    1e-6 * v.abs().max(1.0)
+}
+
+/// Central-difference derivative of the vector function `f` with respect to `w[i]`.
+fn central(f: &dyn Fn(&[f64]) -> Vec<f64>, w: &[f64], i: usize) -> Vec<f64> {
+    let h = step(w[i]);
+    let (mut wp, mut wm) = (w.to_vec(), w.to_vec());
+    wp[i] += h;
+    wm[i] -= h;
+    // The step actually taken (w ± h rounded to f64).
+    let width = wp[i] - wm[i];
+    f(&wp).iter().zip(f(&wm)).map(|(a, b)| (a - b) / width).collect()
+}
+
+/// Central-difference Jacobian (`m × n`) of `f` at `w`.
+fn fd_jacobian(f: &dyn Fn(&[f64]) -> Vec<f64>, m: usize, w: &[f64]) -> DMatrix<f64> {
+    let mut j = DMatrix::zeros(m, w.len());
+    for i in 0..w.len() {
+        for (r, v) in central(f, w, i).into_iter().enumerate() {
+            j[(r, i)] = v;
+        }
+    }
+    j
+}
+
+/// Asserts AD and FD agree entrywise under the combined absolute/relative criterion.
+fn assert_close(ad: &DMatrix<f64>, fd: &DMatrix<f64>, what: &str) {
+    assert_eq!(ad.shape(), fd.shape(), "{what}: shapes");
+    for (k, (a, f)) in ad.iter().zip(fd.iter()).enumerate() {
+        assert!(
+            relative_eq!(*a, *f, epsilon = EPSILON, max_relative = MAX_RELATIVE),
+            "{what}: entry {k} (column-major) AD = {a}, FD = {f}\nAD = {ad}\nFD = {fd}"
+        );
+    }
+}
+
+/// One random evaluation point of a model.
+struct Point {
+    t: f64,
+    x: Vec<f64>,
+    z: Vec<f64>,
+    theta: Vec<f64>,
+    xdot: Vec<f64>,
+}
+
+fn uniform<R: Rng + ?Sized>(rng: &mut R, lo: f64, hi: f64) -> f64 {
+    lo + (hi - lo) * rng.random::<f64>()
+}
+
+/// A random point: t ∈ [0, 10]; states uniform in ±2 (±15 for Lorenz-63, whose attractor is
+/// that large); each θ_i within ±50 % of its nominal value (so scale parameters stay positive
+/// and G invertible); ẋ = f + G u with u uniform in ±3, a plausible local velocity.
+fn random_point<R: Rng + ?Sized>(p: &Preset, rng: &mut R) -> Point {
+    let d = p.dims();
+    let scale = if p.name == "lorenz63" { 15.0 } else { 2.0 };
+    let t = uniform(rng, 0.0, 10.0);
+    let x: Vec<f64> = (0..d.noisy).map(|_| uniform(rng, -scale, scale)).collect();
+    let z: Vec<f64> = (0..d.clean).map(|_| uniform(rng, -scale, scale)).collect();
+    let theta: Vec<f64> = p.theta.iter().map(|&v| v * (1.0 + uniform(rng, -0.5, 0.5))).collect();
+    let mut f = vec![0.0; d.noisy];
+    p.model.drift(t, &x, &z, &theta, &mut f);
+    let g = p.model.diffusion_matrix(&theta).expect("G invertible near the nominal θ");
+    let u = DVector::from_fn(d.noisy, |_, _| uniform(rng, -3.0, 3.0));
+    let gu = g * u;
+    let xdot = f.iter().zip(gu.iter()).map(|(a, b)| a + b).collect();
+    Point { t, x, z, theta, xdot }
+}
+
+/// Runs `check` on N_POINTS random points of every preset's model, with a fixed seed per model.
+fn for_every_model(check: impl Fn(&Preset, &Point)) {
+    for (k, name) in NAMES.iter().enumerate() {
+        let p = preset(name).unwrap();
+        let mut rng = StdRng::seed_from_u64(0x5eed + k as u64);
+        for _ in 0..N_POINTS {
+            let pt = random_point(&p, &mut rng);
+            check(&p, &pt);
+        }
+    }
+}
+
+fn row(v: &[f64]) -> DMatrix<f64> {
+    DMatrix::from_row_slice(1, v.len(), v)
+}
+
+fn concat(parts: &[&[f64]]) -> Vec<f64> {
+    parts.iter().flat_map(|p| p.iter().copied()).collect()
+}
+
+/// f (or h) as a function of w = (t, x, z, θ), in f64.
+fn field(p: &Preset, clean: bool) -> impl Fn(&[f64]) -> Vec<f64> + '_ {
+    move |w: &[f64]| {
+        let d = p.dims();
+        let (n, c) = (d.noisy, d.clean);
+        let (t, x, z, th) = (w[0], &w[1..1 + n], &w[1 + n..1 + n + c], &w[1 + n + c..]);
+        let mut out = vec![0.0; if clean { c } else { n }];
+        if clean {
+            p.model.clean_drift(t, x, z, th, &mut out);
+        } else {
+            p.model.drift(t, x, z, th, &mut out);
+        }
+        out
+    }
+}
+
+#[test]
+fn drift_jacobians_match_central_differences() {
+    for_every_model(|p, pt| {
+        let d = p.dims();
+        for clean in [false, true] {
+            let jac = if clean {
+                p.model.clean_drift_jacobians(pt.t, &pt.x, &pt.z, &pt.theta)
+            } else {
+                p.model.drift_jacobians(pt.t, &pt.x, &pt.z, &pt.theta)
+            };
+            let m = if clean { d.clean } else { d.noisy };
+            let f = field(p, clean);
+            let w = concat(&[&[pt.t], &pt.x, &pt.z, &pt.theta]);
+            // The AD value is the f64 evaluation (same arithmetic on the real parts).
+            assert_close(&row(&jac.value), &row(&f(&w)), &format!("{} value (clean: {clean})", p.name));
+            let fd = fd_jacobian(&f, m, &w);
+            let what = |part: &str| format!("{} d{part} of {}", p.name, if clean { "h" } else { "f" });
+            assert_close(
+                &DMatrix::from_column_slice(m, 1, &jac.dt),
+                &fd.columns(0, 1).into_owned(),
+                &what("t"),
+            );
+            assert_close(&jac.dx, &fd.columns(1, d.noisy).into_owned(), &what("x"));
+            assert_close(&jac.dz, &fd.columns(1 + d.noisy, d.clean).into_owned(), &what("z"));
+            assert_close(&jac.dtheta, &fd.columns(1 + d.states(), d.params).into_owned(), &what("theta"));
+        }
+    });
+}
+
+#[test]
+fn divergence_matches_trace_of_finite_difference_jacobian() {
+    for_every_model(|p, pt| {
+        let d = p.dims();
+        let f = field(p, false);
+        let w = concat(&[&[pt.t], &pt.x, &pt.z, &pt.theta]);
+        let fd = fd_jacobian(&f, d.noisy, &w);
+        let trace: f64 = (0..d.noisy).map(|i| fd[(i, 1 + i)]).sum();
+        let div = p.model.divergence(pt.t, &pt.x, &pt.z, &pt.theta);
+        assert_close(&row(&[div]), &row(&[trace]), &format!("{} divergence", p.name));
+    });
+}
+
+#[test]
+fn divergence_derivatives_match_central_differences() {
+    for_every_model(|p, pt| {
+        let d = p.dims();
+        let (n, c) = (d.noisy, d.clean);
+        let t = pt.t;
+        let div = |w: &[f64]| vec![p.model.divergence(t, &w[..n], &w[n..n + c], &w[n + c..])];
+        let grad = |w: &[f64]| p.model.divergence_derivatives(t, &w[..n], &w[n..n + c], &w[n + c..]).gradient;
+        let w = concat(&[&pt.x, &pt.z, &pt.theta]);
+        let so = p.model.divergence_derivatives(t, &pt.x, &pt.z, &pt.theta);
+        assert_close(&row(&[so.value]), &row(&div(&w)), &format!("{} divergence value", p.name));
+        assert_close(&row(&so.gradient), &fd_jacobian(&div, 1, &w), &format!("{} grad div", p.name));
+        let fd_hess = fd_jacobian(&grad, w.len(), &w);
+        assert_close(&so.hessian, &fd_hess, &format!("{} Hessian of div", p.name));
+    });
+}
+
+/// ½|G⁻¹(ẋ − f)|² computed independently with nalgebra's LU (the definition,
+/// `000_74b95e149527c64e.txt (2.60)`).
+fn energy_reference(p: &Preset, t: f64, xdot: &[f64], x: &[f64], z: &[f64], theta: &[f64]) -> f64 {
+    let n = p.dims().noisy;
+    let mut f = vec![0.0; n];
+    p.model.drift(t, x, z, theta, &mut f);
+    let r = DVector::from_fn(n, |i, _| xdot[i] - f[i]);
+    let g = p.model.diffusion_matrix(theta).unwrap();
+    let u = g.lu().solve(&r).unwrap();
+    0.5 * u.norm_squared()
+}
+
+#[test]
+fn noise_energy_derivatives_match_central_differences() {
+    for_every_model(|p, pt| {
+        let d = p.dims();
+        let (n, c) = (d.noisy, d.clean);
+        let t = pt.t;
+        let split = |w: &[f64]| -> (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>) {
+            (w[..n].to_vec(), w[n..2 * n].to_vec(), w[2 * n..2 * n + c].to_vec(), w[2 * n + c..].to_vec())
+        };
+        let energy = |w: &[f64]| {
+            let (v, x, z, th) = split(w);
+            vec![p.model.noise_energy(t, &v, &x, &z, &th).unwrap()]
+        };
+        let grad = |w: &[f64]| {
+            let (v, x, z, th) = split(w);
+            p.model.noise_energy_derivatives(t, &v, &x, &z, &th).unwrap().gradient
+        };
+        let w = concat(&[&pt.xdot, &pt.x, &pt.z, &pt.theta]);
+        let so = p.model.noise_energy_derivatives(t, &pt.xdot, &pt.x, &pt.z, &pt.theta).unwrap();
+        let reference = energy_reference(p, t, &pt.xdot, &pt.x, &pt.z, &pt.theta);
+        assert_close(&row(&[so.value]), &row(&[reference]), &format!("{} energy value", p.name));
+        assert_close(&row(&so.gradient), &fd_jacobian(&energy, 1, &w), &format!("{} grad energy", p.name));
+        let fd_hess = fd_jacobian(&grad, w.len(), &w);
+        assert_close(&so.hessian, &fd_hess, &format!("{} Hessian of energy", p.name));
+    });
+}
+
+/// The closed-form divergence div_x f of each model, from its equations.
+fn divergence_closed_form(p: &Preset, x: &[f64], z: &[f64], th: &[f64]) -> f64 {
+    match p.model {
+        // f = −θx.
+        BuiltinModel::Ou(_) => -th[Ou::THETA],
+        // f = tanh x: d/dx tanh x = 1 − tanh² x.
+        BuiltinModel::Tanh(_) => 1.0 - x[0].tanh().powi(2),
+        // 001_8aefdf0570c96f51.txt Sec. 9: div f = μ(1 − u²) (= 2(1 − u²) at μ = 2).
+        BuiltinModel::VanDerPol(_) => th[VanDerPol::MU] * (1.0 - x[0] * x[0]),
+        // 000_74b95e149527c64e.txt (4.6): ∂f/∂x = −d.
+        BuiltinModel::Duffing(_) => -th[Duffing::D],
+        // 000_74b95e149527c64e.txt (4.8a): ∂f/∂x = −(a + γz²).
+        BuiltinModel::HolmesRand(_) => -(th[HolmesRand::A] + th[HolmesRand::GAMMA] * z[0] * z[0]),
+        // f = 4x − 4x³: f' = 4 − 12x².
+        BuiltinModel::DoubleWell(_) => 4.0 - 12.0 * x[0] * x[0],
+        // Lorenz: −s − 1 − b.
+        BuiltinModel::Lorenz63(_) => -(th[Lorenz63::SIGMA] + 1.0 + th[Lorenz63::BETA]),
+    }
+}
+
+#[test]
+fn divergence_matches_closed_forms() {
+    for_every_model(|p, pt| {
+        let div = p.model.divergence(pt.t, &pt.x, &pt.z, &pt.theta);
+        let exact = divergence_closed_form(p, &pt.x, &pt.z, &pt.theta);
+        // Same arithmetic up to a few roundings: 1e-12 relative, 1e-12 absolute.
+        assert!(
+            relative_eq!(div, exact, epsilon = 1e-12, max_relative = 1e-12),
+            "{}: {div} vs {exact}",
+            p.name
+        );
+    });
+}
+
+#[test]
+fn van_der_pol_divergence_at_the_papers_mu() {
+    // 001_8aefdf0570c96f51.txt Sec. 9: div f(t, x) = 2(1 − u²) with μ = 2; at u = 0.5 it is 1.5.
+    let p = preset("van-der-pol").unwrap();
+    let div = p.model.divergence(0.0, &[0.5, -0.7], &[], &p.theta);
+    approx::assert_relative_eq!(div, 1.5, epsilon = 1e-15, max_relative = 1e-15);
+}
+
+#[test]
+fn duffing_divergence_is_minus_damping() {
+    // 000_74b95e149527c64e.txt (4.6) with Table 4.1: div_x f = −d = −0.2 everywhere.
+    let p = preset("duffing").unwrap();
+    let div = p.model.divergence(1.3, &[0.4], &[-1.1], &p.theta);
+    approx::assert_relative_eq!(div, -0.2, epsilon = 1e-15, max_relative = 1e-15);
+}
+
+#[test]
+fn ou_noise_energy_closed_form() {
+    // ½((ẋ + θx)/σ)² with θ = 1, σ = 0.5, x = 0.3, ẋ = 0.2: ½(0.5/0.5)² = 0.5; gradient with
+    // respect to (ẋ, x, θ, σ) = (r/σ², θr/σ², x r/σ², −r²/σ³) with r = ẋ + θx = 0.5.
+    let p = preset("ou").unwrap();
+    let so = p.model.noise_energy_derivatives(0.0, &[0.2], &[0.3], &[], &p.theta).unwrap();
+    let (r, s, th, x) = (0.5, 0.5, 1.0, 0.3);
+    approx::assert_relative_eq!(so.value, 0.5, epsilon = 1e-15, max_relative = 1e-14);
+    let expected = [r / (s * s), th * r / (s * s), x * r / (s * s), -r * r / (s * s * s)];
+    for (g, e) in so.gradient.iter().zip(expected) {
+        approx::assert_relative_eq!(*g, e, epsilon = 1e-14, max_relative = 1e-14);
+    }
+}
+
+#[test]
+fn duffing_nominal_matches_table_4_1() {
+    // 000_74b95e149527c64e.txt Table 4.1: A = 1, B = −1, D = 0.2, Σ_y = 0.1, γ = 0.3, σ_D = 0.1.
+    let p = preset("duffing").unwrap();
+    for (name, v) in [("a", 1.0), ("b", -1.0), ("d", 0.2), ("gamma", 0.3), ("sigma_d", 0.1), ("sigma_y", 0.1)]
+    {
+        assert_eq!(p.theta[p.param_index(name).unwrap()], v, "{name}");
+    }
+    // Table 4.3 for Holmes–Rand.
+    let p = preset("holmes-rand").unwrap();
+    for (name, v) in [("a", 0.2), ("b", -1.0), ("gamma", 0.2), ("d", 1.0), ("phi", 0.4), ("sigma_d", 0.1)] {
+        assert_eq!(p.theta[p.param_index(name).unwrap()], v, "{name}");
+    }
+}
+
+#[test]
+fn every_preset_is_consistent() {
+    for name in NAMES {
+        let p = preset(name).unwrap();
+        let d = p.dims();
+        assert_eq!(p.name, *name);
+        assert_eq!(p.model.name(), *name);
+        assert_eq!(p.model.noisy_names().len(), d.noisy, "{name}: noisy names");
+        assert_eq!(p.model.clean_names().len(), d.clean, "{name}: clean names");
+        assert_eq!(p.model.state_names().len(), d.states(), "{name}: state names");
+        assert_eq!(p.param_names().len(), d.params, "{name}: parameter names");
+        assert_eq!(p.theta.len(), d.params, "{name}: theta");
+        assert_eq!(p.theta_prior.len(), d.params, "{name}: theta priors");
+        assert_eq!(p.estimate.len(), d.params, "{name}: estimate flags");
+        assert_eq!(p.x0_prior.len(), d.noisy, "{name}: x0 priors");
+        assert_eq!(p.z0_prior.len(), d.clean, "{name}: z0 priors");
+        assert!(p.theta.iter().all(|v| v.is_finite()), "{name}: theta finite");
+        // Names are unique, and state names never clash with output names (CSV columns).
+        let mut all = p.model.state_names();
+        all.extend(p.param_names());
+        let outputs = p.observation.output_names();
+        all.extend(outputs.iter().cloned());
+        let mut sorted = all.clone();
+        sorted.sort();
+        sorted.dedup();
+        assert_eq!(sorted.len(), all.len(), "{name}: duplicate names in {all:?}");
+        // Observation: indices in range, one name per measured state, `y` or `y1, y2, …`.
+        let obs = &p.observation;
+        assert_eq!(obs.names.len(), obs.states.len(), "{name}: output names");
+        assert_eq!(obs.output_dim(), obs.states.len(), "{name}: output dim");
+        assert!(obs.states.iter().all(|&s| s < d.states()), "{name}: state index out of range");
+        let expected: Vec<String> = if obs.states.len() == 1 {
+            vec!["y".into()]
+        } else {
+            (1..=obs.states.len()).map(|k| format!("y{k}")).collect()
+        };
+        assert_eq!(obs.names, expected, "{name}: output naming");
+        obs.validate(d, &p.theta).unwrap_or_else(|e| panic!("{name}: observation: {e}"));
+        // G invertible at the nominal θ.
+        p.model.diffusion_matrix(&p.theta).unwrap_or_else(|e| panic!("{name}: G: {e}"));
+        // Time settings.
+        assert!(p.dt > 0.0 && p.sample_every > 0.0 && p.t_end > 0.0, "{name}: times");
+        assert!(p.dt <= p.sample_every, "{name}: dt > sample_every");
+        assert!((0.0..=p.t_end).contains(&p.first_sample), "{name}: first sample");
+        // Each multiple of dt lands on the measurement grid: sample_every / dt is an integer.
+        let ratio = p.sample_every / p.dt;
+        assert!((ratio - ratio.round()).abs() < 1e-9, "{name}: sample_every / dt = {ratio}");
+        assert!(!p.description.is_empty() && !p.source.is_empty());
+        p.validate().unwrap_or_else(|e| panic!("{name}: validate: {e}"));
+    }
+}
+
+#[test]
+fn unknown_model_and_parameter_names_are_errors() {
+    match preset("duffin") {
+        Err(Error::UnknownName { kind, name, known }) => {
+            assert_eq!((kind.as_str(), name.as_str()), ("model", "duffin"));
+            assert_eq!(known, NAMES.iter().map(|s| s.to_string()).collect::<Vec<_>>());
+        }
+        other => panic!("expected UnknownName, got {other:?}"),
+    }
+    let mut p = preset("duffing").unwrap();
+    assert_eq!(p.param_index("sigma_y").unwrap(), Duffing::SIGMA_Y);
+    p.set_param("a", 1.5).unwrap();
+    assert_eq!(p.theta[Duffing::A], 1.5);
+    match p.set_param("alpha", 1.0) {
+        Err(Error::UnknownName { kind, known, .. }) => {
+            assert_eq!(kind, "parameter");
+            assert_eq!(known, p.param_names());
+        }
+        other => panic!("expected UnknownName, got {other:?}"),
+    }
+    assert!(matches!(p.set_param("b", f64::NAN), Err(Error::NonFinite { .. })));
+    assert_eq!(p.theta[Duffing::B], -1.0, "a rejected value leaves θ unchanged");
+}
+
+#[test]
+fn singular_diffusion_is_an_error_not_a_nan() {
+    // D = 0 makes G = √(2D) = 0; D < 0 makes it NaN. Both are rejected.
+    let m = DoubleWell;
+    assert!(matches!(m.diffusion_matrix(&[0.0]), Err(Error::SingularDiffusion { .. })));
+    assert!(matches!(m.diffusion_matrix(&[-1.0]), Err(Error::SingularDiffusion { .. })));
+    assert!(Lorenz63.noise_energy(0.0, &[0.0; 3], &[1.0; 3], &[], &[10.0, 28.0, 2.0, 0.0]).is_none());
+}
+
+#[test]
+fn models_md_shows_the_compiled_example() {
+    // docs/models.md must contain examples/custom_model.rs verbatim, so the code it shows
+    // compiles (STYLE.md: code in docs comes from compiled examples).
+    let doc = include_str!("../../../docs/models.md");
+    let example = include_str!("../../../examples/custom_model.rs");
+    assert!(doc.contains(example.trim_end()), "docs/models.md is out of date with examples/custom_model.rs");
+}
+
+#[test]
+fn measurement_times_follow_the_sources() {
+    let count = |name: &str| preset(name).unwrap().measurement_times().len();
+    // 000_74b95e149527c64e.txt Sec. 4.1.3: N + 1 = 501 measurements, t_s = 0.1, t_f = 50.
+    assert_eq!(count("holmes-rand"), 501);
+    // 001_8aefdf0570c96f51.txt Sec. 9: T_m = {0, 0.1, …, 16}, 161 times.
+    assert_eq!(count("van-der-pol"), 161);
+    // 000 Sec. 4.1.1: Y_0 … Y_N at k t_s, t_f = 100: 1001 times.
+    assert_eq!(count("duffing"), 1001);
+    // 001 Sec. 2: a single measurement at t = 5.
+    assert_eq!(preset("tanh").unwrap().measurement_times(), vec![5.0]);
+    let times = preset("van-der-pol").unwrap().measurement_times();
+    approx::assert_relative_eq!(times[37], 3.7, epsilon = 1e-15, max_relative = 1e-15);
+    assert_eq!(*times.last().unwrap(), 16.0);
+}
+
+#[test]
+fn validate_rejects_bad_settings() {
+    let mut p = preset("lorenz63").unwrap();
+    p.theta.pop();
+    assert!(matches!(p.validate(), Err(Error::DimensionMismatch { .. })));
+    let mut p = preset("lorenz63").unwrap();
+    p.set_param("sigma_w", 0.0).unwrap();
+    assert!(matches!(p.validate(), Err(Error::SingularDiffusion { .. })));
+    let mut p = preset("ou").unwrap();
+    p.dt = -0.1;
+    assert!(matches!(p.validate(), Err(Error::InvalidOption { .. })));
+    let mut p = preset("tanh").unwrap();
+    p.first_sample = 6.0;
+    assert!(matches!(p.validate(), Err(Error::InvalidOption { .. })));
+    assert!(p.measurement_times().is_empty());
+    let mut p = preset("duffing").unwrap();
+    p.observation.states = vec![2];
+    assert!(matches!(p.validate(), Err(Error::InvalidOption { .. })));
+}

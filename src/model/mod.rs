@@ -1,0 +1,314 @@
+//! SDE models, measurement models and priors.
+//!
+//! A model is written once, generic over the scalar [`Scalar`] (an `f64` or a dual number of
+//! `num-dual`), with the parameter vector θ passed as an argument. Everything a solver needs in
+//! `f64` — Jacobians, the divergence div_x f, parameter derivatives, second derivatives of the
+//! divergence and of the noise energy — comes from the same code by automatic
+//! differentiation (see [`ad`]).
+//!
+//! The model class is that of `000_74b95e149527c64e.txt (2.4)`:
+//!
+//! $$ dX_t = f(t, X_t, Z_t, \theta)\,dt + G(\theta)\,dW_t, \qquad dZ_t = h(t, X_t, Z_t, \theta)\,dt, $$
+//!
+//! with *noisy* states X (G square and invertible) and *clean* states Z (no noise). Eyink's
+//! diffusion matrix is D = ½ G Gᵀ (`003_d2fc48a470e528fc.txt`).
+
+pub mod ad;
+pub mod library;
+pub mod observation;
+pub mod prior;
+pub mod special;
+
+pub use observation::{Observation, Param};
+
+use nalgebra::DMatrix;
+use num_dual::Dual;
+
+use crate::{Error, Result};
+use ad::{ScalarFn, VectorFn};
+
+/// The scalar every model method is generic over: `f64` or a (nested) dual number of
+/// `num-dual` whose primitive is `f64`.
+pub trait Scalar: num_dual::DualNum<Primitive = f64> + Copy {}
+impl<T: num_dual::DualNum<Primitive = f64> + Copy> Scalar for T {}
+
+/// The dimensions of a model: noisy states, clean states, parameters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Dims {
+    /// Number of noisy states x (the size of G).
+    pub noisy: usize,
+    /// Number of clean states z.
+    pub clean: usize,
+    /// Number of parameters θ (dynamics and measurement parameters share one vector).
+    pub params: usize,
+}
+
+impl Dims {
+    /// Number of states, noisy and clean.
+    pub fn states(&self) -> usize {
+        self.noisy + self.clean
+    }
+}
+
+/// A stochastic differential equation with noisy and clean states,
+/// `000_74b95e149527c64e.txt (2.4)`:
+///
+/// $$ dX = f(t, X, Z, \theta)\,dt + G(\theta)\,dW, \qquad dZ = h(t, X, Z, \theta)\,dt. $$
+///
+/// Implement [`Sde::dims`], the names, [`Sde::drift`], [`Sde::diffusion`] and, when the model
+/// has clean states, [`Sde::clean_drift`]; every derivative is provided.
+pub trait Sde {
+    /// Numbers of noisy states, clean states and parameters.
+    fn dims(&self) -> Dims;
+
+    /// Names of the noisy states x.
+    fn noisy_names(&self) -> Vec<String>;
+
+    /// Names of the clean states z (none by default).
+    fn clean_names(&self) -> Vec<String> {
+        Vec::new()
+    }
+
+    /// Names of the parameters θ, in order.
+    fn param_names(&self) -> Vec<String>;
+
+    /// The noisy drift, `out = f(t, x, z, θ)` (length `dims().noisy`).
+    fn drift<D: Scalar>(&self, t: D, x: &[D], z: &[D], theta: &[D], out: &mut [D]);
+
+    /// The clean drift, `out = h(t, x, z, θ)` (length `dims().clean`). The default is for
+    /// models without clean states.
+    fn clean_drift<D: Scalar>(&self, t: D, x: &[D], z: &[D], theta: &[D], out: &mut [D]) {
+        let _ = (t, x, z, theta);
+        debug_assert!(out.is_empty(), "a model with clean states must implement clean_drift");
+    }
+
+    /// The noise matrix G(θ), `noisy × noisy`, column-major.
+    fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]);
+
+    // ----- provided methods -------------------------------------------------------------
+
+    /// Names of all states: noisy then clean.
+    fn state_names(&self) -> Vec<String> {
+        let mut names = self.noisy_names();
+        names.extend(self.clean_names());
+        names
+    }
+
+    /// The divergence of the noisy drift with respect to the noisy states,
+    /// $\operatorname{div}_x f = \sum_i \partial f_i / \partial x_i$
+    /// (the Onsager–Machlup correction, `000_74b95e149527c64e.txt (2.49)`), generic so that
+    /// its own derivatives are available. Computed with one nested dual pass per noisy state.
+    fn divergence<D: Scalar>(&self, t: D, x: &[D], z: &[D], theta: &[D]) -> D {
+        let n = x.len();
+        let lift = |v: &[D]| v.iter().map(|&a| Dual::from_re(a)).collect::<Vec<Dual<D>>>();
+        let mut xd = lift(x);
+        let (zd, td) = (lift(z), lift(theta));
+        let mut out = vec![Dual::from_re(D::from(0.0)); n];
+        let mut div = D::from(0.0);
+        for i in 0..n {
+            xd[i].eps = D::from(1.0);
+            self.drift(Dual::from_re(t), &xd, &zd, &td, &mut out);
+            xd[i].eps = D::from(0.0);
+            div += out[i].eps;
+        }
+        div
+    }
+
+    /// The noise energy of a local velocity `xdot` of the noisy states,
+    /// $\tfrac12 \lvert G(\theta)^{-1}(\dot x - f(t, x, z, \theta))\rvert^2$, the integrand of the
+    /// energy functional (`000_74b95e149527c64e.txt (2.49)`, `(2.60)`). Returns `None` when
+    /// G(θ) is singular.
+    fn noise_energy<D: Scalar>(&self, t: D, xdot: &[D], x: &[D], z: &[D], theta: &[D]) -> Option<D> {
+        let n = x.len();
+        let mut g = vec![D::from(0.0); n * n];
+        self.diffusion(theta, &mut g);
+        let mut r = vec![D::from(0.0); n];
+        self.drift(t, x, z, theta, &mut r);
+        for (ri, &vi) in r.iter_mut().zip(xdot) {
+            *ri = vi - *ri;
+        }
+        ad::lu_solve_in_place(&mut g, &mut r)?;
+        Some(r.iter().map(|&u| u * u).sum::<D>() * 0.5)
+    }
+
+    /// ln |det G(θ)|; `None` when G(θ) is singular or not finite.
+    fn log_abs_det_diffusion<D: Scalar>(&self, theta: &[D]) -> Option<D> {
+        let n = self.dims().noisy;
+        let mut g = vec![D::from(0.0); n * n];
+        self.diffusion(theta, &mut g);
+        let mut b = vec![D::from(0.0); n];
+        ad::lu_solve_in_place(&mut g, &mut b)
+    }
+
+    /// G(θ) in `f64`, checked to be finite and invertible.
+    fn diffusion_matrix(&self, theta: &[f64]) -> Result<DMatrix<f64>> {
+        check_len("theta", self.dims().params, theta.len())?;
+        let n = self.dims().noisy;
+        let mut g = vec![0.0; n * n];
+        self.diffusion(theta, &mut g);
+        if g.iter().any(|v| !v.is_finite()) {
+            return Err(Error::SingularDiffusion { reason: "G(theta) has non-finite entries".into() });
+        }
+        let m = DMatrix::from_column_slice(n, n, &g);
+        let mut lu = g.clone();
+        let mut b = vec![0.0; n];
+        match ad::lu_solve_in_place(&mut lu, &mut b) {
+            Some(_) => Ok(m),
+            None => Err(Error::SingularDiffusion { reason: "G(theta) is singular".into() }),
+        }
+    }
+
+    /// Value and derivatives of the noisy drift f at (t, x, z, θ), in `f64`.
+    fn drift_jacobians(&self, t: f64, x: &[f64], z: &[f64], theta: &[f64]) -> Jacobians {
+        let n = self.dims().noisy;
+        jacobians(&FieldFn { sde: self, which: Field::Noisy, n_out: n, dims: self.dims() }, t, x, z, theta)
+    }
+
+    /// Value and derivatives of the clean drift h at (t, x, z, θ), in `f64`.
+    fn clean_drift_jacobians(&self, t: f64, x: &[f64], z: &[f64], theta: &[f64]) -> Jacobians {
+        let n = self.dims().clean;
+        jacobians(&FieldFn { sde: self, which: Field::Clean, n_out: n, dims: self.dims() }, t, x, z, theta)
+    }
+
+    /// div_x f with its gradient and Hessian with respect to w = (x, z, θ), in `f64`.
+    fn divergence_derivatives(&self, t: f64, x: &[f64], z: &[f64], theta: &[f64]) -> SecondOrder {
+        let d = self.dims();
+        let w = concat(&[x, z, theta]);
+        let (value, gradient, hessian) = ad::hessian(&DivergenceFn { sde: self, t, dims: d }, &w);
+        SecondOrder { value, gradient, hessian }
+    }
+
+    /// The noise energy ½|G⁻¹(ẋ − f)|² with its gradient and Hessian with respect to
+    /// w = (ẋ, x, z, θ), in `f64`. `None` when G(θ) is singular.
+    fn noise_energy_derivatives(
+        &self,
+        t: f64,
+        xdot: &[f64],
+        x: &[f64],
+        z: &[f64],
+        theta: &[f64],
+    ) -> Option<SecondOrder> {
+        let d = self.dims();
+        let w = concat(&[xdot, x, z, theta]);
+        self.noise_energy(t, xdot, x, z, theta)?;
+        let (value, gradient, hessian) = ad::hessian(&EnergyFn { sde: self, t, dims: d }, &w);
+        Some(SecondOrder { value, gradient, hessian })
+    }
+}
+
+/// Value and first derivatives of a drift (f or h) at one point.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Jacobians {
+    /// The drift's value.
+    pub value: Vec<f64>,
+    /// ∂/∂x (`n_out × noisy`).
+    pub dx: DMatrix<f64>,
+    /// ∂/∂z (`n_out × clean`).
+    pub dz: DMatrix<f64>,
+    /// ∂/∂θ (`n_out × params`).
+    pub dtheta: DMatrix<f64>,
+    /// ∂/∂t.
+    pub dt: Vec<f64>,
+}
+
+/// A scalar with its gradient and Hessian with respect to a stated vector of variables.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SecondOrder {
+    /// The value.
+    pub value: f64,
+    /// The gradient.
+    pub gradient: Vec<f64>,
+    /// The (symmetric) Hessian.
+    pub hessian: DMatrix<f64>,
+}
+
+/// Returns `Error::DimensionMismatch` unless `got == expected`.
+pub(crate) fn check_len(what: &str, expected: usize, got: usize) -> Result<()> {
+    if expected == got {
+        Ok(())
+    } else {
+        Err(Error::DimensionMismatch { what: what.to_string(), expected, got })
+    }
+}
+
+fn concat(parts: &[&[f64]]) -> Vec<f64> {
+    parts.iter().flat_map(|p| p.iter().copied()).collect()
+}
+
+#[derive(Clone, Copy)]
+enum Field {
+    Noisy,
+    Clean,
+}
+
+/// (t, x, z, θ) ↦ f or h, as a [`VectorFn`] of w = (t, x, z, θ).
+struct FieldFn<'a, S: ?Sized> {
+    sde: &'a S,
+    which: Field,
+    n_out: usize,
+    dims: Dims,
+}
+
+impl<S: Sde + ?Sized> VectorFn for FieldFn<'_, S> {
+    fn dim_in(&self) -> usize {
+        1 + self.dims.states() + self.dims.params
+    }
+    fn dim_out(&self) -> usize {
+        self.n_out
+    }
+    fn eval<D: Scalar>(&self, w: &[D], out: &mut [D]) {
+        let (n, c) = (self.dims.noisy, self.dims.clean);
+        let (t, x, z, th) = (w[0], &w[1..1 + n], &w[1 + n..1 + n + c], &w[1 + n + c..]);
+        match self.which {
+            Field::Noisy => self.sde.drift(t, x, z, th, out),
+            Field::Clean => self.sde.clean_drift(t, x, z, th, out),
+        }
+    }
+}
+
+fn jacobians<S: Sde + ?Sized>(f: &FieldFn<'_, S>, t: f64, x: &[f64], z: &[f64], theta: &[f64]) -> Jacobians {
+    let d = f.dims;
+    let w = concat(&[&[t], x, z, theta]);
+    let (value, j) = ad::jacobian(f, &w);
+    let m = f.n_out;
+    Jacobians {
+        value,
+        dt: j.column(0).iter().copied().collect(),
+        dx: j.view((0, 1), (m, d.noisy)).into_owned(),
+        dz: j.view((0, 1 + d.noisy), (m, d.clean)).into_owned(),
+        dtheta: j.view((0, 1 + d.states()), (m, d.params)).into_owned(),
+    }
+}
+
+struct DivergenceFn<'a, S: ?Sized> {
+    sde: &'a S,
+    t: f64,
+    dims: Dims,
+}
+
+impl<S: Sde + ?Sized> ScalarFn for DivergenceFn<'_, S> {
+    fn dim_in(&self) -> usize {
+        self.dims.states() + self.dims.params
+    }
+    fn eval<D: Scalar>(&self, w: &[D]) -> D {
+        let (n, c) = (self.dims.noisy, self.dims.clean);
+        self.sde.divergence(D::from(self.t), &w[..n], &w[n..n + c], &w[n + c..])
+    }
+}
+
+struct EnergyFn<'a, S: ?Sized> {
+    sde: &'a S,
+    t: f64,
+    dims: Dims,
+}
+
+impl<S: Sde + ?Sized> ScalarFn for EnergyFn<'_, S> {
+    fn dim_in(&self) -> usize {
+        2 * self.dims.noisy + self.dims.clean + self.dims.params
+    }
+    fn eval<D: Scalar>(&self, w: &[D]) -> D {
+        let (n, c) = (self.dims.noisy, self.dims.clean);
+        let (v, x, z, th) = (&w[..n], &w[n..2 * n], &w[2 * n..2 * n + c], &w[2 * n + c..]);
+        self.sde.noise_energy(D::from(self.t), v, x, z, th).unwrap_or(D::from(f64::NAN))
+    }
+}
