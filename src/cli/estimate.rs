@@ -1,0 +1,158 @@
+//! `onsager estimate`: every method takes the same model flags and writes the same path CSV
+//! and JSON report (DESIGN.md, "Data formats").
+
+use std::path::PathBuf;
+
+use clap::{Args, ValueEnum};
+
+use onsager::data::Dataset;
+use onsager::estimate::{EstimationProblem, PathEstimate};
+use onsager::model::library::{BuiltinModel, Preset};
+use onsager::model::observation::StateMeasurement;
+use onsager::model::{Observation, Sde};
+use onsager::{Error, Result};
+
+use super::{create_parent, ModelArgs};
+
+/// The estimation methods of the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Method {
+    /// Exact Kushner–Stratonovich–Pardoux smoother on a grid (003 eq. 0.3–0.7).
+    Ksp,
+    /// Exact mean-optimal (effective-action) estimator on a grid (003 I.60–I.76).
+    MeanOptimal,
+    /// Continuous-discrete extended Kalman filter.
+    Ekf,
+    /// Extended Rauch–Tung–Striebel smoother.
+    Eks,
+    /// Continuous-discrete unscented Kalman filter.
+    Ukf,
+    /// Unscented Rauch–Tung–Striebel smoother.
+    Uks,
+    /// Prediction error method (UKF likelihood) followed by the UKS at θ̂.
+    Pem,
+    /// Bootstrap particle filter with a backward-simulation smoother.
+    Particle,
+}
+
+/// Flags of `onsager estimate`.
+#[derive(Args, Debug, Clone)]
+pub struct EstimateArgs {
+    #[command(flatten)]
+    pub model: ModelArgs,
+    /// Measurements CSV (`t,<outputs>`).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// The estimator.
+    #[arg(long, value_enum)]
+    pub method: Method,
+    /// Parameters to estimate, comma-separated names (methods that estimate parameters).
+    #[arg(long, value_delimiter = ',')]
+    pub estimate: Vec<String>,
+    /// Grid of the exact methods: `lo=L,hi=H,cells=N` (two noisy states: `lo=L1;L2,hi=H1;H2,cells=N1;N2`).
+    #[arg(long)]
+    pub grid: Option<String>,
+    /// Time step of the method's time integration (default: the method's).
+    #[arg(long)]
+    pub dt: Option<f64>,
+    /// Number of particles of the particle smoother.
+    #[arg(long)]
+    pub particles: Option<usize>,
+    /// Seed of the methods that draw random numbers.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Where to write the estimated path (`t,<states>,sd_<states>`).
+    #[arg(long, default_value = "out/estimate.csv")]
+    pub out: PathBuf,
+    /// Where to write the JSON report.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+}
+
+/// The estimation problem of the command line: a built-in model with the flags applied.
+pub type CliProblem<'a> = EstimationProblem<'a, BuiltinModel, StateMeasurement>;
+
+/// Builds the problem pieces that the [`EstimationProblem`] borrows.
+pub struct Setup {
+    /// The configured preset.
+    pub preset: Preset,
+    /// The data, columns in the model's output order.
+    pub data: Dataset,
+    /// Indices of the parameters to estimate.
+    pub estimate: Vec<usize>,
+}
+
+impl Setup {
+    /// Reads the data and resolves the flags.
+    pub fn new(args: &EstimateArgs) -> Result<Setup> {
+        let preset = args.model.preset()?;
+        let data = Dataset::read_csv_for(&args.data, &preset.observation.output_names())?;
+        let estimate = args
+            .estimate
+            .iter()
+            .filter(|s| !s.trim().is_empty())
+            .map(|name| preset.param_index(name.trim()))
+            .collect::<Result<Vec<usize>>>()?;
+        Ok(Setup { preset, data, estimate })
+    }
+
+    /// The problem, borrowing from `self`.
+    pub fn problem(&self) -> CliProblem<'_> {
+        let p = &self.preset;
+        EstimationProblem {
+            sde: &p.model,
+            observation: &p.observation,
+            theta: &p.theta,
+            theta_prior: &p.theta_prior,
+            estimate: &self.estimate,
+            x0_prior: &p.x0_prior,
+            z0_prior: &p.z0_prior,
+            data: &self.data,
+        }
+    }
+}
+
+/// Runs `onsager estimate`; `Ok(false)` when the estimator did not succeed (the CLI then exits
+/// non-zero after writing what it has).
+pub fn run(args: &EstimateArgs) -> Result<bool> {
+    let setup = Setup::new(args)?;
+    let problem = setup.problem();
+    problem.validate()?;
+    let est: PathEstimate = match args.method {
+        Method::Ksp | Method::MeanOptimal => super::action::run(args, &problem)?,
+        Method::Ekf | Method::Eks | Method::Ukf | Method::Uks | Method::Pem | Method::Particle => {
+            super::baselines::run(args, &problem)?
+        }
+    };
+    print_summary(&est, &problem);
+    create_parent(&args.out)?;
+    est.path.write_csv(&args.out)?;
+    println!("wrote the estimated path to {}", args.out.display());
+    if let Some(report) = &args.report {
+        create_parent(report)?;
+        est.write_report(report)?;
+        println!("wrote the report to {}", report.display());
+    }
+    Ok(est.status.is_success())
+}
+
+fn print_summary(est: &PathEstimate, problem: &CliProblem<'_>) {
+    println!(
+        "method {}: status {}, {} iterations, solve {:.3} s",
+        est.method, est.status, est.iterations, est.solve_seconds
+    );
+    let names = problem.sde.param_names();
+    for (k, &i) in est.estimated.iter().enumerate() {
+        let sd = est.theta_sd.as_ref().map_or(String::new(), |sd| format!(" ± {:.4}", sd[k]));
+        println!("  {} = {:.6}{sd}", names[i], est.theta[i]);
+    }
+}
+
+/// The error for a method that this build does not provide yet.
+pub fn not_available(method: Method, issue: u32) -> Error {
+    let name = method.to_possible_value().map_or_else(|| format!("{method:?}"), |v| v.get_name().to_string());
+    Error::InvalidOption {
+        name: "--method".into(),
+        reason: format!("method `{name}` is not available yet (issue {issue})"),
+    }
+}

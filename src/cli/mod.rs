@@ -1,0 +1,211 @@
+//! The subcommands of the `onsager` binary. Output goes to stdout here, never in the library.
+
+pub mod action;
+pub mod baselines;
+pub mod estimate;
+pub mod simulate;
+
+use std::path::Path;
+
+use clap::Args;
+
+use onsager::model::library::{self, Preset};
+use onsager::model::observation::Noise;
+use onsager::model::prior::Prior;
+use onsager::model::Sde;
+use onsager::{Error, Result};
+
+/// The model flags every subcommand takes (DESIGN.md, "Data formats").
+#[derive(Args, Debug, Clone)]
+pub struct ModelArgs {
+    /// Built-in model name (see `onsager models`).
+    #[arg(long, default_value = "double-well")]
+    pub model: String,
+    /// Parameter value `NAME=VALUE`; repeatable.
+    #[arg(long = "param", value_name = "NAME=VALUE")]
+    pub params: Vec<String>,
+    /// Measurement model, e.g. `gaussian:sigma=0.1`, `gaussian:sigma=sigma_y` (a parameter),
+    /// `student-t:nu=4,scale=0.5`, `mixture:p=0.25,sigma=0.5,sigma_outlier=3`,
+    /// `quantized:sigma=sigma_y,bit=0.05`, `laplace:scale=0.2` (default: the model's).
+    #[arg(long)]
+    pub likelihood: Option<String>,
+    /// Prior of the initial state (noisy then clean states): `flat`,
+    /// `gaussian:mean=M1;M2,sd=S1;S2`, or per state `NAME=SPEC` with SPEC as in
+    /// `normal:0,0.4`, `gamma:1.1,10`, `lognormal:0,1`, `flat`; repeatable
+    /// (default: the model's).
+    #[arg(long = "x0-prior", value_name = "SPEC")]
+    pub x0_prior: Vec<String>,
+}
+
+fn parse_assignment(s: &str, flag: &str) -> Result<(String, String)> {
+    match s.split_once('=') {
+        Some((k, v)) if !k.trim().is_empty() => Ok((k.trim().to_string(), v.trim().to_string())),
+        _ => Err(Error::InvalidOption { name: flag.into(), reason: format!("expected NAME=VALUE, got `{s}`") }),
+    }
+}
+
+fn parse_number(v: &str, flag: &str, what: &str) -> Result<f64> {
+    let x: f64 = v.trim().parse().map_err(|_| Error::InvalidOption {
+        name: flag.into(),
+        reason: format!("cannot parse `{v}` as a number for {what}"),
+    })?;
+    if !x.is_finite() {
+        return Err(Error::InvalidOption { name: flag.into(), reason: format!("{what} must be finite") });
+    }
+    Ok(x)
+}
+
+/// Parses one `--x0-prior` flag into (state index, prior) pairs for `names` (noisy then clean).
+fn parse_initial_prior(spec: &str, names: &[String]) -> Result<Vec<(usize, Prior)>> {
+    let flag = "--x0-prior";
+    let head = spec.split(':').next().unwrap_or("");
+    if head.contains('=') {
+        // Per state: NAME=SPEC.
+        let (k, v) = parse_assignment(spec, flag)?;
+        let i = names.iter().position(|n| *n == k).ok_or_else(|| Error::UnknownName {
+            kind: "state".into(),
+            name: k.clone(),
+            known: names.to_vec(),
+        })?;
+        return Ok(vec![(i, Prior::parse(&v)?)]);
+    }
+    if spec.trim() == "flat" {
+        return Ok((0..names.len()).map(|i| (i, Prior::flat())).collect());
+    }
+    // gaussian:mean=M1;M2,sd=S1;S2
+    let rest = spec.strip_prefix("gaussian:").or_else(|| spec.strip_prefix("normal:")).ok_or_else(|| {
+        Error::InvalidOption {
+            name: flag.into(),
+            reason: format!(
+                "`{spec}`: expected `flat`, `gaussian:mean=M1;M2,sd=S1;S2` or `STATE=SPEC`"
+            ),
+        }
+    })?;
+    let (mut mean, mut sd) = (None, None);
+    for part in rest.split(',') {
+        let (k, v) = parse_assignment(part, flag)?;
+        let values = v.split(';').map(|x| parse_number(x, flag, &k)).collect::<Result<Vec<f64>>>()?;
+        if values.len() != names.len() {
+            return Err(Error::InvalidOption {
+                name: flag.into(),
+                reason: format!("`{k}` has {} values for the {} states {}", values.len(), names.len(), names.join(", ")),
+            });
+        }
+        match k.as_str() {
+            "mean" => mean = Some(values),
+            "sd" => sd = Some(values),
+            _ => {
+                return Err(Error::UnknownName {
+                    kind: "x0-prior key".into(),
+                    name: k,
+                    known: vec!["mean".into(), "sd".into()],
+                })
+            }
+        }
+    }
+    let (Some(mean), Some(sd)) = (mean, sd) else {
+        return Err(Error::InvalidOption { name: flag.into(), reason: "both `mean` and `sd` are required".into() });
+    };
+    let priors = mean.iter().zip(&sd).map(|(&m, &s)| Prior::gaussian(m, s)).collect::<Vec<_>>();
+    for p in &priors {
+        p.validate()?;
+    }
+    Ok(priors.into_iter().enumerate().collect())
+}
+
+impl ModelArgs {
+    /// The model's preset with the flags applied.
+    pub fn preset(&self) -> Result<Preset> {
+        let mut p = library::preset(&self.model)?;
+        for s in &self.params {
+            let (k, v) = parse_assignment(s, "--param")?;
+            let value = parse_number(&v, "--param", &format!("parameter `{k}`"))?;
+            p.set_param(&k, value)?;
+        }
+        if let Some(spec) = &self.likelihood {
+            p.observation.noise = Noise::parse(spec, &p.model.param_names())?;
+        }
+        let names = p.model.state_names();
+        let n_noisy = p.model.dims().noisy;
+        for spec in &self.x0_prior {
+            for (i, prior) in parse_initial_prior(spec, &names)? {
+                if i < n_noisy {
+                    p.x0_prior[i] = prior;
+                } else {
+                    p.z0_prior[i - n_noisy] = prior;
+                }
+            }
+        }
+        p.validate()?;
+        Ok(p)
+    }
+}
+
+/// Creates the parent folder of an output file.
+pub fn create_parent(file: &Path) -> Result<()> {
+    if let Some(dir) = file.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|source| Error::Io { path: dir.to_path_buf(), source })?;
+    }
+    Ok(())
+}
+
+/// `onsager models`.
+pub fn print_models() {
+    for name in library::NAMES {
+        let p = library::preset(name).expect("every listed model has a preset");
+        let m = &p.model;
+        println!("{name} — {}", p.description);
+        println!("  source:  {}", p.source);
+        println!("  noisy states: {}", m.noisy_names().join(", "));
+        let clean = m.clean_names();
+        if !clean.is_empty() {
+            println!("  clean states: {}", clean.join(", "));
+        }
+        let params: Vec<String> =
+            m.param_names().iter().zip(&p.theta).map(|(n, v)| format!("{n}={v}")).collect();
+        println!("  parameters:   {}", params.join(", "));
+        let priors: Vec<String> = p
+            .theta_prior
+            .iter()
+            .zip(m.param_names())
+            .filter(|(pr, _)| pr.is_proper())
+            .map(|(pr, n)| format!("{n}={pr}"))
+            .collect();
+        if !priors.is_empty() {
+            println!("  parameter priors: {}", priors.join(", "));
+        }
+        let names = m.state_names();
+        let priors: Vec<String> =
+            p.x0_prior.iter().chain(&p.z0_prior).zip(&names).map(|(pr, n)| format!("{n}={pr}")).collect();
+        println!("  initial-state prior: {}", priors.join(", "));
+        println!(
+            "  outputs: {} ~ {}",
+            p.observation.names.join(", "),
+            p.observation.noise.describe(&m.param_names())
+        );
+        println!("  simulation: t_end={} dt={} sample_every={}", p.t_end, p.dt, p.sample_every);
+        println!();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn names() -> Vec<String> {
+        vec!["x".into(), "z".into()]
+    }
+
+    #[test]
+    fn initial_prior_syntaxes() {
+        let v = parse_initial_prior("gaussian:mean=0;1,sd=0.4;0.5", &names()).unwrap();
+        assert_eq!(v, vec![(0, Prior::gaussian(0.0, 0.4)), (1, Prior::gaussian(1.0, 0.5))]);
+        let v = parse_initial_prior("z=normal:2,3", &names()).unwrap();
+        assert_eq!(v, vec![(1, Prior::gaussian(2.0, 3.0))]);
+        assert_eq!(parse_initial_prior("flat", &names()).unwrap().len(), 2);
+        assert!(parse_initial_prior("gaussian:mean=0,sd=1", &names()).is_err());
+        assert!(parse_initial_prior("gaussian:mean=0;0,sd=1;-1", &names()).is_err());
+        assert!(parse_initial_prior("w=normal:0,1", &names()).is_err());
+        assert!(parse_initial_prior("cauchy", &names()).is_err());
+    }
+}

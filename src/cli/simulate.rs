@@ -1,0 +1,84 @@
+//! `onsager simulate`.
+
+use std::path::PathBuf;
+
+use clap::Args;
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+
+use onsager::model::prior::Prior;
+use onsager::model::Sde;
+use onsager::simulate::{self, Scheme, SimulateOptions};
+use onsager::Result;
+
+use super::{create_parent, ModelArgs};
+
+/// Flags of `onsager simulate`.
+#[derive(Args, Debug, Clone)]
+pub struct SimulateArgs {
+    #[command(flatten)]
+    pub model: ModelArgs,
+    /// Final time (default: the model's).
+    #[arg(long)]
+    pub t_end: Option<f64>,
+    /// Simulation step (default: the model's).
+    #[arg(long)]
+    pub dt: Option<f64>,
+    /// Measurement spacing, a multiple of the step (default: the model's).
+    #[arg(long)]
+    pub sample_every: Option<f64>,
+    /// Integration scheme: `ito-taylor-1.5` or `euler-maruyama`.
+    #[arg(long, default_value = "ito-taylor-1.5")]
+    pub scheme: Scheme,
+    /// Seed of the random number generator.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Where to write the measurements.
+    #[arg(long, default_value = "out/data.csv")]
+    pub out: PathBuf,
+    /// Where to write the true path (not written if absent).
+    #[arg(long)]
+    pub truth: Option<PathBuf>,
+}
+
+/// Runs `onsager simulate`.
+pub fn run(args: &SimulateArgs) -> Result<()> {
+    let mut p = args.model.preset()?;
+    if let Some(t) = args.t_end {
+        p.t_end = t;
+    }
+    if let Some(dt) = args.dt {
+        p.dt = dt;
+    }
+    if let Some(s) = args.sample_every {
+        p.sample_every = s;
+    }
+    let mut rng = StdRng::seed_from_u64(args.seed);
+    let draw = |priors: &[Prior], rng: &mut StdRng| -> Result<Vec<f64>> {
+        priors.iter().map(|pr| pr.sample(rng)).collect()
+    };
+    let x0 = draw(&p.x0_prior, &mut rng)?;
+    let z0 = draw(&p.z0_prior, &mut rng)?;
+    let options = SimulateOptions::new(0.0, p.t_end, p.dt).with_scheme(args.scheme);
+    let path = simulate::simulate(&p.model, &p.theta, &x0, &z0, &options, &mut rng)?;
+    let n_noisy = p.model.dims().noisy;
+    let data = simulate::sample_measurements(&p.observation, &p.theta, &path, n_noisy, p.sample_every, &mut rng)?;
+    create_parent(&args.out)?;
+    data.write_csv(&args.out)?;
+    println!(
+        "simulated `{}` to t = {} with {} steps of {} ({}), seed {}",
+        args.model.model,
+        p.t_end,
+        path.len() - 1,
+        p.dt,
+        args.scheme,
+        args.seed
+    );
+    println!("wrote {} measurements of {} to {}", data.len(), data.names.join(", "), args.out.display());
+    if let Some(truth) = &args.truth {
+        create_parent(truth)?;
+        path.write_csv(truth)?;
+        println!("wrote the true path ({}) to {}", path.names.join(", "), truth.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,3 @@
+//! Kalman-type estimators.
+
+pub mod linear;

@@ -1,0 +1,46 @@
+//! # onsager
+//!
+//! State-path and parameter estimation for nonlinear stochastic differential equations
+//! observed at discrete times, comparing two theories of "the best path" on equal terms.
+//!
+//! ## The estimation problem
+//!
+//! The state has noisy components X and clean components Z
+//! (`000_74b95e149527c64e.txt (2.4)`):
+//!
+//! $$ dX_t = f(t, X_t, Z_t, \theta)\,dt + G(\theta)\,dW_t, \qquad dZ_t = h(t, X_t, Z_t, \theta)\,dt, $$
+//!
+//! with priors on $X_0$, $Z_0$ and $\theta$, measured at times $t_k$ through a likelihood
+//! $\psi(y_k \mid X_{t_k}, Z_{t_k}, \theta)$. The library estimates the path $t \mapsto (X_t, Z_t)$
+//! and $\theta$ from $y_0, \dots, y_N$:
+//!
+//! - **path-space MAP** (Dutra): the maximiser of the Onsager–Machlup posterior
+//!   $\ln\pi(x_0, z_0, \theta) + \sum_k \ln\psi(y_k \mid \cdot) - \int \tfrac12 |G^{-1}(\dot x - f)|^2
+//!   + \tfrac12 \operatorname{div}_x f \, dt$ (`000_74b95e149527c64e.txt (2.49)`), and the
+//!   minimum-energy path without the divergence term (`(2.60)`);
+//! - **effective action** (Eyink): the mean-optimal estimator and its Rayleigh–Ritz closures
+//!   (`003_d2fc48a470e528fc.txt`).
+//!
+//! ## Where things are
+//!
+//! - [`model`]: the [`model::Sde`] trait (models written once, generic over the scalar, with
+//!   every derivative by automatic differentiation), measurement models
+//!   ([`model::Observation`], [`model::observation::Noise`]), priors ([`model::prior`]), special
+//!   functions usable with dual numbers ([`model::special`]) and the built-in models
+//!   ([`model::library`]).
+//! - [`simulate`]: Euler–Maruyama and the strong order 1.5 Itô–Taylor scheme, measurement
+//!   sampling.
+//! - [`data`]: measurement datasets and state paths with CSV I/O and precise errors.
+//!
+//! Misuse is an [`Error`]; numerical outcomes are statuses in reports. Randomness is always
+//! injected (`&mut impl Rng`). Library code never prints.
+pub mod data;
+pub mod error;
+pub mod estimate;
+pub mod kalman;
+pub mod model;
+pub mod simulate;
+
+pub use error::{Error, Result};
+/// The trial-density families of the Rayleigh–Ritz closures (the `onsager-closures` crate).
+pub use onsager_closures as closures;

@@ -1,0 +1,89 @@
+//! The command-line tool, run as a user would run it.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+use onsager::data::{Dataset, StatePath};
+
+fn onsager() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_onsager"))
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("onsager-cli-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+#[test]
+fn simulate_output_is_read_back_by_the_library() {
+    let dir = scratch("duffing");
+    let (data, truth) = (dir.join("data.csv"), dir.join("truth.csv"));
+    let out = onsager()
+        .args(["simulate", "--model", "duffing", "--param", "d=0.3", "--t-end", "5", "--dt", "0.01"])
+        .args(["--sample-every", "0.1", "--seed", "7", "--out"])
+        .arg(&data)
+        .arg("--truth")
+        .arg(&truth)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "stderr: {}", String::from_utf8_lossy(&out.stderr));
+    let outputs = vec!["y".to_string()];
+    let d = Dataset::read_csv_for(&data, &outputs).unwrap();
+    assert_eq!(d.names, outputs);
+    assert_eq!(d.len(), 51, "measurements at 0, 0.1, …, 5");
+    for (k, &t) in d.times.iter().enumerate() {
+        assert!((t - 0.1 * k as f64).abs() < 1e-9, "t[{k}] = {t}");
+    }
+    assert!(d.values.iter().flatten().all(|v| v.is_finite()));
+    let p = StatePath::read_csv(&truth).unwrap();
+    assert_eq!(p.names, vec!["x", "z"]);
+    assert_eq!(p.len(), 501);
+    // The measurements are z plus noise of sd 0.1 (000 Table 4.1): within 6 sd of the truth.
+    let z = p.column("z").unwrap();
+    for (k, y) in d.values.iter().enumerate() {
+        assert!((y[0] - z[10 * k]).abs() < 0.6, "y[{k}] = {} vs z = {}", y[0], z[10 * k]);
+    }
+    // Same seed, same file.
+    let again = dir.join("again.csv");
+    let out2 = onsager()
+        .args(["simulate", "--model", "duffing", "--param", "d=0.3", "--t-end", "5", "--dt", "0.01"])
+        .args(["--sample-every", "0.1", "--seed", "7", "--out"])
+        .arg(&again)
+        .output()
+        .unwrap();
+    assert!(out2.status.success());
+    assert_eq!(std::fs::read(&data).unwrap(), std::fs::read(&again).unwrap());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn models_lists_every_builtin_model() {
+    let out = onsager().arg("models").output().unwrap();
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    for name in onsager::model::library::NAMES {
+        assert!(text.contains(name), "`onsager models` should list {name}");
+    }
+    assert!(text.contains("sigma_y"), "Duffing's measurement parameter is listed");
+}
+
+#[test]
+fn bad_arguments_are_clear_errors_not_panics() {
+    let dir = scratch("bad");
+    let cases: &[(&[&str], &str)] = &[
+        (&["simulate", "--model", "nope"], "unknown model `nope`"),
+        (&["simulate", "--model", "duffing", "--param", "q=1"], "unknown parameter `q`"),
+        (&["simulate", "--model", "duffing", "--param", "a"], "expected NAME=VALUE"),
+        (&["simulate", "--model", "duffing", "--dt", "-1"], "dt"),
+        (&["simulate", "--model", "ou", "--likelihood", "cauchy:scale=1"], "cauchy"),
+    ];
+    for (args, needle) in cases {
+        let out = onsager().args(*args).arg("--out").arg(dir.join("x.csv")).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.contains(needle), "{args:?}: `{err}` should contain `{needle}`");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
