@@ -139,7 +139,10 @@ impl Dataset {
                                 path,
                                 1,
                                 Some(format!("{} ({name})", j + 2)),
-                                format!("unknown output `{name}` (the model's outputs: {})", outputs.join(", ")),
+                                format!(
+                                    "unknown output `{name}` (the model's outputs: {})",
+                                    outputs.join(", ")
+                                ),
                             ))
                         }
                     }
@@ -168,9 +171,11 @@ impl Dataset {
         let path = path.as_ref();
         let mut header = vec!["t".to_string()];
         header.extend(self.names.iter().cloned());
-        let rows = self.times.iter().zip(&self.values).map(|(&t, row)| {
-            std::iter::once(t).chain(row.iter().copied()).collect::<Vec<f64>>()
-        });
+        let rows = self
+            .times
+            .iter()
+            .zip(&self.values)
+            .map(|(&t, row)| std::iter::once(t).chain(row.iter().copied()).collect::<Vec<f64>>());
         write_table(path, &header, rows)
     }
 }
@@ -262,7 +267,8 @@ struct Table {
 }
 
 fn read_table<R: Read>(reader: R, path: &Path) -> Result<Table> {
-    let mut rdr = csv::ReaderBuilder::new().has_headers(true).flexible(true).trim(csv::Trim::All).from_reader(reader);
+    let mut rdr =
+        csv::ReaderBuilder::new().has_headers(true).flexible(true).trim(csv::Trim::All).from_reader(reader);
     let header: Vec<String> = rdr
         .headers()
         .map_err(|e| data_err(path, 1, None, format!("cannot read the header: {e}")))?
@@ -277,7 +283,12 @@ fn read_table<R: Read>(reader: R, path: &Path) -> Result<Table> {
             return Err(data_err(path, 1, Some((j + 1).to_string()), "empty column name"));
         }
         if header[..j].contains(h) {
-            return Err(data_err(path, 1, Some(format!("{} ({h})", j + 1)), format!("duplicate column `{h}`")));
+            return Err(data_err(
+                path,
+                1,
+                Some(format!("{} ({h})", j + 1)),
+                format!("duplicate column `{h}`"),
+            ));
         }
     }
     let mut rows = Vec::new();

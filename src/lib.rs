@@ -15,8 +15,8 @@
 //! and $\theta$ from $y_0, \dots, y_N$:
 //!
 //! - **path-space MAP** (Dutra): the maximiser of the Onsager–Machlup posterior
-//!   $\ln\pi(x_0, z_0, \theta) + \sum_k \ln\psi(y_k \mid \cdot) - \int \tfrac12 |G^{-1}(\dot x - f)|^2
-//!   + \tfrac12 \operatorname{div}_x f \, dt$ (`000_74b95e149527c64e.txt (2.49)`), and the
+//!   $\ln\pi(x_0, z_0, \theta) + \sum_k \ln\psi(y_k \mid \cdot) - \int \big(\tfrac12 |G^{-1}(\dot x - f)|^2 +
+//!   \tfrac12 \operatorname{div}_x f\big) \, dt$ (`000_74b95e149527c64e.txt (2.49)`), and the
 //!   minimum-energy path without the divergence term (`(2.60)`);
 //! - **effective action** (Eyink): the mean-optimal estimator and its Rayleigh–Ritz closures
 //!   (`003_d2fc48a470e528fc.txt`).
@@ -34,11 +34,13 @@
 //!
 //! Misuse is an [`Error`]; numerical outcomes are statuses in reports. Randomness is always
 //! injected (`&mut impl Rng`). Library code never prints.
+pub mod action;
 pub mod data;
 pub mod error;
 pub mod estimate;
 pub mod kalman;
 pub mod model;
+pub mod particle;
 pub mod simulate;
 
 pub use error::{Error, Result};

@@ -53,7 +53,7 @@ pub struct EstimateArgs {
     #[arg(long)]
     pub grid: Option<String>,
     /// Time step of the method's time integration (default: the method's).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub dt: Option<f64>,
     /// Number of particles of the particle smoother.
     #[arg(long)]

@@ -40,7 +40,9 @@ pub struct ModelArgs {
 fn parse_assignment(s: &str, flag: &str) -> Result<(String, String)> {
     match s.split_once('=') {
         Some((k, v)) if !k.trim().is_empty() => Ok((k.trim().to_string(), v.trim().to_string())),
-        _ => Err(Error::InvalidOption { name: flag.into(), reason: format!("expected NAME=VALUE, got `{s}`") }),
+        _ => {
+            Err(Error::InvalidOption { name: flag.into(), reason: format!("expected NAME=VALUE, got `{s}`") })
+        }
     }
 }
 
@@ -76,9 +78,7 @@ fn parse_initial_prior(spec: &str, names: &[String]) -> Result<Vec<(usize, Prior
     let rest = spec.strip_prefix("gaussian:").or_else(|| spec.strip_prefix("normal:")).ok_or_else(|| {
         Error::InvalidOption {
             name: flag.into(),
-            reason: format!(
-                "`{spec}`: expected `flat`, `gaussian:mean=M1;M2,sd=S1;S2` or `STATE=SPEC`"
-            ),
+            reason: format!("`{spec}`: expected `flat`, `gaussian:mean=M1;M2,sd=S1;S2` or `STATE=SPEC`"),
         }
     })?;
     let (mut mean, mut sd) = (None, None);
@@ -88,7 +88,12 @@ fn parse_initial_prior(spec: &str, names: &[String]) -> Result<Vec<(usize, Prior
         if values.len() != names.len() {
             return Err(Error::InvalidOption {
                 name: flag.into(),
-                reason: format!("`{k}` has {} values for the {} states {}", values.len(), names.len(), names.join(", ")),
+                reason: format!(
+                    "`{k}` has {} values for the {} states {}",
+                    values.len(),
+                    names.len(),
+                    names.join(", ")
+                ),
             });
         }
         match k.as_str() {
@@ -104,7 +109,10 @@ fn parse_initial_prior(spec: &str, names: &[String]) -> Result<Vec<(usize, Prior
         }
     }
     let (Some(mean), Some(sd)) = (mean, sd) else {
-        return Err(Error::InvalidOption { name: flag.into(), reason: "both `mean` and `sd` are required".into() });
+        return Err(Error::InvalidOption {
+            name: flag.into(),
+            reason: "both `mean` and `sd` are required".into(),
+        });
     };
     let priors = mean.iter().zip(&sd).map(|(&m, &s)| Prior::gaussian(m, s)).collect::<Vec<_>>();
     for p in &priors {

@@ -19,13 +19,13 @@ pub struct SimulateArgs {
     #[command(flatten)]
     pub model: ModelArgs,
     /// Final time (default: the model's).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub t_end: Option<f64>,
     /// Simulation step (default: the model's).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub dt: Option<f64>,
     /// Measurement spacing, a multiple of the step (default: the model's).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub sample_every: Option<f64>,
     /// Integration scheme: `ito-taylor-1.5` or `euler-maruyama`.
     #[arg(long, default_value = "ito-taylor-1.5")]
@@ -53,6 +53,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     if let Some(s) = args.sample_every {
         p.sample_every = s;
     }
+    p.validate()?;
     let mut rng = StdRng::seed_from_u64(args.seed);
     let draw = |priors: &[Prior], rng: &mut StdRng| -> Result<Vec<f64>> {
         priors.iter().map(|pr| pr.sample(rng)).collect()
@@ -62,7 +63,8 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     let options = SimulateOptions::new(0.0, p.t_end, p.dt).with_scheme(args.scheme);
     let path = simulate::simulate(&p.model, &p.theta, &x0, &z0, &options, &mut rng)?;
     let n_noisy = p.model.dims().noisy;
-    let data = simulate::sample_measurements(&p.observation, &p.theta, &path, n_noisy, p.sample_every, &mut rng)?;
+    let times = p.measurement_times();
+    let data = simulate::sample_measurements_at(&p.observation, &p.theta, &path, n_noisy, &times, &mut rng)?;
     create_parent(&args.out)?;
     data.write_csv(&args.out)?;
     println!(

@@ -118,7 +118,8 @@ impl LinearGaussianModel {
         {
             return Err(Error::InvalidOption {
                 name: "model".into(),
-                reason: "the exact Kalman reference needs drifts affine and time-invariant in the state".into(),
+                reason: "the exact Kalman reference needs drifts affine and time-invariant in the state"
+                    .into(),
             });
         }
         let g = sde.diffusion_matrix(theta)?;
@@ -126,7 +127,10 @@ impl LinearGaussianModel {
         noise.view_mut((0, 0), (d.noisy, d.noisy)).copy_from(&g);
         let sd = observation.noise.gaussian_sd(theta).ok_or_else(|| Error::InvalidOption {
             name: "likelihood".into(),
-            reason: format!("the Kalman reference needs Gaussian measurement errors, not `{}`", observation.noise),
+            reason: format!(
+                "the Kalman reference needs Gaussian measurement errors, not `{}`",
+                observation.noise
+            ),
         })?;
         let k = observation.states.len();
         let mut h = DMatrix::zeros(k, n);
@@ -179,7 +183,11 @@ fn merge_times(t0: f64, lists: &[&[f64]]) -> Vec<f64> {
 /// The exact Kalman filter and RTS smoother of `model` given `data` (NaN = missing), with the
 /// moments reported at t0, every measurement time and every time of `output_times`
 /// (Särkkä 2013, Thms 4.2 and 8.2, on the exact discretisation of [`LinearSde::transition`]).
-pub fn kalman_rts(model: &LinearGaussianModel, data: &Dataset, output_times: &[f64]) -> Result<KalmanSmoothing> {
+pub fn kalman_rts(
+    model: &LinearGaussianModel,
+    data: &Dataset,
+    output_times: &[f64],
+) -> Result<KalmanSmoothing> {
     let n = model.sde.a.nrows();
     check_len("measurement matrix rows", data.names.len(), model.h.nrows())?;
     check_len("measurement matrix columns", n, model.h.ncols())?;
@@ -196,7 +204,8 @@ pub fn kalman_rts(model: &LinearGaussianModel, data: &Dataset, output_times: &[f
     };
     let nt = times.len();
     let (mut fm, mut fc) = (Vec::with_capacity(nt), Vec::with_capacity(nt));
-    let (mut pm, mut pc, mut trans) = (Vec::with_capacity(nt), Vec::with_capacity(nt), Vec::with_capacity(nt));
+    let (mut pm, mut pc, mut trans) =
+        (Vec::with_capacity(nt), Vec::with_capacity(nt), Vec::with_capacity(nt));
     let mut log_lik = 0.0;
     let mut next_meas = 0;
     let (mut m, mut p) = (model.m0.clone(), model.p0.clone());
@@ -221,7 +230,9 @@ pub fn kalman_rts(model: &LinearGaussianModel, data: &Dataset, output_times: &[f
                 let s_inv_innov = chol.solve(&innov);
                 let log_det: f64 = chol.l().diagonal().iter().map(|d| 2.0 * d.ln()).sum();
                 log_lik += -0.5
-                    * (innov.dot(&s_inv_innov) + log_det + obs.len() as f64 * (2.0 * std::f64::consts::PI).ln());
+                    * (innov.dot(&s_inv_innov)
+                        + log_det
+                        + obs.len() as f64 * (2.0 * std::f64::consts::PI).ln());
                 let gain = chol.solve(&(&h * &p)).transpose();
                 m = &m + &gain * innov;
                 p = &p - &gain * &s * gain.transpose();
@@ -258,7 +269,11 @@ mod tests {
     use approx::assert_relative_eq;
 
     fn ou(theta: f64, sigma: f64) -> LinearSde {
-        LinearSde { a: DMatrix::from_element(1, 1, -theta), b: DVector::zeros(1), noise: DMatrix::from_element(1, 1, sigma) }
+        LinearSde {
+            a: DMatrix::from_element(1, 1, -theta),
+            b: DVector::zeros(1),
+            noise: DMatrix::from_element(1, 1, sigma),
+        }
     }
 
     #[test]
@@ -268,7 +283,11 @@ mod tests {
         let (f, c, q) = ou(th, s).transition(d);
         assert_relative_eq!(f[(0, 0)], (-th * d).exp(), max_relative = 1e-13);
         assert_eq!(c[0], 0.0);
-        assert_relative_eq!(q[(0, 0)], s * s / (2.0 * th) * (1.0 - (-2.0 * th * d).exp()), max_relative = 1e-12);
+        assert_relative_eq!(
+            q[(0, 0)],
+            s * s / (2.0 * th) * (1.0 - (-2.0 * th * d).exp()),
+            max_relative = 1e-12
+        );
     }
 
     #[test]
@@ -328,7 +347,8 @@ mod tests {
             m0: DVector::zeros(1),
             p0: DMatrix::identity(1, 1),
         };
-        let with_nan = Dataset::try_new(vec!["y".into()], vec![0.5, 1.0], vec![vec![f64::NAN], vec![0.8]]).unwrap();
+        let with_nan =
+            Dataset::try_new(vec!["y".into()], vec![0.5, 1.0], vec![vec![f64::NAN], vec![0.8]]).unwrap();
         let without = Dataset::try_new(vec!["y".into()], vec![1.0], vec![vec![0.8]]).unwrap();
         let a = kalman_rts(&model, &with_nan, &[]).unwrap();
         let b = kalman_rts(&model, &without, &[0.5]).unwrap();

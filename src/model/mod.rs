@@ -19,7 +19,8 @@ pub mod observation;
 pub mod prior;
 pub mod special;
 
-pub use observation::{Observation, Param};
+pub use observation::{Noise, Observation, Param, StateMeasurement};
+pub use prior::{Prior, PriorDensity};
 
 use nalgebra::DMatrix;
 use num_dual::Dual;
