@@ -1,3 +1,5 @@
 //! Integration tests of `onsager`: one test binary, one module per area.
 
+mod action;
+mod baselines;
 mod cli;

@@ -1,12 +1,41 @@
-//! `onsager estimate --method ksp|mean-optimal`: the exact effective-action estimators.
+//! `onsager estimate --method ksp|mean-optimal`: the exact effective-action estimators on a grid.
 
+use onsager::action::exact::check_grid_covers;
+use onsager::action::{
+    ksp_path_estimate, ksp_smoother, mean_optimal, mean_optimal_path_estimate, ExactOptions, Grid, GridSpec,
+};
 use onsager::estimate::PathEstimate;
-use onsager::Result;
+use onsager::{Error, Result};
 
-use super::estimate::{not_available, CliProblem, EstimateArgs};
+use super::estimate::{CliProblem, EstimateArgs, Method};
 
-/// Runs an exact grid method.
+/// Runs an exact grid method: `--grid` (required), `--dt` (default: the output step / 4, the
+/// output step being the measurement spacing / 10). The initial density is the x0 prior.
 pub fn run(args: &EstimateArgs, problem: &CliProblem<'_>) -> Result<PathEstimate> {
-    let _ = problem;
-    Err(not_available(args.method, 6))
+    let spec = args.grid.as_deref().ok_or_else(|| Error::InvalidOption {
+        name: "--grid".into(),
+        reason: "the grid methods need a grid, e.g. `--grid lo=-2.5,hi=2.5,cells=500` (two states: \
+                 `--grid lo=-3;-4,hi=3;4,cells=200;200`)"
+            .into(),
+    })?;
+    let grid = GridSpec::parse(spec)?;
+    let mut options = ExactOptions::new(grid.clone());
+    if let Some(dt) = args.dt {
+        options = options.with_dt(dt);
+    }
+    check_grid_covers(&Grid::try_new(grid)?, problem.observation, problem.data)?;
+    match args.method {
+        Method::Ksp => {
+            let ksp = ksp_smoother(problem, &options)?;
+            Ok(ksp_path_estimate(problem, &ksp))
+        }
+        Method::MeanOptimal => {
+            let mo = mean_optimal(problem, &options)?;
+            Ok(mean_optimal_path_estimate(problem, &mo))
+        }
+        other => Err(Error::InvalidOption {
+            name: "--method".into(),
+            reason: format!("`{other:?}` is not a grid method (ksp, mean-optimal)"),
+        }),
+    }
 }

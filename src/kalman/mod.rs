@@ -1,3 +1,448 @@
-//! Kalman-type estimators.
+//! Kalman-type baselines: the continuous-discrete extended and unscented Kalman filters
+//! (EKF, UKF), their Rauch–Tung–Striebel smoothers (EKS, UKS), and the prediction error method
+//! (PEM) — the estimators `002_3b89776223eca539.txt` Sec. 4 and `000_74b95e149527c64e.txt`
+//! Sec. 4.1 compare the MAP path with.
+//!
+//! # Model and approximations
+//!
+//! The state s = (x, z) follows ds = a(t, s, θ) dt + B dW with a = (f, h) and B = (G(θ); 0)
+//! (`000_74b95e149527c64e.txt (2.4)`; clean states have zero noise rows). Between measurement
+//! times the filters integrate Gaussian moment ODEs with the classical fourth-order Runge–Kutta
+//! method on a grid of step at most [`KalmanOptions::dt`]:
+//!
+//! - **extended** (Jazwinski 1970, Sec. 9.3): ṁ = a(t, m), Ṗ = F P + P Fᵀ + B Bᵀ,
+//!   F = ∂a/∂s(t, m) by automatic differentiation;
+//! - **unscented** (Särkkä 2007, eqs. (18)–(19)): ṁ = E[a(t, S)], Ṗ = E[(S − m) a(t, S)ᵀ] +
+//!   E[a(t, S)(S − m)ᵀ] + B Bᵀ with the expectations over N(m, P) by sigma points
+//!   ([`UnscentedParams`]; the default is the spherical cubature rule of Arasaratnam, Haykin &
+//!   Hurd 2010, of which these ODEs are the small-step limit of the discretised prediction).
+//!
+//! At a measurement time t_k the Gaussian measurement y_k = s[i] + N(0, σ²) of the selected
+//! states ([`StateMeasurement`]) is assimilated by the Kalman update (exact for both filters,
+//! the measurement function being linear); missing (NaN) components are skipped. The
+//! prediction-error log-likelihood Σ_k ln N(ν_k; 0, S_k) is reported (Kristensen, Madsen &
+//! Jørgensen 2004, eq. (9)).
+//!
+//! The smoothers run the Rauch–Tung–Striebel backward pass on the integration grid with the
+//! cross-covariance Cov(s_j, s_{j+1}) = P_j Φ_jᵀ, where Φ̇ = F Φ is integrated with the moments
+//! (F the Jacobian for the EKS, the statistical linearisation Mᵀ P⁻¹ for the UKS — the backward
+//! correction of Särkkä 2008). On a linear SDE both filters and smoothers reproduce the exact
+//! Kalman filter and RTS smoother ([`linear`]) up to the Runge–Kutta error O(dt⁴).
+//!
+//! # Assumptions (checked)
+//!
+//! - Gaussian measurement errors: any other [`Noise`](crate::model::observation::Noise) is an
+//!   [`Error::InvalidOption`] (name `likelihood`) — never a silent moment match.
+//! - Unbounded Gaussian initial-state priors (an [`Error::InvalidOption`], name `x0-prior`,
+//!   otherwise), placed at [`KalmanOptions::t0`].
+//!
+//! References: A. H. Jazwinski, *Stochastic Processes and Filtering Theory*, 1970;
+//! S. Särkkä, "On unscented Kalman filtering for state estimation of continuous-time nonlinear
+//! systems", IEEE TAC 52(9), 2007; S. Särkkä, "Unscented Rauch–Tung–Striebel smoother", IEEE
+//! TAC 53(3), 2008; I. Arasaratnam, S. Haykin, T. R. Hurd, "Cubature Kalman filtering for
+//! continuous-discrete systems", IEEE TSP 58(10), 2010; N. R. Kristensen, H. Madsen,
+//! S. B. Jørgensen, "Parameter estimation in stochastic grey-box models", Automatica 40, 2004.
 
+mod dense;
+mod filter;
 pub mod linear;
+pub mod pem;
+
+#[cfg(test)]
+mod tests;
+
+use std::time::Instant;
+
+use nalgebra::DMatrix;
+use serde_json::{json, Map};
+
+use crate::data::{Dataset, StatePath};
+use crate::estimate::{EstimationProblem, PathEstimate, Status};
+use crate::model::observation::StateMeasurement;
+use crate::model::Sde;
+use crate::{Error, Result};
+
+pub use pem::{pem, PemOptions};
+
+pub(crate) use filter::build_nodes;
+
+/// A Gaussian law: mean and covariance (states in the order noisy then clean).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Gaussian {
+    /// The mean.
+    pub mean: Vec<f64>,
+    /// The covariance.
+    pub cov: DMatrix<f64>,
+}
+
+impl Gaussian {
+    /// The marginal standard deviations √diag(cov).
+    pub fn sd(&self) -> Vec<f64> {
+        self.cov.diagonal().iter().map(|v| v.max(0.0).sqrt()).collect()
+    }
+}
+
+/// The sigma points of the unscented filter for an n-dimensional state: the centre m and
+/// m ± √(n + λ) L eⱼ (P = L Lᵀ), λ = α²(n + κ) − n, with mean weights λ/(n + λ) (centre) and
+/// 1/(2(n + λ)) (the others) (Julier & Uhlmann 2004; Särkkä 2008, eq. (5)). The covariance
+/// weight β of the centre point does not enter the moment ODEs (the centre has zero deviation)
+/// and is therefore not a parameter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UnscentedParams {
+    /// Spread α > 0. Default 1.
+    pub alpha: f64,
+    /// κ, with n + λ = α²(n + κ) > 0 required. Default 0: with α = 1 the spherical cubature
+    /// rule of Arasaratnam, Haykin & Hurd (2010), 2n equally weighted points.
+    pub kappa: f64,
+}
+
+impl Default for UnscentedParams {
+    fn default() -> Self {
+        UnscentedParams { alpha: 1.0, kappa: 0.0 }
+    }
+}
+
+impl UnscentedParams {
+    /// (centre weight, weight of each other point, √(n + λ)) for an n-dimensional state.
+    fn weights(&self, n: usize) -> (f64, f64, f64) {
+        let nf = n as f64;
+        let c = self.alpha * self.alpha * (nf + self.kappa);
+        let lambda = c - nf;
+        (lambda / c, 0.5 / c, c.sqrt())
+    }
+
+    /// Checks α > 0 and α²(n + κ) > 0, both finite ([`Error::InvalidOption`]).
+    pub fn validate(&self, n: usize) -> Result<()> {
+        let c = self.alpha * self.alpha * (n as f64 + self.kappa);
+        if !(self.alpha > 0.0 && self.alpha.is_finite() && c > 0.0 && c.is_finite()) {
+            return Err(Error::InvalidOption {
+                name: "unscented".into(),
+                reason: format!(
+                    "need alpha > 0 and alpha^2 (n + kappa) > 0 for n = {n}, got alpha = {}, kappa = {}",
+                    self.alpha, self.kappa
+                ),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Options of the Kalman filters and smoothers.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
+pub struct KalmanOptions {
+    /// Largest Runge–Kutta step of the moment ODEs; each interval between consecutive times
+    /// is split into equal steps. Default (`None`): a tenth of the shortest interval between
+    /// the initial time and the measurement times, and at most 0.01.
+    pub dt: Option<f64>,
+    /// Time of the initial-state prior, ≤ the first measurement time. Default (`None`): 0, or
+    /// the first measurement time when that is negative.
+    pub t0: Option<f64>,
+    /// Sigma points of the unscented methods.
+    pub unscented: UnscentedParams,
+}
+
+impl Default for KalmanOptions {
+    fn default() -> Self {
+        KalmanOptions { dt: None, t0: None, unscented: UnscentedParams::default() }
+    }
+}
+
+impl KalmanOptions {
+    /// Sets the largest integration step.
+    pub fn with_dt(mut self, dt: f64) -> Self {
+        self.dt = Some(dt);
+        self
+    }
+
+    /// Sets the time of the initial-state prior.
+    pub fn with_t0(mut self, t0: f64) -> Self {
+        self.t0 = Some(t0);
+        self
+    }
+
+    /// Sets the sigma-point parameters.
+    pub fn with_unscented(mut self, unscented: UnscentedParams) -> Self {
+        self.unscented = unscented;
+        self
+    }
+
+    /// The initial time for `data`: [`KalmanOptions::t0`] or min(0, first time).
+    pub fn initial_time(&self, data: &Dataset) -> f64 {
+        self.t0.unwrap_or_else(|| data.times.first().map_or(0.0, |&t| t.min(0.0)))
+    }
+
+    /// The integration step for `data`: [`KalmanOptions::dt`] or its default.
+    pub fn step(&self, data: &Dataset) -> f64 {
+        self.dt.unwrap_or_else(|| default_step(self.initial_time(data), &data.times))
+    }
+}
+
+/// A tenth of the shortest positive interval between `t0` and the `times`, at most 0.01.
+pub(crate) fn default_step(t0: f64, times: &[f64]) -> f64 {
+    let mut shortest = f64::INFINITY;
+    let mut last = t0;
+    for &t in times {
+        if t > last {
+            shortest = shortest.min(t - last);
+        }
+        last = t;
+    }
+    (shortest / 10.0).min(0.01)
+}
+
+/// The four Kalman estimators of the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum KalmanMethod {
+    /// Continuous-discrete extended Kalman filter (`ekf`).
+    Ekf,
+    /// Extended Rauch–Tung–Striebel smoother (`eks`).
+    Eks,
+    /// Continuous-discrete unscented Kalman filter (`ukf`).
+    Ukf,
+    /// Unscented Rauch–Tung–Striebel smoother (`uks`).
+    Uks,
+}
+
+impl KalmanMethod {
+    /// The method's name as on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            KalmanMethod::Ekf => "ekf",
+            KalmanMethod::Eks => "eks",
+            KalmanMethod::Ukf => "ukf",
+            KalmanMethod::Uks => "uks",
+        }
+    }
+
+    fn is_unscented(self) -> bool {
+        matches!(self, KalmanMethod::Ukf | KalmanMethod::Uks)
+    }
+
+    fn is_smoother(self) -> bool {
+        matches!(self, KalmanMethod::Eks | KalmanMethod::Uks)
+    }
+}
+
+/// The moment approximation of a filter run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Approximation {
+    /// Linearisation about the mean (EKF/EKS).
+    Extended,
+    /// Sigma points (UKF/UKS).
+    Unscented(UnscentedParams),
+}
+
+impl Approximation {
+    fn rule(self) -> filter::Rule {
+        match self {
+            Approximation::Extended => filter::Rule::Extended,
+            Approximation::Unscented(u) => filter::Rule::Unscented(u),
+        }
+    }
+}
+
+/// A filter pass: the predicted and filtered moments on the integration grid (the initial
+/// time, the Runge–Kutta points and the measurement times).
+#[derive(Debug, Clone)]
+pub struct KalmanRun {
+    /// Grid times.
+    pub times: Vec<f64>,
+    /// Whether a measurement was assimilated at each grid time.
+    pub measured: Vec<bool>,
+    /// Predicted moments (before the measurement update; the prior at the first time).
+    pub predicted: Vec<Gaussian>,
+    /// Filtered moments (after the measurement update, if any).
+    pub filtered: Vec<Gaussian>,
+    /// The prediction-error log-likelihood Σ_k ln N(ν_k; 0, S_k).
+    pub log_likelihood: f64,
+    /// [`Status::Converged`], or [`Status::NumericalFailure`] when a covariance stopped being
+    /// positive definite (the moments then end at the failure).
+    pub status: Status,
+    /// The time of the numerical failure, if any.
+    pub failed_at: Option<f64>,
+    /// The integration step used (the largest; each interval has equal steps).
+    pub dt: f64,
+    phi: Vec<DMatrix<f64>>,
+}
+
+impl KalmanRun {
+    /// The Rauch–Tung–Striebel smoothed moments on the same grid (see the module
+    /// documentation). `None` when the filter failed or a predicted covariance is singular.
+    pub fn smooth(&self) -> Option<Vec<Gaussian>> {
+        if self.failed_at.is_some() {
+            return None;
+        }
+        let store = filter::Store {
+            times: self.times.clone(),
+            measured: self.measured.clone(),
+            predicted: self.predicted.clone(),
+            filtered: self.filtered.clone(),
+            phi: self.phi.clone(),
+        };
+        filter::smooth(&store).ok()
+    }
+}
+
+/// Checks the parts of a problem the Kalman methods use and returns the filter setup.
+fn setup<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    theta: &[f64],
+    options: &KalmanOptions,
+    method: &str,
+) -> Result<filter::Setup> {
+    problem.validate()?;
+    filter::Setup::new(
+        problem.sde,
+        problem.observation,
+        theta,
+        problem.x0_prior,
+        problem.z0_prior,
+        problem.data,
+        options.initial_time(problem.data),
+        options.step(problem.data),
+        method,
+    )
+}
+
+/// Runs the continuous-discrete filter `approximation` at θ = `theta` (not
+/// `problem.theta`, so that the PEM can filter at its estimate; `problem.estimate` is
+/// ignored).
+///
+/// Errors: those of [`EstimationProblem::validate`]; [`Error::InvalidOption`] for a
+/// non-Gaussian likelihood (name `likelihood`), a non-Gaussian initial-state prior (`x0-prior`),
+/// a bad step, initial time or sigma-point parameters; [`Error::SingularDiffusion`].
+pub fn filter<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    theta: &[f64],
+    approximation: Approximation,
+    options: &KalmanOptions,
+) -> Result<KalmanRun> {
+    let name = match approximation {
+        Approximation::Extended => "ekf",
+        Approximation::Unscented(_) => "ukf",
+    };
+    filter_named(problem, theta, approximation, options, name)
+}
+
+/// [`filter`], naming `method` in error messages.
+fn filter_named<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    theta: &[f64],
+    approximation: Approximation,
+    options: &KalmanOptions,
+    name: &str,
+) -> Result<KalmanRun> {
+    let mut full = problem.theta.to_vec();
+    crate::model::check_len("theta", full.len(), theta.len())?;
+    full.copy_from_slice(theta);
+    if let Approximation::Unscented(u) = approximation {
+        u.validate(problem.sde.dims().states())?;
+    }
+    let setup = setup(problem, &full, options, name)?;
+    let mut store = filter::Store::default();
+    let result =
+        filter::run(problem.sde, &setup, problem.data, approximation.rule(), &full, Some(&mut store));
+    let (log_likelihood, status, failed_at) = match result {
+        Ok(ll) => (ll, Status::Converged, None),
+        Err(t) => (f64::NAN, Status::NumericalFailure, Some(t)),
+    };
+    let filter::Store { times, measured, predicted, filtered, phi } = store;
+    Ok(KalmanRun {
+        times,
+        measured,
+        predicted,
+        filtered,
+        log_likelihood,
+        status,
+        failed_at,
+        dt: options.step(problem.data),
+        phi,
+    })
+}
+
+/// The state path of a list of Gaussian moments.
+fn path_of(names: Vec<String>, times: &[f64], moments: &[Gaussian]) -> StatePath {
+    StatePath {
+        names,
+        times: times[..moments.len()].to_vec(),
+        values: moments.iter().map(|g| g.mean.clone()).collect(),
+        sd: Some(moments.iter().map(Gaussian::sd).collect()),
+    }
+}
+
+/// `problem.estimate` must be empty for methods that do not estimate parameters.
+fn no_estimated_parameters<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    method: &str,
+) -> Result<()> {
+    if problem.estimate.is_empty() {
+        Ok(())
+    } else {
+        Err(Error::InvalidOption {
+            name: "estimate".into(),
+            reason: format!(
+                "`{method}` does not estimate parameters; use `pem` to estimate them with the UKF"
+            ),
+        })
+    }
+}
+
+/// Runs the EKF, EKS, UKF or UKS at `problem.theta` and returns the filtered or smoothed
+/// path on the integration grid, with standard deviations. The report's details hold the
+/// log-likelihood, the step, the initial time and (after a failure) `failed_at`.
+///
+/// Errors: those of [`filter`]; [`Error::InvalidOption`] (name `estimate`) when
+/// `problem.estimate` is not empty (use [`pem()`]).
+pub fn estimate<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    method: KalmanMethod,
+    options: &KalmanOptions,
+) -> Result<PathEstimate> {
+    no_estimated_parameters(problem, method.name())?;
+    let start = Instant::now();
+    let approximation = if method.is_unscented() {
+        Approximation::Unscented(options.unscented)
+    } else {
+        Approximation::Extended
+    };
+    let run = filter_named(problem, problem.theta, approximation, options, method.name())?;
+    let mut status = run.status;
+    let mut details = run_details(&run, problem.data, options);
+    let moments = if method.is_smoother() && run.failed_at.is_none() {
+        match run.smooth() {
+            Some(s) => s,
+            None => {
+                status = Status::NumericalFailure;
+                details.insert("smoother".into(), json!("a predicted covariance is singular"));
+                run.filtered.clone()
+            }
+        }
+    } else {
+        run.filtered.clone()
+    };
+    Ok(PathEstimate {
+        method: method.name().into(),
+        path: path_of(problem.sde.state_names(), &run.times, &moments),
+        theta_names: problem.sde.param_names(),
+        theta: problem.theta.to_vec(),
+        estimated: Vec::new(),
+        theta_sd: None,
+        status,
+        iterations: 0,
+        solve_seconds: start.elapsed().as_secs_f64(),
+        details,
+    })
+}
+
+fn run_details(run: &KalmanRun, data: &Dataset, options: &KalmanOptions) -> Map<String, serde_json::Value> {
+    let mut d = Map::new();
+    d.insert("log_likelihood".into(), json!(run.log_likelihood));
+    d.insert("dt".into(), json!(run.dt));
+    d.insert("t0".into(), json!(options.initial_time(data)));
+    d.insert("grid_points".into(), json!(run.times.len()));
+    if let Some(t) = run.failed_at {
+        d.insert("failed_at".into(), json!(t));
+    }
+    d
+}
