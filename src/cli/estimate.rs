@@ -10,7 +10,7 @@ use onsager::estimate::{EstimationProblem, PathEstimate};
 use onsager::model::library::{BuiltinModel, Preset};
 use onsager::model::observation::StateMeasurement;
 use onsager::model::{Observation, Sde};
-use onsager::{Error, Result};
+use onsager::Result;
 
 use super::{create_parent, ModelArgs};
 
@@ -145,14 +145,5 @@ fn print_summary(est: &PathEstimate, problem: &CliProblem<'_>) {
     for (k, &i) in est.estimated.iter().enumerate() {
         let sd = est.theta_sd.as_ref().map_or(String::new(), |sd| format!(" ± {:.4}", sd[k]));
         println!("  {} = {:.6}{sd}", names[i], est.theta[i]);
-    }
-}
-
-/// The error for a method that this build does not provide yet.
-pub fn not_available(method: Method, issue: u32) -> Error {
-    let name = method.to_possible_value().map_or_else(|| format!("{method:?}"), |v| v.get_name().to_string());
-    Error::InvalidOption {
-        name: "--method".into(),
-        reason: format!("method `{name}` is not available yet (issue {issue})"),
     }
 }

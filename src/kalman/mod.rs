@@ -17,7 +17,7 @@
 //!   ([`UnscentedParams`]; the default is the spherical cubature rule of Arasaratnam, Haykin &
 //!   Hurd 2010, of which these ODEs are the small-step limit of the discretised prediction).
 //!
-//! At a measurement time t_k the Gaussian measurement y_k = s[i] + N(0, σ²) of the selected
+//! At a measurement time t_k the Gaussian measurement y_k = s_i + N(0, σ²) of the selected
 //! states ([`StateMeasurement`]) is assimilated by the Kalman update (exact for both filters,
 //! the measurement function being linear); missing (NaN) components are skipped. The
 //! prediction-error log-likelihood Σ_k ln N(ν_k; 0, S_k) is reported (Kristensen, Madsen &
@@ -128,7 +128,7 @@ impl UnscentedParams {
 }
 
 /// Options of the Kalman filters and smoothers.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 #[non_exhaustive]
 pub struct KalmanOptions {
     /// Largest Runge–Kutta step of the moment ODEs; each interval between consecutive times
@@ -140,12 +140,6 @@ pub struct KalmanOptions {
     pub t0: Option<f64>,
     /// Sigma points of the unscented methods.
     pub unscented: UnscentedParams,
-}
-
-impl Default for KalmanOptions {
-    fn default() -> Self {
-        KalmanOptions { dt: None, t0: None, unscented: UnscentedParams::default() }
-    }
 }
 
 impl KalmanOptions {

@@ -1,0 +1,90 @@
+//! The baselines (issue 8) on the Duffing oscillator of `000_74b95e149527c64e.txt` Sec. 4.1.1
+//! (Table 4.1), T = 20, 201 measurements, default steps (RK4 / Euler 0.01): the UKS, the EKS,
+//! the PEM of (a, b, d, σ_y) from the nominal start, and the particle smoother (N = 500,
+//! ancestral paths since the model has a clean state) — and the OU particle FFBSi smoother
+//! (N = 1000, M = 500, T = 10).
+
+use std::hint::black_box;
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+
+use onsager::data::Dataset;
+use onsager::estimate::EstimationProblem;
+use onsager::kalman::{estimate, pem, KalmanMethod, KalmanOptions, PemOptions};
+use onsager::model::library::{preset, BuiltinModel, Preset};
+use onsager::model::observation::StateMeasurement;
+use onsager::particle::{self, ParticleOptions};
+use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
+
+fn data(p: &Preset, t_end: f64) -> Dataset {
+    let mut rng = StdRng::seed_from_u64(1);
+    let x0: Vec<f64> = p.x0_prior.iter().map(|q| q.sample(&mut rng).expect("prior")).collect();
+    let z0: Vec<f64> = p.z0_prior.iter().map(|q| q.sample(&mut rng).expect("prior")).collect();
+    let path = simulate(&p.model, &p.theta, &x0, &z0, &SimulateOptions::new(0.0, t_end, p.dt), &mut rng)
+        .expect("simulation");
+    sample_measurements(&p.observation, &p.theta, &path, p.dims().noisy, p.sample_every, &mut rng)
+        .expect("measurements")
+}
+
+fn problem<'a>(
+    p: &'a Preset,
+    data: &'a Dataset,
+    estimate: &'a [usize],
+) -> EstimationProblem<'a, BuiltinModel, StateMeasurement> {
+    EstimationProblem {
+        sde: &p.model,
+        observation: &p.observation,
+        theta: &p.theta,
+        theta_prior: &p.theta_prior,
+        estimate,
+        x0_prior: &p.x0_prior,
+        z0_prior: &p.z0_prior,
+        data,
+    }
+}
+
+fn bench(c: &mut Criterion) {
+    let p = preset("duffing").expect("preset");
+    let d = data(&p, 20.0);
+    let est: Vec<usize> =
+        ["a", "b", "d", "sigma_y"].iter().map(|n| p.param_index(n).expect("name")).collect();
+    let mut group = c.benchmark_group("baselines_duffing_t20");
+    group.sample_size(10);
+    let opts = KalmanOptions::default();
+    group.bench_function("uks", |b| {
+        b.iter(|| black_box(estimate(&problem(&p, &d, &[]), KalmanMethod::Uks, &opts).expect("uks")))
+    });
+    group.bench_function("eks", |b| {
+        b.iter(|| black_box(estimate(&problem(&p, &d, &[]), KalmanMethod::Eks, &opts).expect("eks")))
+    });
+    group.bench_function("pem", |b| {
+        b.iter(|| black_box(pem(&problem(&p, &d, &est), &PemOptions::default()).expect("pem")))
+    });
+    group.bench_function("particle_500", |b| {
+        b.iter(|| {
+            let mut rng = StdRng::seed_from_u64(2);
+            let options = ParticleOptions::default().with_particles(500);
+            black_box(particle::estimate(&problem(&p, &d, &[]), &options, &mut rng).expect("particle"))
+        })
+    });
+    group.finish();
+
+    let ou = preset("ou").expect("preset");
+    let d = data(&ou, 10.0);
+    let problem = problem(&ou, &d, &[]);
+    let mut group = c.benchmark_group("baselines_ou_t10");
+    group.sample_size(10);
+    group.bench_function("particle_ffbsi_1000_500", |b| {
+        b.iter(|| {
+            let mut rng = StdRng::seed_from_u64(3);
+            let options = ParticleOptions::default().with_particles(1000).with_backward_paths(500);
+            black_box(particle::estimate(&problem, &options, &mut rng).expect("particle"))
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
