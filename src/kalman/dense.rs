@@ -8,60 +8,39 @@
 
 use crate::model::Scalar;
 
-/// The lower Cholesky factor L of the symmetric `n × n` matrix `a` (A = L Lᵀ; only the lower
-/// triangle of `a` is read), column-major with zeros above the diagonal. `None` when A is not
-/// numerically positive definite (a pivot ≤ 0 or not finite, judged on the real parts).
-pub(crate) fn cholesky<D: Scalar>(a: &[D], n: usize) -> Option<Vec<D>> {
-    let mut l = vec![D::from(0.0); n * n];
-    for j in 0..n {
-        let mut d = a[j + j * n];
-        for k in 0..j {
-            d -= l[j + k * n] * l[j + k * n];
-        }
-        if !(d.re() > 0.0 && d.re().is_finite()) {
-            return None;
-        }
-        let djj = d.sqrt();
-        l[j + j * n] = djj;
-        for i in j + 1..n {
-            let mut s = a[i + j * n];
-            for k in 0..j {
-                s -= l[i + k * n] * l[j + k * n];
-            }
-            l[i + j * n] = s / djj;
-        }
-    }
-    Some(l)
+/// The lower Cholesky factor L of a symmetric positive definite `n × n` matrix (A = L Lᵀ),
+/// computed by the crate's one generic Cholesky, [`onsager_closures::cholesky`] (row-major
+/// storage: L_ik at `i * n + k`).
+pub(crate) struct CholeskyFactor<D> {
+    l: Vec<D>,
+    n: usize,
 }
 
-/// Solves A X = B in place for the `n × k` right-hand side `b` (column-major), given the
-/// Cholesky factor `l` of A from [`cholesky`].
-pub(crate) fn cholesky_solve_in_place<D: Scalar>(l: &[D], n: usize, b: &mut [D]) {
-    let k = b.len() / n.max(1);
-    for c in 0..k {
-        let col = &mut b[c * n..(c + 1) * n];
-        // L y = b
-        for i in 0..n {
-            let mut s = col[i];
-            for j in 0..i {
-                s -= l[i + j * n] * col[j];
-            }
-            col[i] = s / l[i + i * n];
-        }
-        // Lᵀ x = y
-        for i in (0..n).rev() {
-            let mut s = col[i];
-            for j in i + 1..n {
-                s -= l[j + i * n] * col[j];
-            }
-            col[i] = s / l[i + i * n];
-        }
-    }
+/// The Cholesky factor of the symmetric `n × n` matrix `a` (symmetric, so its storage order
+/// does not matter). `None` when A is not numerically positive definite or not finite.
+pub(crate) fn cholesky<D: Scalar>(a: &[D], n: usize) -> Option<CholeskyFactor<D>> {
+    onsager_closures::cholesky(a, n).ok().map(|l| CholeskyFactor { l, n })
 }
 
-/// ln det A = 2 Σ ln L_ii from the Cholesky factor of A.
-pub(crate) fn cholesky_log_det<D: Scalar>(l: &[D], n: usize) -> D {
-    (0..n).map(|i| l[i + i * n].ln()).sum::<D>() * 2.0
+impl<D: Scalar> CholeskyFactor<D> {
+    /// The entry L_ij (zero above the diagonal).
+    pub(crate) fn entry(&self, i: usize, j: usize) -> D {
+        self.l[i * self.n + j]
+    }
+
+    /// Solves A X = B in place for the `n × k` right-hand side `b` (column-major).
+    pub(crate) fn solve_in_place(&self, b: &mut [D]) {
+        let n = self.n;
+        for col in b.chunks_mut(n.max(1)) {
+            let x = onsager_closures::cholesky_solve(&self.l, col).expect("the factor is n × n");
+            col.copy_from_slice(&x);
+        }
+    }
+
+    /// ln det A = 2 Σ ln L_ii.
+    pub(crate) fn log_det(&self) -> D {
+        onsager_closures::cholesky_log_det(&self.l, self.n).expect("the factor is n × n")
+    }
 }
 
 /// C = A B for A `r × s` and B `s × c`, column-major.
@@ -110,18 +89,19 @@ mod tests {
         // A = [[4, 2], [2, 3]]: L = [[2, 0], [1, √2]], det A = 8; A [1, 1]ᵀ = [6, 5]ᵀ.
         let a = [4.0, 2.0, 2.0, 3.0];
         let l = cholesky(&a, 2).unwrap();
-        assert_relative_eq!(l[0], 2.0, epsilon = 1e-15);
-        assert_relative_eq!(l[1], 1.0, epsilon = 1e-15);
-        assert_relative_eq!(l[3], 2f64.sqrt(), epsilon = 1e-15);
-        assert_eq!(l[2], 0.0);
-        let mut b = [6.0, 5.0];
-        cholesky_solve_in_place(&l, 2, &mut b);
-        assert_relative_eq!(b[0], 1.0, epsilon = 1e-14);
-        assert_relative_eq!(b[1], 1.0, epsilon = 1e-14);
-        assert_relative_eq!(cholesky_log_det(&l, 2), 8f64.ln(), epsilon = 1e-14);
-        // Not positive definite (eigenvalues 3, −1), and the empty matrix.
+        assert_relative_eq!(l.entry(0, 0), 2.0, epsilon = 1e-15);
+        assert_relative_eq!(l.entry(1, 0), 1.0, epsilon = 1e-15);
+        assert_relative_eq!(l.entry(1, 1), 2f64.sqrt(), epsilon = 1e-15);
+        assert_eq!(l.entry(0, 1), 0.0);
+        // Two right-hand sides, column-major: A [1, 1]ᵀ = [6, 5]ᵀ and A [1, 0]ᵀ = [4, 2]ᵀ.
+        let mut b = [6.0, 5.0, 4.0, 2.0];
+        l.solve_in_place(&mut b);
+        for (got, want) in b.iter().zip([1.0, 1.0, 1.0, 0.0]) {
+            assert_relative_eq!(*got, want, epsilon = 1e-14);
+        }
+        assert_relative_eq!(l.log_det(), 8f64.ln(), epsilon = 1e-14);
+        // Not positive definite (eigenvalues 3, −1).
         assert!(cholesky(&[1.0, 2.0, 2.0, 1.0], 2).is_none());
-        assert!(cholesky::<f64>(&[], 0).unwrap().is_empty());
     }
 
     #[test]

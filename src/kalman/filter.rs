@@ -8,9 +8,7 @@
 use nalgebra::DMatrix;
 use num_dual::Dual;
 
-use super::dense::{
-    cholesky, cholesky_log_det, cholesky_solve_in_place, matmul, symmetrize_in_place, transpose,
-};
+use super::dense::{cholesky, matmul, symmetrize_in_place, transpose};
 use super::{Gaussian, UnscentedParams};
 use crate::data::Dataset;
 use crate::model::observation::{Noise, StateMeasurement};
@@ -276,11 +274,10 @@ fn rates<S: Sde + ?Sized, D: Scalar>(
             let mut x = vec![zero; n];
             let mut a = vec![zero; n];
             for j in 0..n {
-                let col = &l[j * n..(j + 1) * n];
                 for sign in [1.0, -1.0] {
                     let k = scale * sign;
                     for i in 0..n {
-                        x[i] = m[i] + col[i] * k;
+                        x[i] = m[i] + l.entry(i, j) * k;
                     }
                     full_drift(sde, noisy, t, &x, theta, &mut a);
                     for c in 0..n {
@@ -288,7 +285,7 @@ fn rates<S: Sde + ?Sized, D: Scalar>(
                         let ac = a[c] * (wi * k);
                         // (Xᵢ − m)_r = L_rj k; L is lower triangular, rows r ≥ j.
                         for r in j..n {
-                            mm[r + c * n] += col[r] * ac;
+                            mm[r + c * n] += l.entry(r, j) * ac;
                         }
                     }
                 }
@@ -302,7 +299,7 @@ fn rates<S: Sde + ?Sized, D: Scalar>(
             let f = if want_f {
                 // F = Mᵀ P⁻¹ = (P⁻¹ M)ᵀ.
                 let mut pm = mm.clone();
-                cholesky_solve_in_place(&l, n, &mut pm);
+                l.solve_in_place(&mut pm);
                 Some(transpose(&pm, n, n))
             } else {
                 None
@@ -413,7 +410,7 @@ fn update<D: Scalar>(m: &mut [D], p: &mut [D], measured: &[usize], y: &[f64], si
     let l = cholesky(&s, k)?;
     let nu: Vec<D> = idx.iter().map(|&(j, yv)| D::from(yv) - m[j]).collect();
     let mut snu = nu.clone();
-    cholesky_solve_in_place(&l, k, &mut snu);
+    l.solve_in_place(&mut snu);
     // P Hᵀ (n × k) and S⁻¹ H P (k × n).
     let mut pht = vec![D::from(0.0); n * k];
     for (c, &(jc, _)) in idx.iter().enumerate() {
@@ -422,7 +419,7 @@ fn update<D: Scalar>(m: &mut [D], p: &mut [D], measured: &[usize], y: &[f64], si
         }
     }
     let mut sinv_hp = transpose(&pht, n, k);
-    cholesky_solve_in_place(&l, k, &mut sinv_hp);
+    l.solve_in_place(&mut sinv_hp);
     for i in 0..n {
         for c in 0..k {
             m[i] += pht[i + c * n] * snu[c];
@@ -434,7 +431,7 @@ fn update<D: Scalar>(m: &mut [D], p: &mut [D], measured: &[usize], y: &[f64], si
     }
     symmetrize_in_place(p, n);
     let quad: D = nu.iter().zip(&snu).map(|(&a, &b)| a * b).sum();
-    Some(-(quad + cholesky_log_det(&l, k) + LN_2PI * k as f64) * 0.5)
+    Some(-(quad + l.log_det() + LN_2PI * k as f64) * 0.5)
 }
 
 /// Runs the filter at θ and returns the prediction-error log-likelihood Σ_k ln N(ν_k; 0, S_k),
