@@ -8,63 +8,13 @@
 
 use std::path::Path;
 
-use serde::{Deserialize, Serialize};
 use serde_json::{json, Map, Value};
 
 use crate::data::{Dataset, StatePath};
 use crate::model::prior::Prior;
 use crate::model::{check_len, Observation, Sde};
+pub use crate::status::Status;
 use crate::{Error, Result};
-
-/// The numerical outcome of an estimator.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-#[non_exhaustive]
-pub enum Status {
-    /// Converged to the requested tolerance.
-    Converged,
-    /// Converged to a looser, "acceptable" tolerance.
-    Acceptable,
-    /// Stopped at the iteration limit.
-    MaxIterations,
-    /// Stopped at the time limit.
-    TimeLimit,
-    /// The problem was found (locally) infeasible.
-    Infeasible,
-    /// The objective was found unbounded.
-    Unbounded,
-    /// A numerical failure (singular system, non-finite values, unrealizable moments, …).
-    NumericalFailure,
-    /// Stopped by a user callback.
-    UserStop,
-}
-
-impl Status {
-    /// Whether the estimate can be used as a converged result.
-    pub fn is_success(self) -> bool {
-        matches!(self, Status::Converged | Status::Acceptable)
-    }
-
-    /// The status's name as written in reports.
-    pub fn name(self) -> &'static str {
-        match self {
-            Status::Converged => "converged",
-            Status::Acceptable => "acceptable",
-            Status::MaxIterations => "max-iterations",
-            Status::TimeLimit => "time-limit",
-            Status::Infeasible => "infeasible",
-            Status::Unbounded => "unbounded",
-            Status::NumericalFailure => "numerical-failure",
-            Status::UserStop => "user-stop",
-        }
-    }
-}
-
-impl std::fmt::Display for Status {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
 
 /// Everything an estimator needs to know about the model and the data.
 #[derive(Debug)]

@@ -40,9 +40,12 @@ pub mod error;
 pub mod estimate;
 pub mod kalman;
 pub mod model;
+pub mod nlp;
 pub mod particle;
 pub mod simulate;
+pub mod status;
 
 pub use error::{Error, Result};
+pub use status::Status;
 /// The trial-density families of the Rayleigh–Ritz closures (the `onsager-closures` crate).
 pub use onsager_closures as closures;

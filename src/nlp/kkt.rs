@@ -1,0 +1,544 @@
+//! The KKT (augmented) system of the interior-point method and its sparse LDLᵀ solver.
+//!
+//! Each Newton step of [`InteriorPoint`](super::InteriorPoint) solves
+//!
+//! $$\begin{pmatrix} W + \Sigma + \delta_w I & J^\top \\\\ J & -\delta_c I \end{pmatrix}
+//! \begin{pmatrix} d_w \\\\ d_y \end{pmatrix} = -\begin{pmatrix} r_w \\\\ r_c \end{pmatrix}$$
+//!
+//! (Wächter & Biegler 2006, eq. (13) with the regularisation of Sect. 3.1), where $W$ is the
+//! Hessian of the Lagrangian, $\Sigma$ the diagonal barrier term and $J$ the constraint
+//! Jacobian. The pattern of this matrix never changes, so it is built once, with index maps
+//! from the problem's Hessian and Jacobian triplets to the slots of the matrix (as Clarabel
+//! does); only values are scattered in each iteration.
+//!
+//! [`FaerLdlt`] factorises it with faer's simplicial sparse LDLᵀ, without pivoting. The
+//! symbolic analysis is done once per problem, with an ordering of our own: an approximate
+//! minimum degree ordering of the primal graph (pattern of $W + J^\top J$) in which each
+//! constraint row is placed right after the last of its variables, so that its pivot is a
+//! Schur complement $-\delta_c - J_r (\cdot)^{-1} J_r^\top$ rather than the structural zero
+//! $-\delta_c$. Variables coupled to very many others (a static parameter shared by every
+//! transition) and dense constraint rows are ordered last, so they do not fill in the factor.
+//! The factorisation then exists, for example, whenever the primal block is positive definite,
+//! and the inertia is read from the signs of $D$ (Sylvester's law of inertia).
+//!
+//! Pivots with $|d| \le 10^{-30}\max|K_{ij}|$ are replaced by faer's dynamic regularisation
+//! ($\pm 10^{-12}\max|K_{ij}|$ with the pivot's sign) and counted in
+//! [`FactorInfo::regularized_pivots`]. faer's sign-prescribing mode (expected signs + for the
+//! primal rows, − for the constraint rows) is deliberately not used: it flips every pivot of
+//! the unexpected sign, which hides exactly the inertia the interior-point method needs when
+//! the Hessian is indefinite. How the interior-point method uses a regularised factorisation
+//! is described in the [documentation of `nlp`](super).
+
+// Loops over matrix positions index several arrays (pattern, values, permutation) at once.
+#![allow(clippy::needless_range_loop)]
+
+use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
+use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
+use faer::sparse::linalg::amd;
+use faer::sparse::linalg::cholesky::{
+    factorize_symbolic_cholesky, simplicial, CholeskySymbolicParams, SymbolicCholesky, SymbolicCholeskyRaw,
+    SymmetricOrdering,
+};
+use faer::sparse::linalg::SupernodalThreshold;
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+use faer::{Conj, MatMut, Par, Side};
+
+use crate::{Error, Result};
+
+/// The fixed sparsity structure of a KKT system: dimensions and the problem's patterns.
+#[derive(Clone, Copy, Debug)]
+pub struct KktStructure<'a> {
+    /// Number of primal variables $n$.
+    pub n: usize,
+    /// Number of equality constraints $m$.
+    pub m: usize,
+    /// Lower-triangular Hessian pattern, `(row, column)` with `row >= column`, indices `< n`.
+    pub hessian: &'a [(usize, usize)],
+    /// Jacobian pattern, `(row, column)` with `row < m`, `column < n`.
+    pub jacobian: &'a [(usize, usize)],
+}
+
+/// The values of one KKT matrix, in the order of the patterns of [`KktStructure`].
+#[derive(Clone, Copy, Debug)]
+pub struct KktValues<'a> {
+    /// Hessian values (length of the Hessian pattern).
+    pub hessian: &'a [f64],
+    /// Jacobian values (length of the Jacobian pattern).
+    pub jacobian: &'a [f64],
+    /// Diagonal added to the primal block ($\Sigma$, length $n$).
+    pub primal_diagonal: &'a [f64],
+    /// Primal regularisation $\delta_w \ge 0$, added to every primal diagonal entry.
+    pub delta_w: f64,
+    /// Constraint regularisation $\delta_c \ge 0$, subtracted from every constraint diagonal
+    /// entry.
+    pub delta_c: f64,
+}
+
+/// Inertia of a symmetric matrix: numbers of positive, negative and zero eigenvalues.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct Inertia {
+    /// Number of positive eigenvalues.
+    pub positive: usize,
+    /// Number of negative eigenvalues.
+    pub negative: usize,
+    /// Number of (numerically) zero eigenvalues.
+    pub zero: usize,
+}
+
+/// What a numeric factorisation found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FactorInfo {
+    /// Inertia read from the signs of $D$.
+    pub inertia: Inertia,
+    /// Number of pivots that were numerically zero and replaced by the dynamic
+    /// regularisation; when positive the inertia is uncertain and the matrix should be treated
+    /// as singular.
+    pub regularized_pivots: usize,
+}
+
+/// A linear solver for the KKT system: symbolic analysis once, numeric factorisation per
+/// iteration, solves with the last factorisation.
+pub trait KktSolver {
+    /// Analyses the fixed pattern; called once per problem, before any factorisation.
+    ///
+    /// # Errors
+    /// [`Error::InvalidOption`] if the analysis cannot be done (e.g. out of memory).
+    fn analyse(&mut self, structure: &KktStructure<'_>) -> Result<()>;
+
+    /// Assembles and factorises the matrix with the given values. Returns `None` when the
+    /// factorisation broke down (non-finite values or a pivot that could not be regularised)
+    /// or [`analyse`](Self::analyse) was not called.
+    fn factorize(&mut self, values: &KktValues<'_>) -> Option<FactorInfo>;
+
+    /// Solves $K x = b$ in place with the last successful factorisation (the result is
+    /// meaningless otherwise) (with iterative refinement against
+    /// the assembled matrix) and returns the relative residual
+    /// $\lVert b - K x\rVert_\infty / \lVert b\rVert_\infty$.
+    fn solve_in_place(&mut self, rhs: &mut [f64]) -> f64;
+
+    /// Numbers of nonzeros of the KKT matrix (upper triangle) and of its factor, when known.
+    fn nnz(&self) -> (usize, usize) {
+        (0, 0)
+    }
+}
+
+/// Sparse LDLᵀ of the KKT matrix with faer (simplicial, no pivoting, ordering described in the
+/// [module documentation](self)).
+#[derive(Default)]
+pub struct FaerLdlt {
+    n: usize,
+    m: usize,
+    /// `perm[p]` = original row of position `p`.
+    perm: Vec<usize>,
+    /// Upper-triangular CSC pattern of the permuted matrix.
+    col_ptr: Vec<usize>,
+    row_idx: Vec<usize>,
+    values: Vec<f64>,
+    hess_map: Vec<usize>,
+    jac_map: Vec<usize>,
+    diag_map: Vec<usize>,
+    symbolic: Option<SymbolicCholesky<usize>>,
+    l_values: Vec<f64>,
+    factor_mem: Option<MemBuffer>,
+    work_x: Vec<f64>,
+    work_r: Vec<f64>,
+    work_b: Vec<f64>,
+    work_prev: Vec<f64>,
+    norm_k: f64,
+    last_residual: f64,
+    /// Maximum number of iterative refinement steps (default 10).
+    pub max_refinement_steps: usize,
+}
+
+impl std::fmt::Debug for FaerLdlt {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FaerLdlt")
+            .field("n", &self.n)
+            .field("m", &self.m)
+            .field("matrix_nnz", &self.matrix_nnz())
+            .field("factor_nnz", &self.factor_nnz())
+            .field("max_refinement_steps", &self.max_refinement_steps)
+            .finish()
+    }
+}
+
+impl FaerLdlt {
+    /// A solver with default settings; call [`KktSolver::analyse`] before use.
+    pub fn new() -> Self {
+        Self { max_refinement_steps: 10, ..Default::default() }
+    }
+
+    /// Number of nonzeros of the (upper triangle of the) KKT matrix.
+    pub fn matrix_nnz(&self) -> usize {
+        self.row_idx.len()
+    }
+
+    /// ‖b − K x‖∞ / ‖b‖∞ after the last solve.
+    pub fn last_relative_residual(&self) -> f64 {
+        self.last_residual
+    }
+
+    /// Number of nonzeros of the factor $L$ (including the diagonal holding $D$).
+    pub fn factor_nnz(&self) -> usize {
+        self.l_values.len()
+    }
+
+    fn simplicial(&self) -> &simplicial::SymbolicSimplicialCholesky<usize> {
+        match self.symbolic.as_ref().map(|s| s.raw()) {
+            Some(SymbolicCholeskyRaw::Simplicial(s)) => s,
+            _ => unreachable!("FaerLdlt forces a simplicial analysis"),
+        }
+    }
+
+    /// y = K x in permuted coordinates (symmetric product from the upper triangle).
+    fn sym_matvec(&self, x: &[f64], y: &mut [f64]) {
+        y.fill(0.0);
+        for j in 0..x.len() {
+            let xj = x[j];
+            let mut acc = 0.0;
+            for k in self.col_ptr[j]..self.col_ptr[j + 1] {
+                let i = self.row_idx[k];
+                let a = self.values[k];
+                if i == j {
+                    acc += a * xj;
+                } else {
+                    y[i] += a * xj;
+                    acc += a * x[i];
+                }
+            }
+            y[j] += acc;
+        }
+    }
+
+    fn solve_permuted(&mut self, x: &mut [f64]) {
+        let symbolic = self.simplicial();
+        let ldlt = simplicial::SimplicialLdltRef::new(symbolic, &self.l_values);
+        let dim = x.len();
+        let mat = MatMut::from_column_major_slice_mut(x, dim, 1);
+        let mut mem = MemBuffer::new(StackReq::EMPTY);
+        ldlt.solve_in_place_with_conj(Conj::No, mat, Par::Seq, MemStack::new(&mut mem));
+    }
+}
+
+/// Approximate-minimum-degree ordering of the primal graph with each constraint placed after
+/// its last variable. Returns `perm` with `perm[p]` = original index at position `p`.
+///
+/// Variables coupled to very many others (degree above `max(32, 10√n)` in the graph of
+/// $W + J^\top J$, e.g. a static parameter shared by every transition constraint) are
+/// left out of the graph and ordered last, after every constraint; otherwise every constraint
+/// would wait for them and the constraint block would fill in completely. Dense constraint
+/// rows are likewise ordered at the end.
+fn kkt_ordering(s: &KktStructure<'_>) -> Result<Vec<usize>> {
+    let (n, m) = (s.n, s.m);
+    // rows of the Jacobian, deduplicated
+    let mut row_vars: Vec<Vec<usize>> = vec![Vec::new(); m];
+    for &(r, c) in s.jacobian {
+        row_vars[r].push(c);
+    }
+    for v in &mut row_vars {
+        v.sort_unstable();
+        v.dedup();
+    }
+    let dense_limit = 32.max((10.0 * (n as f64).sqrt()) as usize);
+    // a cheap upper bound of each variable's degree: Hessian neighbours plus the sizes of the
+    // (non-dense) constraint rows it appears in
+    let mut degree = vec![0usize; n];
+    for &(i, j) in s.hessian {
+        if i != j {
+            degree[i] += 1;
+            degree[j] += 1;
+        }
+    }
+    for v in row_vars.iter().filter(|v| v.len() <= dense_limit) {
+        for &c in v {
+            degree[c] += v.len() - 1;
+        }
+    }
+    let dense_var: Vec<bool> = degree.iter().map(|&d| d > dense_limit).collect();
+    let mut edges: Vec<(usize, usize)> = Vec::new();
+    for &(i, j) in s.hessian {
+        if i != j && !dense_var[i] && !dense_var[j] {
+            edges.push((i.min(j), i.max(j)));
+        }
+    }
+    for v in row_vars.iter().filter(|v| v.len() <= dense_limit) {
+        for (a, &i) in v.iter().enumerate() {
+            if dense_var[i] {
+                continue;
+            }
+            for &j in &v[a + 1..] {
+                if !dense_var[j] {
+                    edges.push((i, j));
+                }
+            }
+        }
+    }
+    // upper CSC of the primal graph: column j holds rows i < j, plus the diagonal
+    for j in 0..n {
+        edges.push((j, j));
+    }
+    edges.sort_unstable_by_key(|&(i, j)| (j, i));
+    edges.dedup();
+    let mut col_ptr = vec![0usize; n + 1];
+    for &(_, j) in &edges {
+        col_ptr[j + 1] += 1;
+    }
+    for j in 0..n {
+        col_ptr[j + 1] += col_ptr[j];
+    }
+    let row_idx: Vec<usize> = edges.iter().map(|&(i, _)| i).collect();
+    drop(edges);
+    let graph = SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
+    let mut pperm = vec![0usize; n];
+    let mut pperm_inv = vec![0usize; n];
+    let mut mem = MemBuffer::try_new(amd::order_scratch::<usize>(n, row_idx.len())).map_err(|_| {
+        Error::InvalidOption { name: "kkt".into(), reason: "out of memory in the ordering".into() }
+    })?;
+    amd::order(&mut pperm, &mut pperm_inv, graph, amd::Control::default(), MemStack::new(&mut mem)).map_err(
+        |e| Error::InvalidOption { name: "kkt".into(), reason: format!("ordering failed: {e:?}") },
+    )?;
+    // bucket the constraints by the position of their last (non-dense) variable
+    let mut bucket_start = vec![0usize; n + 2];
+    let mut last_pos = vec![usize::MAX; m];
+    for (r, v) in row_vars.iter().enumerate() {
+        if v.len() <= dense_limit {
+            if let Some(p) = v.iter().filter(|&&c| !dense_var[c]).map(|&c| pperm_inv[c]).max() {
+                last_pos[r] = p;
+                bucket_start[p + 1] += 1;
+            }
+        }
+    }
+    for p in 0..=n {
+        bucket_start[p + 1] += bucket_start[p];
+    }
+    let mut bucket = vec![0usize; bucket_start[n + 1]];
+    let mut fill = bucket_start.clone();
+    for (r, &p) in last_pos.iter().enumerate() {
+        if p != usize::MAX {
+            bucket[fill[p]] = r;
+            fill[p] += 1;
+        }
+    }
+    let mut perm = Vec::with_capacity(n + m);
+    for (p, &var) in pperm.iter().enumerate() {
+        if !dense_var[var] {
+            perm.push(var);
+        }
+        for &r in &bucket[bucket_start[p]..bucket_start[p + 1]] {
+            perm.push(n + r);
+        }
+    }
+    perm.extend((0..n).filter(|&i| dense_var[i]));
+    perm.extend((0..m).filter(|&r| last_pos[r] == usize::MAX).map(|r| n + r));
+    debug_assert_eq!(perm.len(), n + m);
+    Ok(perm)
+}
+
+impl KktSolver for FaerLdlt {
+    fn analyse(&mut self, s: &KktStructure<'_>) -> Result<()> {
+        let (n, m) = (s.n, s.m);
+        let dim = n + m;
+        self.n = n;
+        self.m = m;
+        self.perm = kkt_ordering(s)?;
+        let mut iperm = vec![0usize; dim];
+        for (p, &g) in self.perm.iter().enumerate() {
+            iperm[g] = p;
+        }
+        let upper = |a: usize, b: usize| (a.min(b), a.max(b));
+        let mut entries: Vec<(usize, usize)> = Vec::with_capacity(s.hessian.len() + s.jacobian.len() + dim);
+        entries.extend(s.hessian.iter().map(|&(i, j)| upper(iperm[i], iperm[j])));
+        entries.extend(s.jacobian.iter().map(|&(r, c)| upper(iperm[n + r], iperm[c])));
+        entries.extend((0..dim).map(|g| (iperm[g], iperm[g])));
+        entries.sort_unstable_by_key(|&(i, j)| (j, i));
+        entries.dedup();
+        let mut col_ptr = vec![0usize; dim + 1];
+        for &(_, j) in &entries {
+            col_ptr[j + 1] += 1;
+        }
+        for j in 0..dim {
+            col_ptr[j + 1] += col_ptr[j];
+        }
+        self.row_idx = entries.iter().map(|&(i, _)| i).collect();
+        drop(entries);
+        self.col_ptr = col_ptr;
+        let slot = |me: &Self, a: usize, b: usize| -> usize {
+            let (i, j) = upper(a, b);
+            let rows = &me.row_idx[me.col_ptr[j]..me.col_ptr[j + 1]];
+            me.col_ptr[j] + rows.binary_search(&i).expect("entry is in the pattern")
+        };
+        self.hess_map = s.hessian.iter().map(|&(i, j)| slot(self, iperm[i], iperm[j])).collect();
+        self.jac_map = s.jacobian.iter().map(|&(r, c)| slot(self, iperm[n + r], iperm[c])).collect();
+        self.diag_map = (0..dim).map(|g| slot(self, iperm[g], iperm[g])).collect();
+        self.values = vec![0.0; self.row_idx.len()];
+
+        let pattern = SymbolicSparseColMatRef::new_checked(dim, dim, &self.col_ptr, None, &self.row_idx);
+        let symbolic = factorize_symbolic_cholesky(
+            pattern,
+            Side::Upper,
+            SymmetricOrdering::Identity,
+            CholeskySymbolicParams {
+                supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SIMPLICIAL,
+                ..Default::default()
+            },
+        )
+        .map_err(|e| Error::InvalidOption {
+            name: "kkt".into(),
+            reason: format!("symbolic analysis failed: {e:?}"),
+        })?;
+        self.l_values = vec![0.0; symbolic.len_val()];
+        self.symbolic = Some(symbolic);
+        self.factor_mem = Some(
+            MemBuffer::try_new(simplicial::factorize_simplicial_numeric_ldlt_scratch::<usize, f64>(dim))
+                .map_err(|_| Error::InvalidOption {
+                    name: "kkt".into(),
+                    reason: "out of memory for the factorisation workspace".into(),
+                })?,
+        );
+        self.work_x = vec![0.0; dim];
+        self.work_r = vec![0.0; dim];
+        self.work_b = vec![0.0; dim];
+        Ok(())
+    }
+
+    fn factorize(&mut self, v: &KktValues<'_>) -> Option<FactorInfo> {
+        let (n, m) = (self.n, self.m);
+        self.values.fill(0.0);
+        for (k, &s) in self.hess_map.iter().enumerate() {
+            self.values[s] += v.hessian[k];
+        }
+        for (k, &s) in self.jac_map.iter().enumerate() {
+            self.values[s] += v.jacobian[k];
+        }
+        for i in 0..n {
+            self.values[self.diag_map[i]] += v.primal_diagonal[i] + v.delta_w;
+        }
+        for r in 0..m {
+            self.values[self.diag_map[n + r]] -= v.delta_c;
+        }
+        let mut max_abs = 0.0f64;
+        for &a in &self.values {
+            if !a.is_finite() {
+                return None;
+            }
+            max_abs = max_abs.max(a.abs());
+        }
+        // infinity norm of the symmetric matrix (for the refinement's stopping test)
+        let dim = n + m;
+        let mut row_sums = vec![0.0; dim];
+        for j in 0..dim {
+            for k in self.col_ptr[j]..self.col_ptr[j + 1] {
+                let i = self.row_idx[k];
+                row_sums[j] += self.values[k].abs();
+                if i != j {
+                    row_sums[i] += self.values[k].abs();
+                }
+            }
+        }
+        self.norm_k = row_sums.iter().fold(0.0f64, |a, &b| a.max(b));
+        let scale = if max_abs > 0.0 { max_abs } else { 1.0 };
+        let regularization = LdltRegularization {
+            dynamic_regularization_signs: None,
+            dynamic_regularization_delta: 1e-12 * scale,
+            dynamic_regularization_epsilon: 1e-30 * scale,
+        };
+        let Some(mut mem) = self.factor_mem.take() else {
+            return None; // `analyse` was not called
+        };
+        let mut l_values = std::mem::take(&mut self.l_values);
+        let result = {
+            let symbolic = self.simplicial();
+            let a = SparseColMatRef::new(
+                SymbolicSparseColMatRef::new_checked(dim, dim, &self.col_ptr, None, &self.row_idx),
+                &self.values,
+            );
+            simplicial::factorize_simplicial_numeric_ldlt(
+                &mut l_values,
+                a,
+                regularization,
+                symbolic,
+                MemStack::new(&mut mem),
+            )
+        };
+        self.l_values = l_values;
+        self.factor_mem = Some(mem);
+        let info = result.ok()?;
+        let symbolic = self.simplicial();
+        let l_col_ptr = symbolic.col_ptr();
+        let mut inertia = Inertia::default();
+        for j in 0..dim {
+            let d = self.l_values[l_col_ptr[j]];
+            if !d.is_finite() {
+                return None;
+            }
+            if d > 0.0 {
+                inertia.positive += 1;
+            } else if d < 0.0 {
+                inertia.negative += 1;
+            } else {
+                inertia.zero += 1;
+            }
+        }
+        Some(FactorInfo { inertia, regularized_pivots: info.dynamic_regularization_count })
+    }
+
+    fn nnz(&self) -> (usize, usize) {
+        (self.matrix_nnz(), self.factor_nnz())
+    }
+
+    fn solve_in_place(&mut self, rhs: &mut [f64]) -> f64 {
+        let dim = self.n + self.m;
+        let mut b = std::mem::take(&mut self.work_b);
+        let mut x = std::mem::take(&mut self.work_x);
+        let mut r = std::mem::take(&mut self.work_r);
+        for p in 0..dim {
+            b[p] = rhs[self.perm[p]];
+        }
+        let b_norm = b.iter().fold(0.0f64, |a, &v| a.max(v.abs()));
+        x.copy_from_slice(&b);
+        self.solve_permuted(&mut x);
+        let mut prev = std::mem::take(&mut self.work_prev);
+        prev.resize(dim, 0.0);
+        // backward error ‖r‖ / (‖b‖ + ‖K‖‖x‖) of the best iterate so far, and ‖r‖ / ‖b‖
+        let mut best = f64::INFINITY;
+        self.last_residual = f64::INFINITY;
+        for step in 0..=self.max_refinement_steps {
+            self.sym_matvec(&x, &mut r);
+            let mut r_norm = 0.0f64;
+            for p in 0..dim {
+                r[p] = b[p] - r[p];
+                r_norm = r_norm.max(r[p].abs());
+            }
+            let x_norm = x.iter().fold(0.0f64, |a, &v| a.max(v.abs()));
+            let denom = b_norm + self.norm_k * x_norm;
+            let backward = if denom > 0.0 { r_norm / denom } else { 0.0 };
+            // NaN counts as no improvement
+            let improved = |limit: f64| backward.partial_cmp(&limit).is_some_and(|o| o.is_le());
+            if step > 0 && !improved(0.5 * best) {
+                // refinement stagnates or diverges: keep the better iterate
+                if !improved(best) {
+                    x.copy_from_slice(&prev);
+                }
+                break;
+            }
+            best = backward;
+            self.last_residual = if b_norm > 0.0 { r_norm / b_norm } else { r_norm };
+            if !backward.is_finite() || backward <= 1e-15 || step == self.max_refinement_steps {
+                break;
+            }
+            self.solve_permuted(&mut r);
+            prev.copy_from_slice(&x);
+            for p in 0..dim {
+                x[p] += r[p];
+            }
+        }
+        for p in 0..dim {
+            rhs[self.perm[p]] = x[p];
+        }
+        self.work_b = b;
+        self.work_x = x;
+        self.work_r = r;
+        self.work_prev = prev;
+        self.last_residual
+    }
+}

@@ -1,0 +1,88 @@
+//! The numerical outcome of a solver or an estimator, shared by every module.
+//!
+//! Misuse is an [`Error`](crate::Error); a numerical outcome — converged or not — is a
+//! [`Status`] in a report (DESIGN.md, "Misuse is an error, non-convergence is a status").
+
+use serde::{Deserialize, Serialize};
+
+/// How a solver or an estimator ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+#[non_exhaustive]
+pub enum Status {
+    /// Converged to the requested tolerance (for an NLP: the optimality error below
+    /// `tolerance` and the constraint violation below `constraint_tolerance`).
+    Converged,
+    /// Converged to a looser, "acceptable" tolerance (for an NLP: the optimality error stayed
+    /// below `acceptable_tolerance` for `acceptable_iterations` iterations, or the solver
+    /// stalled at such a point).
+    Acceptable,
+    /// Stopped at the iteration limit.
+    MaxIterations,
+    /// Stopped at the time limit.
+    TimeLimit,
+    /// The problem was found (locally) infeasible: the constraint violation cannot be reduced
+    /// and the gradient of $\tfrac12\lVert c\rVert^2$ (projected on the bounds) vanishes.
+    Infeasible,
+    /// The objective was found unbounded (below the unbounded threshold at a feasible point).
+    Unbounded,
+    /// A numerical failure (singular system, failed line search, unrealizable moments, …)
+    /// from which no recovery worked.
+    NumericalFailure,
+    /// The problem's functions returned non-finite values where no fallback was possible
+    /// (at the initial point, or in the Hessian).
+    EvaluationError,
+    /// Stopped by a user callback.
+    UserStop,
+}
+
+impl Status {
+    /// Whether the result can be used as a converged one.
+    pub fn is_success(self) -> bool {
+        matches!(self, Status::Converged | Status::Acceptable)
+    }
+
+    /// The status's name as written in reports and tables.
+    pub fn name(self) -> &'static str {
+        match self {
+            Status::Converged => "converged",
+            Status::Acceptable => "acceptable",
+            Status::MaxIterations => "max-iterations",
+            Status::TimeLimit => "time-limit",
+            Status::Infeasible => "infeasible",
+            Status::Unbounded => "unbounded",
+            Status::NumericalFailure => "numerical-failure",
+            Status::EvaluationError => "evaluation-error",
+            Status::UserStop => "user-stop",
+        }
+    }
+}
+
+impl std::fmt::Display for Status {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_are_the_serde_names() {
+        for s in [
+            Status::Converged,
+            Status::Acceptable,
+            Status::MaxIterations,
+            Status::TimeLimit,
+            Status::Infeasible,
+            Status::Unbounded,
+            Status::NumericalFailure,
+            Status::EvaluationError,
+            Status::UserStop,
+        ] {
+            assert_eq!(serde_json::to_string(&s).unwrap(), format!("\"{}\"", s.name()));
+            assert_eq!(s.is_success(), matches!(s, Status::Converged | Status::Acceptable));
+        }
+    }
+}
