@@ -46,6 +46,6 @@ pub mod simulate;
 pub mod status;
 
 pub use error::{Error, Result};
-pub use status::Status;
 /// The trial-density families of the Rayleigh–Ritz closures (the `onsager-closures` crate).
 pub use onsager_closures as closures;
+pub use status::Status;
