@@ -22,7 +22,7 @@ const KAPPA_MU: f64 = 0.2;
 const THETA_MU: f64 = 1.5;
 /// Sect. 2.1, eq. (8): smallest fraction-to-the-boundary parameter τ_min.
 const TAU_MIN: f64 = 0.99;
-/// Sect. 2.1, eq. (5): s_max of the scaled optimality error.
+/// Sect. 2.1 (paragraph after eq. (6)): s_max of the scaled optimality error (eq. (5)).
 const S_MAX: f64 = 100.0;
 /// Sect. 2.2, eq. (16): κ_Σ of the bound-multiplier reset.
 const KAPPA_SIGMA: f64 = 1e10;
@@ -1054,7 +1054,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             let theta_t = Self::theta(&c_t);
             let phi_t = self.phi(f_t, &x_trial);
             if trials == 1 {
-                // Sect. 3.2, second heuristic: a filter that keeps rejecting full steps is reset
+                // Sect. 3.2, Case I: a filter that keeps rejecting full steps is reset
                 if self.filter_acceptable(theta_t, phi_t) {
                     self.filter_rejections = 0;
                 } else {

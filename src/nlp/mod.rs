@@ -38,7 +38,7 @@
 //!   augmented after θ-type steps (eq. (22)) and the minimum step is eq. (23).
 //! - **Second-order correction** (Sect. 2.4): when the first trial point is rejected and
 //!   increases θ, up to four corrected steps using $c(w + \alpha d_w)$ are tried.
-//! - **Filter reset** (Sect. 3.2, second heuristic): when the filter rejects the full step in
+//! - **Filter reset** (Sect. 3.2, Case I): when the filter rejects the full step in
 //!   five consecutive iterations it is cleared (at most five times per solve).
 //! - **Restoration and infeasibility** (in place of Sect. 3.3): when the line search fails,
 //!   Levenberg–Marquardt steps on $\tfrac12\lVert c\rVert^2$ in the interior of the bounds
