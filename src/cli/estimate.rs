@@ -33,6 +33,10 @@ pub enum Method {
     Pem,
     /// Bootstrap particle filter with a backward-simulation smoother.
     Particle,
+    /// Joint Onsager–Machlup MAP path and parameters (000 eq. 2.49–2.51).
+    Jme,
+    /// Minimum-energy path and parameters (000 eq. 2.58–2.60).
+    Mee,
 }
 
 /// Flags of `onsager estimate`.
@@ -58,6 +62,13 @@ pub struct EstimateArgs {
     /// Number of particles of the particle smoother.
     #[arg(long)]
     pub particles: Option<usize>,
+    /// Transcription of the path-space MAP methods: `hermite-simpson` (default),
+    /// `trapezoidal` or `euler`.
+    #[arg(long)]
+    pub transcription: Option<String>,
+    /// Step of the path-space MAP transcription (default: measurement spacing / 20).
+    #[arg(long)]
+    pub step: Option<f64>,
     /// Seed of the methods that draw random numbers.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -123,6 +134,7 @@ pub fn run(args: &EstimateArgs) -> Result<bool> {
         Method::Ekf | Method::Eks | Method::Ukf | Method::Uks | Method::Pem | Method::Particle => {
             super::baselines::run(args, &problem)?
         }
+        Method::Jme | Method::Mee => super::path::run(args, &problem)?,
     };
     print_summary(&est, &problem);
     create_parent(&args.out)?;

@@ -3,6 +3,7 @@
 pub mod action;
 pub mod baselines;
 pub mod estimate;
+pub mod path;
 pub mod simulate;
 
 use std::path::Path;
