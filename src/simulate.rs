@@ -34,7 +34,7 @@ use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
 use crate::data::{Dataset, StatePath};
-use crate::model::{check_len, Observation, Scalar, Sde};
+use crate::model::{check_len, Observation, Sde};
 use crate::{Error, Result};
 
 /// The largest number of integration steps accepted (10⁸); more is treated as a mistaken
@@ -325,14 +325,6 @@ impl BrownianIncrements {
     }
 }
 
-/// The full drift a = (f, h) of s = (x, z) at (t, s).
-fn full_drift<S: Sde + ?Sized, D: Scalar>(sde: &S, n: usize, t: D, s: &[D], theta: &[D], out: &mut [D]) {
-    let (x, z) = s.split_at(n);
-    let (f, h) = out.split_at_mut(n);
-    sde.drift(t, x, z, theta, f);
-    sde.clean_drift(t, x, z, theta, h);
-}
-
 /// One-step integrator with its work buffers (allocated once per path).
 struct Stepper<'a, S: ?Sized> {
     sde: &'a S,
@@ -379,8 +371,7 @@ impl<'a, S: Sde + ?Sized> Stepper<'a, S> {
 
     /// Advances `s` from t to t + dt with increments `dw`, `dz` (length n).
     fn step(&mut self, t: f64, dt: f64, s: &mut [f64], dw: &[f64], dz: &[f64]) {
-        let n = self.n;
-        full_drift(self.sde, n, t, s, self.theta, &mut self.a);
+        self.sde.state_drift(t, s, self.theta, &mut self.a);
         match self.scheme {
             Scheme::EulerMaruyama => {
                 for (i, si) in s.iter_mut().enumerate() {
@@ -417,7 +408,7 @@ impl<'a, S: Sde + ?Sized> Stepper<'a, S> {
         for ((sd, &si), &ai) in self.s_d1.iter_mut().zip(s).zip(&self.a) {
             *sd = Dual64::new(si, ai);
         }
-        full_drift(self.sde, n, Dual64::new(t, 1.0), &self.s_d1, &self.theta_d1, &mut self.out_d1);
+        self.sde.state_drift(Dual64::new(t, 1.0), &self.s_d1, &self.theta_d1, &mut self.out_d1);
         for (l, o) in self.l0.iter_mut().zip(&self.out_d1) {
             *l = o.eps;
         }
@@ -427,7 +418,7 @@ impl<'a, S: Sde + ?Sized> Stepper<'a, S> {
                 let b = if i < n { self.g[i + j * n] } else { 0.0 };
                 *sd = Dual2_64::new(si, b, 0.0);
             }
-            full_drift(self.sde, n, Dual2_64::from(t), &self.s_d2, &self.theta_d2, &mut self.out_d2);
+            self.sde.state_drift(Dual2_64::from(t), &self.s_d2, &self.theta_d2, &mut self.out_d2);
             for (i, o) in self.out_d2.iter().enumerate() {
                 self.lz[i] += o.v1 * dzj;
                 self.l0[i] += 0.5 * o.v2;
@@ -637,6 +628,7 @@ pub fn sample_measurements_at<O: Observation + ?Sized, R: Rng + ?Sized>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::model::Scalar;
     use approx::assert_relative_eq;
     use rand::rngs::StdRng;
     use rand::SeedableRng;

@@ -197,14 +197,6 @@ fn to_gaussian<D: Scalar>(m: &[D], p: &[D], n: usize) -> Gaussian {
     }
 }
 
-/// The full drift a = (f, h) at (t, s).
-fn full_drift<S: Sde + ?Sized, D: Scalar>(sde: &S, noisy: usize, t: D, s: &[D], theta: &[D], out: &mut [D]) {
-    let (x, z) = s.split_at(noisy);
-    let (f, h) = out.split_at_mut(noisy);
-    sde.drift(t, x, z, theta, f);
-    sde.clean_drift(t, x, z, theta, h);
-}
-
 /// (ṁ, Ṗ, F): the moment rates and, when asked, the effective Jacobian.
 type Rates<D> = (Vec<D>, Vec<D>, Option<Vec<D>>);
 
@@ -222,7 +214,6 @@ type Rates<D> = (Vec<D>, Vec<D>, Option<Vec<D>>);
 fn rates<S: Sde + ?Sized, D: Scalar>(
     sde: &S,
     rule: Rule,
-    noisy: usize,
     t: D,
     m: &[D],
     p: &[D],
@@ -235,7 +226,7 @@ fn rates<S: Sde + ?Sized, D: Scalar>(
     match rule {
         Rule::Extended => {
             let mut a = vec![zero; n];
-            full_drift(sde, noisy, t, m, theta, &mut a);
+            sde.state_drift(t, m, theta, &mut a);
             // F = ∂a/∂s, column j from one Dual<D> pass seeded along s_j.
             let mut f = vec![zero; n * n];
             let lift = |v: &[D]| v.iter().map(|&u| Dual::from_re(u)).collect::<Vec<Dual<D>>>();
@@ -243,7 +234,7 @@ fn rates<S: Sde + ?Sized, D: Scalar>(
             let mut out = vec![Dual::from_re(zero); n];
             for j in 0..n {
                 md[j].eps = D::from(1.0);
-                full_drift(sde, noisy, Dual::from_re(t), &md, &td, &mut out);
+                sde.state_drift(Dual::from_re(t), &md, &td, &mut out);
                 md[j].eps = zero;
                 for i in 0..n {
                     f[i + j * n] = out[i].eps;
@@ -263,7 +254,7 @@ fn rates<S: Sde + ?Sized, D: Scalar>(
             let (wm0, wi, scale) = u.weights(n);
             let mut mdot = vec![zero; n];
             let mut a0 = vec![zero; n];
-            full_drift(sde, noisy, t, m, theta, &mut a0);
+            sde.state_drift(t, m, theta, &mut a0);
             for i in 0..n {
                 mdot[i] = a0[i] * wm0;
             }
@@ -279,7 +270,7 @@ fn rates<S: Sde + ?Sized, D: Scalar>(
                     for i in 0..n {
                         x[i] = m[i] + l.entry(i, j) * k;
                     }
-                    full_drift(sde, noisy, t, &x, theta, &mut a);
+                    sde.state_drift(t, &x, theta, &mut a);
                     for c in 0..n {
                         mdot[c] += a[c] * wi;
                         let ac = a[c] * (wi * k);
@@ -314,7 +305,6 @@ fn rates<S: Sde + ?Sized, D: Scalar>(
 fn rk4_step<S: Sde + ?Sized, D: Scalar>(
     sde: &S,
     rule: Rule,
-    noisy: usize,
     t: f64,
     h: f64,
     m: &mut [D],
@@ -342,7 +332,7 @@ fn rk4_step<S: Sde + ?Sized, D: Scalar>(
     let (mut ms, mut ps) = (m0.clone(), p0.clone());
     for (stage, (c, w)) in [(0.0, 1.0), (0.5, 2.0), (0.5, 2.0), (1.0, 1.0)].into_iter().enumerate() {
         let ts = D::from(t + c * h);
-        let (dm, dp, f) = rates(sde, rule, noisy, ts, &ms, &ps, theta, q, want_f)?;
+        let (dm, dp, f) = rates(sde, rule, ts, &ms, &ps, theta, q, want_f)?;
         let dphi = f.map(|f| matmul(&f, &phi_cur, n, n, n));
         for i in 0..n {
             acc_m[i] += dm[i] * w;
@@ -468,7 +458,7 @@ pub(crate) fn run<S: Sde + ?Sized, D: Scalar>(
         for s in 0..node.steps {
             let t = t_prev + s as f64 * h;
             let phi_arg = store.is_some().then_some(&mut phi);
-            rk4_step(sde, rule, noisy, t, h, &mut m, &mut p, phi_arg, theta, &q).ok_or(t)?;
+            rk4_step(sde, rule, t, h, &mut m, &mut p, phi_arg, theta, &q).ok_or(t)?;
             if let Some(st) = store.as_deref_mut() {
                 st.phi.push(DMatrix::from_iterator(n, n, phi.iter().map(|v| v.re())));
                 if s + 1 < node.steps {

@@ -95,6 +95,16 @@ pub trait Sde {
         names
     }
 
+    /// The drift of the full state s = [x; z]: `out = [f(t, x, z, θ); h(t, x, z, θ)]`
+    /// (length `dims().states()`).
+    fn state_drift<D: Scalar>(&self, t: D, s: &[D], theta: &[D], out: &mut [D]) {
+        let noisy = self.dims().noisy;
+        let (x, z) = s.split_at(noisy);
+        let (f, h) = out.split_at_mut(noisy);
+        self.drift(t, x, z, theta, f);
+        self.clean_drift(t, x, z, theta, h);
+    }
+
     /// The divergence of the noisy drift with respect to the noisy states,
     /// $\operatorname{div}_x f = \sum_i \partial f_i / \partial x_i$
     /// (the Onsager–Machlup correction, `000_74b95e149527c64e.txt (2.49)`), generic so that

@@ -338,7 +338,7 @@ where
             let mut next_mean = vec![0.0; n * n_noisy];
             for i in 0..n {
                 let s = &prev.states[i * dim..(i + 1) * dim];
-                full_drift(sde, n_noisy, prev_t, s, theta, &mut drift);
+                sde.state_drift(prev_t, s, theta, &mut drift);
                 for r in 0..n_noisy {
                     dw[r] = s[r] + drift[r] * h;
                 }
@@ -350,7 +350,7 @@ where
                 let s = &mut new_states[j * dim..(j + 1) * dim];
                 for step in 0..node.steps {
                     let t = prev_t + step as f64 * h;
-                    full_drift(sde, n_noisy, t, s, theta, &mut drift);
+                    sde.state_drift(t, s, theta, &mut drift);
                     for v in dw.iter_mut() {
                         let e: f64 = StandardNormal.sample(rng);
                         *v = e * h.sqrt();
@@ -451,14 +451,6 @@ fn whiten(g_inv: &nalgebra::DMatrix<f64>, v: &[f64], out: &mut [f64]) {
     for (a, o) in out.iter_mut().enumerate() {
         *o = v.iter().enumerate().map(|(c, &vc)| g_inv[(a, c)] * vc).sum();
     }
-}
-
-/// The full drift a = (f, h) at (t, s) in `f64`.
-fn full_drift<S: Sde + ?Sized>(sde: &S, noisy: usize, t: f64, s: &[f64], theta: &[f64], out: &mut [f64]) {
-    let (x, z) = s.split_at(noisy);
-    let (f, h) = out.split_at_mut(noisy);
-    sde.drift(t, x, z, theta, f);
-    sde.clean_drift(t, x, z, theta, h);
 }
 
 /// The particle smoother as an estimator: the mean and standard deviation of the backward
