@@ -43,6 +43,7 @@ pub mod model;
 pub mod nlp;
 pub mod particle;
 pub mod simulate;
+pub mod spline;
 pub mod status;
 
 pub use error::{Error, Result};
