@@ -260,6 +260,59 @@ impl StatePath {
     }
 }
 
+/// A sorted time grid holding every measurement time of a dataset and extra times (an output
+/// grid, an initial time, …), with the measurement found at each time.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EventTimes {
+    /// The merged, strictly increasing times.
+    pub times: Vec<f64>,
+    /// For each time, the index of the measurement taken there, if any.
+    pub measurement: Vec<Option<usize>>,
+    /// For each measurement, the index of its time in `times`.
+    pub index_of_measurement: Vec<usize>,
+}
+
+impl EventTimes {
+    /// Merges strictly increasing `measurement_times` with `extra` times (any order). Every
+    /// measurement time is kept, however close to another; an extra time within
+    /// 10⁻⁹·(1 + |t|) of a measurement time or of another kept extra time is dropped, so that no
+    /// interval of the grid is shorter than that unless two measurements are.
+    pub fn merge(measurement_times: &[f64], extra: &[f64]) -> EventTimes {
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * (1.0 + a.abs().max(b.abs()));
+        let mut extra: Vec<f64> = extra.to_vec();
+        extra.sort_by(f64::total_cmp);
+        let mut kept: Vec<f64> = Vec::with_capacity(extra.len());
+        for t in extra {
+            let i = measurement_times.partition_point(|&m| m < t);
+            let near_measurement = [i.checked_sub(1), Some(i)]
+                .into_iter()
+                .flatten()
+                .filter_map(|j| measurement_times.get(j))
+                .any(|&m| close(m, t));
+            if !near_measurement && kept.last().is_none_or(|&last| !close(last, t)) {
+                kept.push(t);
+            }
+        }
+        let n = measurement_times.len() + kept.len();
+        let (mut times, mut measurement) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        let mut index_of_measurement = Vec::with_capacity(measurement_times.len());
+        let (mut i, mut j) = (0, 0);
+        while i < measurement_times.len() || j < kept.len() {
+            if j == kept.len() || (i < measurement_times.len() && measurement_times[i] < kept[j]) {
+                index_of_measurement.push(times.len());
+                times.push(measurement_times[i]);
+                measurement.push(Some(i));
+                i += 1;
+            } else {
+                times.push(kept[j]);
+                measurement.push(None);
+                j += 1;
+            }
+        }
+        EventTimes { times, measurement, index_of_measurement }
+    }
+}
+
 struct Table {
     header: Vec<String>,
     /// (line number, cells)
@@ -435,6 +488,20 @@ mod tests {
         assert!(Dataset::try_new(names.clone(), vec![1.0, 0.0], vec![vec![0.0], vec![0.0]]).is_err());
         assert!(Dataset::try_new(names.clone(), vec![0.0], vec![vec![0.0, 1.0]]).is_err());
         assert!(Dataset::try_new(names, vec![0.0], vec![vec![f64::INFINITY]]).is_err());
+    }
+
+    #[test]
+    fn event_times_keep_every_measurement() {
+        // Two measurements 1e-10 apart stay distinct; extras close to a measurement or to each
+        // other are dropped; the maps are consistent.
+        let meas = [1.0, 1.0 + 1e-10, 2.0];
+        let e = EventTimes::merge(&meas, &[2.5, 0.0, 1.0 + 5e-11, 2.0, 2.5 + 1e-12, 1.5]);
+        assert_eq!(e.times, vec![0.0, 1.0, 1.0 + 1e-10, 1.5, 2.0, 2.5]);
+        assert_eq!(e.measurement, vec![None, Some(0), Some(1), None, Some(2), None]);
+        assert_eq!(e.index_of_measurement, vec![1, 2, 4]);
+        let empty = EventTimes::merge(&[], &[0.0, 1.0]);
+        assert_eq!(empty.times, vec![0.0, 1.0]);
+        assert!(empty.index_of_measurement.is_empty());
     }
 
     #[test]

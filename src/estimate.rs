@@ -16,6 +16,12 @@ use crate::model::{check_len, Observation, Sde};
 pub use crate::status::Status;
 use crate::{Error, Result};
 
+/// The time of the initial-state prior that every estimator uses unless told otherwise:
+/// t = 0, or the first measurement time if that is earlier.
+pub fn default_initial_time(data: &Dataset) -> f64 {
+    data.times.first().map_or(0.0, |&t| t.min(0.0))
+}
+
 /// Everything an estimator needs to know about the model and the data.
 #[derive(Debug)]
 pub struct EstimationProblem<'a, S: Sde + ?Sized, O: Observation + ?Sized> {

@@ -87,3 +87,27 @@ fn bad_arguments_are_clear_errors_not_panics() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn measurements_closer_than_the_time_tolerance_do_not_panic_the_grid_methods() {
+    // Regression: two measurement times 1e-10 apart were merged into one grid event and the
+    // backward sweep indexed past the end.
+    let dir = scratch("close");
+    let data = dir.join("close.csv");
+    std::fs::write(&data, "t,y\n0.5,-1\n1,-0.9\n1.0000000001,-0.95\n2,-1\n").unwrap();
+    for method in ["ksp", "mean-optimal"] {
+        let out = onsager()
+            .args(["estimate", "--model", "double-well", "--method", method])
+            .args(["--grid", "lo=-2.5,hi=2.5,cells=100", "--data"])
+            .arg(&data)
+            .arg("--out")
+            .arg(dir.join(format!("{method}.csv")))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{method}: {err}");
+        let path = StatePath::read_csv(dir.join(format!("{method}.csv"))).unwrap();
+        assert!(path.values.iter().flatten().all(|v| v.is_finite()), "{method}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

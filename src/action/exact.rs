@@ -16,7 +16,7 @@ use std::time::Instant;
 
 use nalgebra::DMatrix;
 
-use crate::data::Dataset;
+use crate::data::{Dataset, EventTimes};
 use crate::estimate::{EstimationProblem, Status};
 use crate::model::observation::StateMeasurement;
 use crate::model::prior::Prior;
@@ -97,14 +97,6 @@ impl ExactOptions {
 
 fn invalid(name: &str, reason: impl Into<String>) -> Error {
     Error::InvalidOption { name: name.into(), reason: reason.into() }
-}
-
-/// Merges sorted lists of times, treating times within 1e-9 (relative) as equal.
-fn merge_times(lists: &[&[f64]]) -> Vec<f64> {
-    let mut all: Vec<f64> = lists.iter().flat_map(|l| l.iter().copied()).collect();
-    all.sort_by(f64::total_cmp);
-    all.dedup_by(|b, a| (*b - *a).abs() <= 1e-9 * (1.0 + a.abs()));
-    all
 }
 
 /// Stored result of a forward sweep.
@@ -240,17 +232,9 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
         }
         let n_out = n_ratio.floor() as usize;
         let grid_times: Vec<f64> = (0..=n_out).map(|k| t0 + k as f64 * output_step).collect();
-        let times = merge_times(&[&grid_times, &data.times, &extra, &[t_end]]);
-        let mut meas_of_event = vec![None; times.len()];
-        let mut event_of_meas = Vec::with_capacity(data.len());
-        for (k, &t) in data.times.iter().enumerate() {
-            let e = times
-                .iter()
-                .position(|&s| (s - t).abs() <= 1e-9 * (1.0 + s.abs()))
-                .expect("measurement times are events");
-            meas_of_event[e] = Some(k);
-            event_of_meas.push(e);
-        }
+        let others: Vec<f64> = grid_times.iter().chain(&extra).copied().chain([t_end]).collect();
+        let EventTimes { times, measurement: meas_of_event, index_of_measurement: event_of_meas } =
+            EventTimes::merge(&data.times, &others);
         let substeps: Vec<(usize, f64)> = times
             .windows(2)
             .map(|w| {

@@ -93,6 +93,33 @@ impl<S: Sde + ?Sized> std::fmt::Debug for FokkerPlanck<'_, S> {
     }
 }
 
+/// Checks that the grid methods can take `sde` on `grid`: at most two noisy states, and one
+/// grid axis per state (noisy then clean). Errors: [`Error::InvalidOption`].
+pub fn check_model_fits_grid<S: Sde + ?Sized>(sde: &S, grid: &Grid) -> Result<()> {
+    let d = sde.dims();
+    if d.noisy > 2 {
+        return Err(Error::InvalidOption {
+            name: "model".into(),
+            reason: format!(
+                "the grid methods handle models with one or two noisy states; this model has {}",
+                d.noisy
+            ),
+        });
+    }
+    if d.states() != grid.dim() {
+        return Err(Error::InvalidOption {
+            name: "grid".into(),
+            reason: format!(
+                "the grid has {} axes but the model has {} states (noisy then clean: {})",
+                grid.dim(),
+                d.states(),
+                sde.state_names().join(", ")
+            ),
+        });
+    }
+    Ok(())
+}
+
 impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
     /// The operator of `sde` at `theta` on `grid`, whose axes are the states [x; z].
     /// `probe_times` are times at which the drift is compared to decide whether it is autonomous.
@@ -101,27 +128,8 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
     /// grid's axes are not the model's states, or when D = ½GGᵀ is not diagonal in two
     /// dimensions (the split scheme needs it); [`Error::SingularDiffusion`] for a bad G(θ).
     pub fn try_new(sde: &'a S, theta: &[f64], grid: &Grid, probe_times: &[f64]) -> Result<Self> {
+        check_model_fits_grid(sde, grid)?;
         let d = sde.dims();
-        if d.noisy > 2 {
-            return Err(Error::InvalidOption {
-                name: "model".into(),
-                reason: format!(
-                    "the grid methods handle models with one or two noisy states; this model has {}",
-                    d.noisy
-                ),
-            });
-        }
-        if d.states() != grid.dim() {
-            return Err(Error::InvalidOption {
-                name: "grid".into(),
-                reason: format!(
-                    "the grid has {} axes but the model has {} states (noisy then clean: {})",
-                    grid.dim(),
-                    d.states(),
-                    sde.state_names().join(", ")
-                ),
-            });
-        }
         let g = sde.diffusion_matrix(theta)?;
         let dd = &g * g.transpose() * 0.5;
         let mut diff = vec![0.0; grid.dim()];

@@ -14,7 +14,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use crate::data::Dataset;
+use crate::data::{Dataset, EventTimes};
 use crate::model::observation::StateMeasurement;
 use crate::model::{check_len, Sde};
 use crate::{Error, Result};
@@ -172,14 +172,6 @@ impl KalmanSmoothing {
     }
 }
 
-/// Merges sorted time lists, treating times within 1e-9 (relative) as equal.
-fn merge_times(t0: f64, lists: &[&[f64]]) -> Vec<f64> {
-    let mut all: Vec<f64> = std::iter::once(t0).chain(lists.iter().flat_map(|l| l.iter().copied())).collect();
-    all.sort_by(f64::total_cmp);
-    all.dedup_by(|b, a| (*b - *a).abs() <= 1e-9 * (1.0 + a.abs()));
-    all
-}
-
 /// The exact Kalman filter and RTS smoother of `model` given `data` (NaN = missing), with the
 /// moments reported at t0, every measurement time and every time of `output_times`
 /// (Särkkä 2013, Thms 4.2 and 8.2, on the exact discretisation of [`LinearSde::transition`]).
@@ -191,7 +183,8 @@ pub fn kalman_rts(
     let n = model.sde.a.nrows();
     check_len("measurement matrix rows", data.names.len(), model.h.nrows())?;
     check_len("measurement matrix columns", n, model.h.ncols())?;
-    let times = merge_times(model.t0, &[&data.times, output_times]);
+    let extra: Vec<f64> = std::iter::once(model.t0).chain(output_times.iter().copied()).collect();
+    let EventTimes { times, measurement, .. } = EventTimes::merge(&data.times, &extra);
     if times[0] < model.t0 || times.iter().any(|t| !t.is_finite()) {
         return Err(Error::InvalidOption {
             name: "times".into(),
@@ -207,7 +200,6 @@ pub fn kalman_rts(
     let (mut pm, mut pc, mut trans) =
         (Vec::with_capacity(nt), Vec::with_capacity(nt), Vec::with_capacity(nt));
     let mut log_lik = 0.0;
-    let mut next_meas = 0;
     let (mut m, mut p) = (model.m0.clone(), model.p0.clone());
     for (i, &t) in times.iter().enumerate() {
         if i > 0 {
@@ -218,8 +210,8 @@ pub fn kalman_rts(
         }
         pm.push(m.clone());
         pc.push(p.clone());
-        if next_meas < data.times.len() && (data.times[next_meas] - t).abs() <= 1e-9 * (1.0 + t.abs()) {
-            let y = &data.values[next_meas];
+        if let Some(k) = measurement[i] {
+            let y = &data.values[k];
             let obs: Vec<usize> = (0..y.len()).filter(|&j| !y[j].is_nan()).collect();
             if !obs.is_empty() {
                 let h = model.h.select_rows(&obs);
@@ -238,7 +230,6 @@ pub fn kalman_rts(
                 p = &p - &gain * &s * gain.transpose();
                 p = (&p + p.transpose()) * 0.5;
             }
-            next_meas += 1;
         }
         fm.push(m.clone());
         fc.push(p.clone());
@@ -335,6 +326,36 @@ mod tests {
         let var = p1 + r;
         let ll = -0.5 * (y * y / var + var.ln() + (2.0 * std::f64::consts::PI).ln());
         assert_relative_eq!(out.log_likelihood, ll, max_relative = 1e-12);
+    }
+
+    #[test]
+    fn measurements_closer_than_the_merge_tolerance_are_all_used() {
+        // Two measurements 1e-10 apart, then two more: the result must be continuous in the
+        // second time (compare with the pair 1e-6 apart) and must use the later data.
+        let model = LinearGaussianModel {
+            sde: ou(1.0, 0.5),
+            h: DMatrix::identity(1, 1),
+            r: DMatrix::from_element(1, 1, 0.04),
+            t0: 0.0,
+            m0: DVector::zeros(1),
+            p0: DMatrix::identity(1, 1),
+        };
+        let data = |gap: f64, tail: bool| {
+            let (mut t, mut v) = (vec![1.0, 1.0 + gap], vec![vec![0.8], vec![0.9]]);
+            if tail {
+                t.extend([2.0, 3.0]);
+                v.extend([vec![-0.5], vec![0.3]]);
+            }
+            Dataset::try_new(vec!["y".into()], t, v).unwrap()
+        };
+        let close = kalman_rts(&model, &data(1e-10, true), &[]).unwrap();
+        let apart = kalman_rts(&model, &data(1e-6, true), &[]).unwrap();
+        let head = kalman_rts(&model, &data(1e-10, false), &[3.0]).unwrap();
+        assert_eq!(close.times.len(), 5);
+        assert_relative_eq!(close.log_likelihood, apart.log_likelihood, epsilon = 1e-5);
+        let last = close.times.len() - 1;
+        assert_relative_eq!(close.filtered_mean[last][0], apart.filtered_mean[last][0], epsilon = 1e-5);
+        assert!((close.log_likelihood - head.log_likelihood).abs() > 0.1, "the data at 2 and 3 count");
     }
 
     #[test]

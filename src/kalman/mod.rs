@@ -161,9 +161,10 @@ impl KalmanOptions {
         self
     }
 
-    /// The initial time for `data`: [`KalmanOptions::t0`] or min(0, first time).
+    /// The initial time for `data`: [`KalmanOptions::t0`] or
+    /// [`default_initial_time`](crate::estimate::default_initial_time).
     pub fn initial_time(&self, data: &Dataset) -> f64 {
-        self.t0.unwrap_or_else(|| data.times.first().map_or(0.0, |&t| t.min(0.0)))
+        self.t0.unwrap_or_else(|| crate::estimate::default_initial_time(data))
     }
 
     /// The integration step for `data`: [`KalmanOptions::dt`] or its default.

@@ -285,7 +285,7 @@ where
         .try_inverse()
         .ok_or_else(|| Error::SingularDiffusion { reason: "G(theta) is singular".into() })?;
     let data = problem.data;
-    let t0 = options.t0.unwrap_or_else(|| data.times.first().map_or(0.0, |&t| t.min(0.0)));
+    let t0 = options.t0.unwrap_or_else(|| crate::estimate::default_initial_time(data));
     let dt = options.dt.unwrap_or_else(|| crate::kalman::default_step(t0, &data.times));
     let nodes = build_nodes(&data.times, t0, dt)?;
     let n = options.particles;
