@@ -122,6 +122,22 @@ impl Setup {
             });
         }
         let nodes = build_nodes(&data.times, t0, dt)?;
+        // The smoothers keep the moments and Φ of every integration step: bound that memory.
+        let total: usize = nodes.iter().map(|node| node.steps).sum();
+        let n = d.states();
+        let bytes = (total + nodes.len()) as f64 * (8 * (3 * n * n + 2 * n) + 128) as f64;
+        if bytes > MAX_STORED_BYTES {
+            return Err(Error::InvalidOption {
+                name: "dt".into(),
+                reason: format!(
+                    "the step {dt:e} (default: a tenth of the median measurement interval, at most \
+                     0.01) gives {total} integration steps whose stored moments would need {:.1} GB \
+                     (limit {:.0} GB); use a larger --dt or remove nearly coincident measurement times",
+                    bytes / 1e9,
+                    MAX_STORED_BYTES / 1e9
+                ),
+            });
+        }
         Ok(Setup {
             noisy: d.noisy,
             states: d.states(),
@@ -133,6 +149,9 @@ impl Setup {
         })
     }
 }
+
+/// The most memory the stored moments of one filter run may take, in bytes.
+const MAX_STORED_BYTES: f64 = 4e9;
 
 /// Nodes at `t0` and at every measurement time, with ⌈Δt / dt⌉ equal steps between
 /// consecutive nodes. Errors when `t0` is after the first measurement or the times are not
@@ -170,7 +189,10 @@ pub(crate) fn build_nodes(times: &[f64], t0: f64, dt: f64) -> Result<Vec<Node>> 
     if total > crate::simulate::MAX_STEPS {
         return Err(Error::InvalidOption {
             name: "dt".into(),
-            reason: format!("{total} integration steps exceed the limit of {}", crate::simulate::MAX_STEPS),
+            reason: format!(
+                "{total} integration steps (step {dt:e}) exceed the limit of {}; use a larger --dt",
+                crate::simulate::MAX_STEPS
+            ),
         });
     }
     Ok(nodes)

@@ -132,8 +132,9 @@ impl UnscentedParams {
 #[non_exhaustive]
 pub struct KalmanOptions {
     /// Largest Runge–Kutta step of the moment ODEs; each interval between consecutive times
-    /// is split into equal steps. Default (`None`): a tenth of the shortest interval between
-    /// the initial time and the measurement times, and at most 0.01.
+    /// is split into equal steps. Default (`None`): a tenth of the median interval between
+    /// the initial time and the measurement times (the lower median, so that a few nearly
+    /// coincident times do not force a tiny step everywhere), and at most 0.01.
     pub dt: Option<f64>,
     /// Time of the initial-state prior, ≤ the first measurement time. Default (`None`): 0, or
     /// the first measurement time when that is negative.
@@ -173,17 +174,21 @@ impl KalmanOptions {
     }
 }
 
-/// A tenth of the shortest positive interval between `t0` and the `times`, at most 0.01.
+/// A tenth of the (lower) median positive interval between `t0` and the `times`, at most
+/// 0.01. Intervals shorter than the step get one step each.
 pub(crate) fn default_step(t0: f64, times: &[f64]) -> f64 {
-    let mut shortest = f64::INFINITY;
-    let mut last = t0;
-    for &t in times {
-        if t > last {
-            shortest = shortest.min(t - last);
-        }
-        last = t;
+    let mut intervals: Vec<f64> = std::iter::once(t0)
+        .chain(times.iter().copied())
+        .collect::<Vec<f64>>()
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|&d| d > 0.0)
+        .collect();
+    if intervals.is_empty() {
+        return 0.01;
     }
-    (shortest / 10.0).min(0.01)
+    intervals.sort_by(f64::total_cmp);
+    (intervals[(intervals.len() - 1) / 2] / 10.0).min(0.01)
 }
 
 /// The four Kalman estimators of the command line.

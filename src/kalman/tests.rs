@@ -190,10 +190,12 @@ fn estimate_reports_the_path_on_the_grid_with_sd() {
 }
 
 #[test]
-fn default_step_is_a_tenth_of_the_shortest_interval_capped() {
+fn default_step_is_a_tenth_of_the_median_interval_capped() {
     assert_relative_eq!(default_step(0.0, &[0.0, 0.1, 0.3]), 0.01, epsilon = 1e-15);
     assert_relative_eq!(default_step(0.0, &[0.05, 0.5]), 0.005, epsilon = 1e-15);
     assert_relative_eq!(default_step(0.0, &[5.0]), 0.01, epsilon = 1e-15);
+    // One nearly coincident pair does not set the step for the whole record.
+    assert_relative_eq!(default_step(0.0, &[0.05, 0.1, 0.1 + 1e-10, 0.15]), 0.005, epsilon = 1e-10);
 }
 
 #[test]

@@ -61,7 +61,7 @@ pub struct ParticleOptions {
     /// Resample when the effective sample size is below this fraction of N, in [0, 1].
     /// Default 0.5.
     pub ess_threshold: f64,
-    /// Largest Euler–Maruyama substep. Default (`None`): a tenth of the shortest interval
+    /// Largest Euler–Maruyama substep. Default (`None`): a tenth of the median interval
     /// between the initial time and the measurement times, at most 0.01 (as the Kalman
     /// methods, [`crate::kalman::KalmanOptions::dt`]).
     pub dt: Option<f64>,
