@@ -7,6 +7,7 @@ use crate::error::{check_finite, check_len, Error};
 use crate::family::{Cumulants, TrialFamily};
 use crate::quadrature::{composite_gauss_legendre, tensor_product, Rule};
 use crate::scalar::{cholesky, Scalar};
+use crate::weights::normalize_log_weights;
 use num_dual::HyperDual64;
 
 /// A shared moment-function closure: `m(x, out)` writes $M(x)$ into `out`.
@@ -356,15 +357,16 @@ impl Exponential {
             .zip(&self.log_base)
             .map(|(m, b)| b + m.iter().zip(lambda).map(|(m, l)| m * l).sum::<f64>())
             .collect();
-        let smax = s.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        if !smax.is_finite() || s.iter().any(|v| v.is_nan()) {
-            return Err(Error::NotNormalizable {
-                reason: format!("lambda^T M overflows on the grid (max exponent {smax})"),
-            });
+        let mut p = vec![0.0; s.len()];
+        match normalize_log_weights(&s, &mut p) {
+            Some(f) if !s.iter().any(|v| v.is_nan()) => Ok((p, f)),
+            _ => {
+                let smax = s.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                Err(Error::NotNormalizable {
+                    reason: format!("lambda^T M overflows on the grid (max exponent {smax})"),
+                })
+            }
         }
-        let sum: f64 = s.iter().map(|v| (v - smax).exp()).sum();
-        let f = smax + sum.ln();
-        Ok((s.into_iter().map(|v| (v - f).exp()).collect(), f))
     }
 
     fn moments_under(&self, p: &[f64]) -> Vec<f64> {

@@ -73,6 +73,7 @@ mod family;
 mod gaussian;
 pub mod quadrature;
 mod scalar;
+pub mod weights;
 
 pub use error::Error;
 pub use exponential::{
@@ -83,3 +84,4 @@ pub use family::{legendre_newton, Cumulants, LegendreOptions, LegendreSolution, 
 pub use gaussian::{Gaussian, GaussianRule};
 pub use quadrature::Rule;
 pub use scalar::{cholesky, cholesky_inverse, cholesky_log_det, cholesky_solve, Scalar};
+pub use weights::normalize_log_weights;

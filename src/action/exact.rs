@@ -146,17 +146,13 @@ fn initial_density(grid: &Grid, priors: &[Prior]) -> Result<Vec<f64>> {
             priors.iter().zip(&c).map(|(p, &x)| p.log_density(x)).sum::<f64>()
         })
         .collect();
-    let max = logs.iter().copied().filter(|v| !v.is_nan()).fold(f64::NEG_INFINITY, f64::max);
-    if !max.is_finite() {
-        return Err(invalid(
-            "x0 prior",
-            "the initial prior puts no mass on the grid (does the grid cover it?)",
-        ));
+    let mut p = vec![0.0; logs.len()];
+    match onsager_closures::normalize_log_weights(&logs, &mut p) {
+        Some(_) => Ok(p),
+        None => {
+            Err(invalid("x0 prior", "the initial prior puts no mass on the grid (does the grid cover it?)"))
+        }
     }
-    let mut p: Vec<f64> = logs.iter().map(|&l| if l.is_nan() { 0.0 } else { (l - max).exp() }).collect();
-    let total: f64 = p.iter().sum();
-    p.iter_mut().for_each(|v| *v /= total);
-    Ok(p)
 }
 
 impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {

@@ -190,24 +190,6 @@ impl ParticleSmoothing {
     }
 }
 
-/// Normalises log-weights in place to weights summing to one; returns ln Σ exp(lw) or `None`
-/// when every weight is zero (or NaN).
-fn normalise(lw: &[f64], w: &mut [f64]) -> Option<f64> {
-    let max = lw.iter().copied().filter(|v| !v.is_nan()).fold(f64::NEG_INFINITY, f64::max);
-    if !max.is_finite() {
-        return None;
-    }
-    let mut total = 0.0;
-    for (wi, &l) in w.iter_mut().zip(lw) {
-        *wi = if l.is_nan() { 0.0 } else { (l - max).exp() };
-        total += *wi;
-    }
-    for wi in w.iter_mut() {
-        *wi /= total;
-    }
-    Some(max + total.ln())
-}
-
 /// Systematic resampling (Kitagawa 1996): N indices from normalised weights with one uniform.
 fn systematic<R: Rng + ?Sized>(w: &[f64], rng: &mut R, out: &mut [usize]) {
     let n = out.len();
@@ -227,7 +209,7 @@ fn systematic<R: Rng + ?Sized>(w: &[f64], rng: &mut R, out: &mut [usize]) {
 /// One index drawn from unnormalised log-weights.
 fn draw_log<R: Rng + ?Sized>(lw: &[f64], scratch: &mut Vec<f64>, rng: &mut R) -> Option<usize> {
     scratch.resize(lw.len(), 0.0);
-    normalise(lw, scratch)?;
+    onsager_closures::normalize_log_weights(lw, scratch)?;
     let u: f64 = rng.random::<f64>();
     let mut cum = 0.0;
     for (i, &w) in scratch.iter().enumerate() {
@@ -373,13 +355,13 @@ where
         // Measurement update.
         if let Some(row) = node.row {
             let y = &data.values[row];
-            let before = normalise(&lw, &mut w).unwrap_or(f64::NAN);
+            let before = onsager_closures::normalize_log_weights(&lw, &mut w).unwrap_or(f64::NAN);
             for i in 0..n {
                 let s = &states[i * dim..(i + 1) * dim];
                 let ll = problem.observation.log_likelihood(node.t, y, &s[..n_noisy], &s[n_noisy..], theta);
                 lw[i] += if ll.is_nan() { f64::NEG_INFINITY } else { ll };
             }
-            match normalise(&lw, &mut w) {
+            match onsager_closures::normalize_log_weights(&lw, &mut w) {
                 Some(after) => log_likelihood += after - before,
                 None => {
                     failed_at = Some(node.t);
@@ -388,7 +370,7 @@ where
             }
             ess_list.push(1.0 / w.iter().map(|v| v * v).sum::<f64>());
         } else {
-            normalise(&lw, &mut w);
+            onsager_closures::normalize_log_weights(&lw, &mut w);
         }
         store.push(NodeStore {
             states: states.clone(),

@@ -7,19 +7,6 @@ use rand::SeedableRng;
 use super::*;
 
 #[test]
-fn normalise_is_a_stable_log_sum_exp() {
-    // ln(e^{1000} + e^{1000 + ln 3}) = 1000 + ln 4; weights 1/4, 3/4 (closed form).
-    let lw = [1000.0, 1000.0 + 3f64.ln(), f64::NEG_INFINITY];
-    let mut w = [0.0; 3];
-    let lse = normalise(&lw, &mut w).unwrap();
-    assert_relative_eq!(lse, 1000.0 + 4f64.ln(), max_relative = 1e-15);
-    assert_relative_eq!(w[0], 0.25, epsilon = 1e-13); // 1000 + ln 3 is rounded to 1e-13
-    assert_relative_eq!(w[1], 0.75, epsilon = 1e-13);
-    assert_eq!(w[2], 0.0);
-    assert!(normalise(&[f64::NEG_INFINITY, f64::NAN], &mut [0.0; 2]).is_none());
-}
-
-#[test]
 fn systematic_resampling_counts_are_floor_or_ceil_of_n_w() {
     // Property of systematic resampling (Kitagawa 1996): particle i is copied either
     // ⌊N wᵢ⌋ or ⌈N wᵢ⌉ times.
