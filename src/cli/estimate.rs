@@ -139,23 +139,26 @@ pub fn run(args: &EstimateArgs) -> Result<bool> {
     print_summary(&est, &problem);
     create_parent(&args.out)?;
     est.path.write_csv(&args.out)?;
-    println!("wrote the estimated path to {}", args.out.display());
+    outln!("wrote the estimated path to {}", args.out.display());
     if let Some(report) = &args.report {
         create_parent(report)?;
         est.write_report(report)?;
-        println!("wrote the report to {}", report.display());
+        outln!("wrote the report to {}", report.display());
     }
     Ok(est.status.is_success())
 }
 
 fn print_summary(est: &PathEstimate, problem: &CliProblem<'_>) {
-    println!(
+    outln!(
         "method {}: status {}, {} iterations, solve {:.3} s",
-        est.method, est.status, est.iterations, est.solve_seconds
+        est.method,
+        est.status,
+        est.iterations,
+        est.solve_seconds
     );
     let names = problem.sde.param_names();
     for (k, &i) in est.estimated.iter().enumerate() {
         let sd = est.theta_sd.as_ref().map_or(String::new(), |sd| format!(" ± {:.4}", sd[k]));
-        println!("  {} = {:.6}{sd}", names[i], est.theta[i]);
+        outln!("  {} = {:.6}{sd}", names[i], est.theta[i]);
     }
 }

@@ -163,16 +163,16 @@ pub fn print_models() {
     for name in library::NAMES {
         let p = library::preset(name).expect("every listed model has a preset");
         let m = &p.model;
-        println!("{name} — {}", p.description);
-        println!("  source:  {}", p.source);
-        println!("  noisy states: {}", m.noisy_names().join(", "));
+        outln!("{name} — {}", p.description);
+        outln!("  source:  {}", p.source);
+        outln!("  noisy states: {}", m.noisy_names().join(", "));
         let clean = m.clean_names();
         if !clean.is_empty() {
-            println!("  clean states: {}", clean.join(", "));
+            outln!("  clean states: {}", clean.join(", "));
         }
         let params: Vec<String> =
             m.param_names().iter().zip(&p.theta).map(|(n, v)| format!("{n}={v}")).collect();
-        println!("  parameters:   {}", params.join(", "));
+        outln!("  parameters:   {}", params.join(", "));
         let priors: Vec<String> = p
             .theta_prior
             .iter()
@@ -181,19 +181,19 @@ pub fn print_models() {
             .map(|(pr, n)| format!("{n}={pr}"))
             .collect();
         if !priors.is_empty() {
-            println!("  parameter priors: {}", priors.join(", "));
+            outln!("  parameter priors: {}", priors.join(", "));
         }
         let names = m.state_names();
         let priors: Vec<String> =
             p.x0_prior.iter().chain(&p.z0_prior).zip(&names).map(|(pr, n)| format!("{n}={pr}")).collect();
-        println!("  initial-state prior: {}", priors.join(", "));
-        println!(
+        outln!("  initial-state prior: {}", priors.join(", "));
+        outln!(
             "  outputs: {} ~ {}",
             p.observation.names.join(", "),
             p.observation.noise.describe(&m.param_names())
         );
-        println!("  simulation: t_end={} dt={} sample_every={}", p.t_end, p.dt, p.sample_every);
-        println!();
+        outln!("  simulation: t_end={} dt={} sample_every={}", p.t_end, p.dt, p.sample_every);
+        outln!();
     }
 }
 

@@ -67,7 +67,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     let data = simulate::sample_measurements_at(&p.observation, &p.theta, &path, n_noisy, &times, &mut rng)?;
     create_parent(&args.out)?;
     data.write_csv(&args.out)?;
-    println!(
+    outln!(
         "simulated `{}` to t = {} with {} steps of {} ({}), seed {}",
         args.model.model,
         p.t_end,
@@ -76,11 +76,11 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         args.scheme,
         args.seed
     );
-    println!("wrote {} measurements of {} to {}", data.len(), data.names.join(", "), args.out.display());
+    outln!("wrote {} measurements of {} to {}", data.len(), data.names.join(", "), args.out.display());
     if let Some(truth) = &args.truth {
         create_parent(truth)?;
         path.write_csv(truth)?;
-        println!("wrote the true path ({}) to {}", path.names.join(", "), truth.display());
+        outln!("wrote the true path ({}) to {}", path.names.join(", "), truth.display());
     }
     Ok(())
 }
