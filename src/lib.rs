@@ -42,6 +42,7 @@ pub mod kalman;
 pub mod model;
 pub mod nlp;
 pub mod particle;
+pub mod path;
 pub mod simulate;
 pub mod spline;
 pub mod status;

@@ -3,3 +3,4 @@
 mod action;
 mod baselines;
 mod cli;
+mod path;

@@ -1,6 +1,5 @@
 //! Unit tests of the particle filter's building blocks and of the ancestral-path smoother.
 
-use approx::assert_relative_eq;
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 

@@ -1,0 +1,473 @@
+//! Path-space MAP estimators: the Onsager–Machlup MAP path (JME) and the minimum-energy path
+//! (MEE), jointly with any subset of the parameters, by Euler, trapezoidal and Hermite–Simpson
+//! transcriptions solved with [`crate::nlp`].
+//!
+//! # Merits
+//!
+//! For a path x(·) on [t_0, t_N] with noise w = G⁻¹(ẋ − f) (clean states z obey ż = h exactly),
+//! the log-merits are (`000_74b95e149527c64e.txt (2.49)`, `(2.60)`;
+//! `002_3b89776223eca539.txt (6)`, `(7)`)
+//!
+//! $$ J(x, \theta) = \sum_k \ln\psi(y_k \mid x(t_k), \theta) + \ln p(x_0, z_0) + \ln p(\theta)
+//!    - \tfrac12\int |w|^2\,dt - \tfrac12\int \operatorname{div}_x f\,dt \quad\text{(Onsager–Machlup)} $$
+//!
+//! and the energy merit without the last term. A parameter that enters div_x f with a flat
+//! prior can make the Onsager–Machlup merit unbounded (Van der Pol's μ: −½∫div f grows without
+//! bound in μ along paths where the damping term is negative); give such parameters a proper
+//! prior or bounds.
+//!
+//! # Transcriptions
+//!
+//! - [`Transcription::Euler`]: the Euler-discretized MAP problem, `001_8aefdf0570c96f51.txt
+//!   (16)`, `(19)`; as the step vanishes it converges to the minimum-energy problem, not to the
+//!   Onsager–Machlup one (001 Sec. 2, Thm 18).
+//! - [`Transcription::Trapezoidal`]: the trapezoidal-discretized MAP problem with its
+//!   Σ ln det(I − ½δ∇_x f(t_{k+1}, x_{k+1})) term, `001_8aefdf0570c96f51.txt (21)`, `(22)`;
+//!   converges to the Onsager–Machlup problem.
+//! - [`Transcription::HermiteSimpson`]: 3-point Lobatto (Hermite–Simpson) collocation of the
+//!   continuous merit chosen by [`Merit`] (000 Ch. 4, (2.50)–(2.51)), with the noise linear in
+//!   time on each piece, w(t_k + σh) = a_k + (σ − ½) b_k. This basis represents every linear
+//!   function of time, and Simpson's rule integrates ½|w|² exactly on it
+//!   (h(½|a|² + |b|²/24)), so the discrete energy converges to ∫½|w|² dt. (A basis such as
+//!   span{\[1,4,1\], \[1,0,−1\]} on the three points cannot represent a constant and converges to a
+//!   problem with the energy weighted 11/9.)
+//!
+//! Measurement times must fall on grid nodes (the step divides the distance of every
+//! measurement time to t_0); clean states are equality constraints in all three
+//! transcriptions. The discrete transcriptions include the normalisation −N ln|det G(θ)| of the
+//! transition densities (001 (21)); the continuous merits have none, so parameters of G cannot
+//! be estimated with Hermite–Simpson (an error).
+
+mod guess;
+mod laplace;
+mod transcription;
+
+#[cfg(test)]
+mod tests;
+
+use std::time::Instant;
+
+use serde_json::{json, Map};
+
+use crate::data::{Dataset, StatePath};
+use crate::estimate::{EstimationProblem, PathEstimate};
+use crate::model::{Observation, Sde};
+use crate::nlp::{self, NlpOptions, NlpProblem, NlpReport};
+use crate::{Error, Result};
+
+pub use guess::{derivative_states, spline_guess};
+pub use transcription::{MeritParts, PathNlp};
+
+/// Which continuous-time merit the path maximises.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Merit {
+    /// The Onsager–Machlup merit, with −½∫div_x f dt (JME; `000_74b95e149527c64e.txt (2.49)`).
+    OnsagerMachlup,
+    /// The energy merit, without the divergence (MEE; `000_74b95e149527c64e.txt (2.60)`).
+    Energy,
+}
+
+impl Merit {
+    /// The method's command-line name: `jme` or `mee`.
+    pub fn method_name(self) -> &'static str {
+        match self {
+            Merit::OnsagerMachlup => "jme",
+            Merit::Energy => "mee",
+        }
+    }
+}
+
+/// The transcription of the path into a finite-dimensional program.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Transcription {
+    /// The Euler-discretized MAP (`001_8aefdf0570c96f51.txt (19)`); the [`Merit`] is ignored
+    /// (the scheme has no divergence term and converges to the energy merit).
+    Euler,
+    /// The trapezoidal-discretized MAP (`001_8aefdf0570c96f51.txt (22)`); the [`Merit`] is
+    /// ignored (the scheme's volume term converges to the Onsager–Machlup divergence).
+    Trapezoidal,
+    /// Hermite–Simpson collocation of the chosen continuous merit.
+    HermiteSimpson,
+}
+
+impl Transcription {
+    /// Parses `hermite-simpson`, `trapezoidal` or `euler`.
+    pub fn parse(name: &str) -> Result<Transcription> {
+        match name.trim() {
+            "hermite-simpson" => Ok(Transcription::HermiteSimpson),
+            "trapezoidal" => Ok(Transcription::Trapezoidal),
+            "euler" => Ok(Transcription::Euler),
+            other => Err(Error::UnknownName {
+                kind: "transcription".into(),
+                name: other.into(),
+                known: ["hermite-simpson", "trapezoidal", "euler"].map(String::from).to_vec(),
+            }),
+        }
+    }
+
+    /// The command-line name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Transcription::HermiteSimpson => "hermite-simpson",
+            Transcription::Trapezoidal => "trapezoidal",
+            Transcription::Euler => "euler",
+        }
+    }
+}
+
+/// A uniform time grid t_k = t_0 + k h, k = 0..N, with the node of every measurement.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Grid {
+    /// Initial time t_0 (the time of the x0 prior).
+    pub t0: f64,
+    /// Step h.
+    pub step: f64,
+    /// Number of intervals N.
+    pub intervals: usize,
+    /// Grid node of each data row.
+    pub measurement_nodes: Vec<usize>,
+}
+
+impl Grid {
+    /// The grid from `t0` with step `step` up to the last time of `times`; every time must be
+    /// ≥ t0 and lie on a node (within 1e-8 of a step), else [`Error::InvalidOption`].
+    pub fn try_new(t0: f64, step: f64, times: &[f64]) -> Result<Grid> {
+        let bad = |reason: String| Error::InvalidOption { name: "step".into(), reason };
+        if !(step.is_finite() && step > 0.0) {
+            return Err(bad(format!("must be positive and finite, got {step}")));
+        }
+        if !t0.is_finite() {
+            return Err(Error::NonFinite { what: "t0".into() });
+        }
+        let mut nodes = Vec::with_capacity(times.len());
+        for &t in times {
+            let k = (t - t0) / step;
+            let kr = k.round();
+            if k.is_nan() || k <= -1e-8 || (k - kr).abs() > 1e-8 * (1.0 + kr) {
+                return Err(bad(format!(
+                    "the measurement time {t} is not on the grid t0 + k·h (t0 = {t0}, h = {step}); \
+                     the step must divide the measurement spacing"
+                )));
+            }
+            nodes.push(kr as usize);
+        }
+        let intervals = nodes.last().copied().unwrap_or(0).max(1);
+        Ok(Grid { t0, step, intervals, measurement_nodes: nodes })
+    }
+
+    /// t_k.
+    pub fn time(&self, k: usize) -> f64 {
+        self.t0 + k as f64 * self.step
+    }
+
+    /// All node times.
+    pub fn times(&self) -> Vec<f64> {
+        (0..=self.intervals).map(|k| self.time(k)).collect()
+    }
+}
+
+/// Options of [`estimate_path`].
+#[derive(Debug)]
+#[non_exhaustive]
+pub struct PathOptions {
+    /// The merit (default: Onsager–Machlup).
+    pub merit: Merit,
+    /// The transcription (default: Hermite–Simpson).
+    pub transcription: Transcription,
+    /// The step (default: the shortest spacing of t0 and the measurement times / 20).
+    pub step: Option<f64>,
+    /// The initial time (default: min(0, first measurement time)).
+    pub t0: Option<f64>,
+    /// The initial state path, interpolated linearly onto the grid (default: zeros). Build it
+    /// with [`spline_guess`] (000 Sec. 4.1; what the CLI uses) or [`interpolation_guess`].
+    pub initial_path: Option<StatePath>,
+    /// Whether to compute the Laplace standard deviations of the path and of the estimated θ
+    /// (default: true); see [`PathSolution`].
+    pub laplace: bool,
+    /// Options of the NLP solver (default: its defaults).
+    pub nlp: NlpOptions,
+}
+
+impl Default for PathOptions {
+    fn default() -> Self {
+        PathOptions {
+            merit: Merit::OnsagerMachlup,
+            transcription: Transcription::HermiteSimpson,
+            step: None,
+            t0: None,
+            initial_path: None,
+            laplace: true,
+            nlp: NlpOptions::default(),
+        }
+    }
+}
+
+impl PathOptions {
+    /// Options with the given merit and transcription, the rest default.
+    pub fn new(merit: Merit, transcription: Transcription) -> Self {
+        PathOptions { merit, transcription, ..Default::default() }
+    }
+
+    /// Sets the step.
+    pub fn with_step(mut self, step: f64) -> Self {
+        self.step = Some(step);
+        self
+    }
+
+    /// Sets the initial time.
+    pub fn with_t0(mut self, t0: f64) -> Self {
+        self.t0 = Some(t0);
+        self
+    }
+
+    /// Sets the initial path.
+    pub fn with_initial_path(mut self, path: StatePath) -> Self {
+        self.initial_path = Some(path);
+        self
+    }
+
+    /// Sets whether to compute the Laplace standard deviations.
+    pub fn with_laplace(mut self, laplace: bool) -> Self {
+        self.laplace = laplace;
+        self
+    }
+
+    /// Sets the NLP options.
+    pub fn with_nlp(mut self, nlp: NlpOptions) -> Self {
+        self.nlp = nlp;
+        self
+    }
+}
+
+/// The full result of a path-space MAP solve.
+///
+/// When [`PathOptions::laplace`] is set and the solve succeeded, the path's `sd` and
+/// `theta_sd` are the Laplace standard deviations: square roots of the diagonal of the inverse
+/// reduced Hessian of −J at the optimum, from solves with the factorised KKT matrix (see
+/// `laplace.rs`); they are absent when the KKT matrix does not have the inertia of a strict
+/// maximum.
+#[derive(Debug, Clone)]
+pub struct PathSolution {
+    /// The common estimate (path at the grid nodes, θ, status, details).
+    pub estimate: PathEstimate,
+    /// The parts of the log-merit at the optimum.
+    pub parts: MeritParts<f64>,
+    /// The NLP solver's report.
+    pub report: NlpReport,
+    /// The grid.
+    pub grid: Grid,
+}
+
+/// The default step: the shortest positive spacing of t0 and the measurement times, / 20.
+pub fn default_step(t0: f64, data: &Dataset) -> f64 {
+    let mut last = t0;
+    let mut spacing = f64::INFINITY;
+    for &t in &data.times {
+        if t - last > 0.0 {
+            spacing = spacing.min(t - last);
+        }
+        last = t;
+    }
+    if spacing.is_finite() {
+        spacing / 20.0
+    } else {
+        0.05
+    }
+}
+
+/// An initial state path from the data: for each state measured directly (output `k` measures
+/// state `measured[k]`, indices into s = [x; z]), linear interpolation of its measurements
+/// (constant beyond the first and last); zeros for the other states. Times are t0 and the
+/// measurement times. The fallback of [`spline_guess`] for outputs with fewer than three
+/// measurements.
+pub fn interpolation_guess(
+    names: Vec<String>,
+    n_states: usize,
+    measured: &[usize],
+    data: &Dataset,
+    t0: f64,
+) -> StatePath {
+    let mut times = vec![t0];
+    times.extend(data.times.iter().copied().filter(|&t| t > t0));
+    let mut values = vec![vec![0.0; n_states]; times.len()];
+    for (k, &s) in measured.iter().enumerate() {
+        if s >= n_states {
+            continue;
+        }
+        let pts: Vec<(f64, f64)> = data
+            .times
+            .iter()
+            .zip(&data.values)
+            .map(|(&t, row)| (t, row[k]))
+            .filter(|p| p.1.is_finite())
+            .collect();
+        for (i, &t) in times.iter().enumerate() {
+            values[i][s] = interpolate(&pts, t);
+        }
+    }
+    StatePath { names, times, values, sd: None }
+}
+
+/// Linear interpolation through sorted points, constant outside; 0 without points.
+fn interpolate(pts: &[(f64, f64)], t: f64) -> f64 {
+    match pts {
+        [] => 0.0,
+        [p, ..] if t <= p.0 => p.1,
+        [.., p] if t >= p.0 => p.1,
+        _ => {
+            let j = pts.partition_point(|p| p.0 <= t);
+            let ((ta, ya), (tb, yb)) = (pts[j - 1], pts[j]);
+            ya + (yb - ya) * (t - ta) / (tb - ta)
+        }
+    }
+}
+
+fn guess_on_grid(path: Option<&StatePath>, grid: &Grid, n_states: usize) -> Result<Vec<Vec<f64>>> {
+    let times = grid.times();
+    let Some(path) = path else { return Ok(vec![vec![0.0; n_states]; times.len()]) };
+    crate::model::check_len("initial path states", n_states, path.names.len())?;
+    if path.values.iter().flatten().any(|v| !v.is_finite()) || path.times.is_empty() {
+        return Err(Error::NonFinite { what: "initial path".into() });
+    }
+    Ok(times.iter().map(|&t| guess_on_times(path, t)).collect())
+}
+
+/// The states of `path` at time `t` by linear interpolation (constant outside).
+fn guess_on_times(path: &StatePath, t: f64) -> Vec<f64> {
+    (0..path.names.len())
+        .map(|s| {
+            let pts: Vec<(f64, f64)> = path.times.iter().zip(&path.values).map(|(&t, r)| (t, r[s])).collect();
+            interpolate(&pts, t)
+        })
+        .collect()
+}
+
+/// Checks that no estimated parameter changes G(θ) (Hermite–Simpson only).
+fn check_g_fixed<S: Sde + ?Sized>(sde: &S, theta: &[f64], estimate: &[usize]) -> Result<()> {
+    let g0 = sde.diffusion_matrix(theta)?;
+    for &i in estimate {
+        let mut th = theta.to_vec();
+        th[i] += 1e-3 * (1.0 + th[i].abs());
+        let g1 = sde.diffusion_matrix(&th)?;
+        if (g1 - &g0).amax() > 1e-12 * (1.0 + g0.amax()) {
+            return Err(Error::InvalidOption {
+                name: "estimate".into(),
+                reason: format!(
+                    "parameter `{}` changes the noise matrix G; its continuous-time path merit has no \
+                     normalisation in G, so it cannot be estimated with Hermite–Simpson (use the euler \
+                     or trapezoidal transcription)",
+                    sde.param_names()[i]
+                ),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Builds the transcribed program of `problem` (checked) with `options` (step, t0 and initial
+/// path; the NLP options are not used). Exposed so that its derivatives can be tested.
+pub fn build_nlp<'a, S: Sde + ?Sized, O: Observation + ?Sized>(
+    problem: &'a EstimationProblem<'a, S, O>,
+    options: &PathOptions,
+) -> Result<PathNlp<'a, S, O>> {
+    problem.validate()?;
+    let d = problem.sde.dims();
+    problem.sde.diffusion_matrix(problem.theta)?;
+    for (row, v) in problem.data.values.iter().enumerate() {
+        crate::model::check_len(&format!("data row {row}"), problem.observation.output_dim(), v.len())?;
+    }
+    for &i in problem.estimate {
+        let p = &problem.theta_prior[i];
+        let v = problem.theta[i];
+        if v < p.lower || v > p.upper {
+            return Err(Error::InvalidOption {
+                name: "theta".into(),
+                reason: format!(
+                    "the initial value {v} of `{}` violates its bounds [{}, {}]",
+                    problem.sde.param_names()[i],
+                    p.lower,
+                    p.upper
+                ),
+            });
+        }
+    }
+    if options.transcription == Transcription::HermiteSimpson {
+        check_g_fixed(problem.sde, problem.theta, problem.estimate)?;
+    }
+    let t0 = options.t0.unwrap_or_else(|| crate::estimate::default_initial_time(problem.data));
+    let step = options.step.unwrap_or_else(|| default_step(t0, problem.data));
+    let grid = Grid::try_new(t0, step, &problem.data.times)?;
+    let guess = guess_on_grid(options.initial_path.as_ref(), &grid, d.states())?;
+    Ok(PathNlp::new(problem, options.merit, options.transcription, grid, &guess))
+}
+
+/// Estimates the MAP path (and the estimated parameters) of `problem` with `options`.
+///
+/// Errors for inconsistent inputs (see [`EstimationProblem::validate`]), measurement times off
+/// the grid, an initial θ outside its bounds; non-convergence is the status of the result.
+pub fn estimate_path<S: Sde + ?Sized, O: Observation + ?Sized>(
+    problem: &EstimationProblem<'_, S, O>,
+    options: PathOptions,
+) -> Result<PathSolution> {
+    let mut nlp_problem = build_nlp(problem, &options)?;
+    let start = Instant::now();
+    let solution = nlp::solve(&mut nlp_problem, options.nlp)?;
+    let solve_seconds = start.elapsed().as_secs_f64();
+    let w = &solution.w;
+    let ns = problem.sde.dims().states();
+    let n_nodes = nlp_problem.grid().intervals + 1;
+    let ne = problem.estimate.len();
+    let (mut path_sd, mut theta_sd) = (None, None);
+    if options.laplace && solution.report.status.is_success() {
+        let n = nlp_problem.num_variables();
+        let wanted: Vec<usize> = (0..n_nodes * ns).chain(n - ne..n).collect();
+        if let Some(var) = laplace::laplace_variances(&mut nlp_problem, w, &solution.lambda, &wanted) {
+            let sd: Vec<f64> = var.iter().map(|v| v.sqrt()).collect();
+            path_sd = Some(sd[..n_nodes * ns].chunks(ns).map(|c| c.to_vec()).collect());
+            theta_sd = Some(sd[n_nodes * ns..].to_vec());
+        }
+    }
+    let parts = nlp_problem.merit_parts(w);
+    let grid = nlp_problem.grid().clone();
+    let theta = nlp_problem.theta(w);
+    let report = solution.report;
+    let method = match options.transcription {
+        Transcription::HermiteSimpson => options.merit.method_name().to_string(),
+        t => format!("{}-{}", options.merit.method_name(), t.name()),
+    };
+    let mut details = Map::new();
+    details.insert("transcription".into(), json!(options.transcription.name()));
+    details.insert("step".into(), json!(grid.step));
+    details.insert("t0".into(), json!(grid.t0));
+    details.insert("merit".into(), json!(parts.total()));
+    details.insert("log_likelihood".into(), json!(parts.log_likelihood));
+    details.insert("log_prior".into(), json!(parts.log_prior));
+    details.insert("minus_half_int_energy".into(), json!(parts.energy));
+    details.insert("minus_half_int_div".into(), json!(parts.divergence));
+    details.insert("nlp_status".into(), json!(report.status.name()));
+    details.insert("nlp_iterations".into(), json!(report.iterations));
+    details.insert("primal_infeasibility".into(), json!(report.primal_infeasibility));
+    details.insert("dual_infeasibility".into(), json!(report.dual_infeasibility));
+    details.insert("unknowns".into(), json!(w.len()));
+    details.insert("evaluation_seconds".into(), json!(report.times.evaluation.as_secs_f64()));
+    details.insert("factorization_seconds".into(), json!(report.times.factorization.as_secs_f64()));
+    details.insert("kkt_solve_seconds".into(), json!(report.times.solve.as_secs_f64()));
+    let estimate = PathEstimate {
+        method,
+        path: StatePath {
+            names: problem.sde.state_names(),
+            times: grid.times(),
+            values: nlp_problem.node_states(w),
+            sd: path_sd,
+        },
+        theta_names: problem.sde.param_names(),
+        theta,
+        estimated: problem.estimate.to_vec(),
+        theta_sd,
+        status: report.status,
+        iterations: report.iterations,
+        solve_seconds,
+        details,
+    };
+    Ok(PathSolution { estimate, parts, report, grid })
+}

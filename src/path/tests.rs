@@ -1,0 +1,264 @@
+use approx::assert_relative_eq;
+
+use super::*;
+use crate::model::library::BuiltinModel;
+use crate::model::library::{preset, Preset};
+use crate::model::observation::StateMeasurement;
+use crate::nlp::{NlpOptions, NlpProblem};
+
+/// A few deterministic measurements of output 0 (no randomness needed: the derivative and
+/// quadrature identities hold for any data).
+fn data_for(p: &Preset, times: &[f64]) -> Dataset {
+    let values = times.iter().map(|&t| vec![0.8 * (1.3 * t).cos()]).collect();
+    Dataset::try_new(p.observation.names.clone(), times.to_vec(), values).unwrap()
+}
+
+fn problem<'a>(
+    p: &'a Preset,
+    data: &'a Dataset,
+    estimate: &'a [usize],
+) -> EstimationProblem<'a, BuiltinModel, StateMeasurement> {
+    EstimationProblem {
+        sde: &p.model,
+        observation: &p.observation,
+        theta: &p.theta,
+        theta_prior: &p.theta_prior,
+        estimate,
+        x0_prior: &p.x0_prior,
+        z0_prior: &p.z0_prior,
+        data,
+    }
+}
+
+/// Dense central finite differences of the NLP's gradient, constraint Jacobian and Hessian of
+/// the Lagrangian, compared with the assembled exact values at a non-trivial point.
+fn check_derivatives<P: NlpProblem>(nlp: &mut P) {
+    let (n, m) = (nlp.num_variables(), nlp.num_constraints());
+    let mut w = vec![0.0; n];
+    nlp.initial_point(&mut w);
+    // Perturb deterministically away from the guess so that no term is at a special point.
+    for (i, wi) in w.iter_mut().enumerate() {
+        *wi += 0.1 * ((i as f64) * 0.7).sin();
+    }
+    let lambda: Vec<f64> = (0..m).map(|r| ((r as f64) * 1.3).cos()).collect();
+    let sigma = 0.7;
+    let eps = 1e-5;
+    // gradient
+    let mut grad = vec![0.0; n];
+    nlp.gradient(&w, &mut grad);
+    // Jacobian (dense)
+    let js = nlp.jacobian_structure();
+    let mut jv = vec![0.0; js.len()];
+    nlp.jacobian_values(&w, &mut jv);
+    let mut jac = nalgebra::DMatrix::<f64>::zeros(m, n);
+    for (&(r, c), v) in js.iter().zip(&jv) {
+        jac[(r, c)] += v;
+    }
+    // Hessian (dense, symmetric)
+    let hs = nlp.hessian_structure();
+    let mut hv = vec![0.0; hs.len()];
+    nlp.hessian_values(&w, sigma, &lambda, &mut hv);
+    let mut hess = nalgebra::DMatrix::<f64>::zeros(n, n);
+    for (&(r, c), v) in hs.iter().zip(&hv) {
+        hess[(r, c)] += v;
+        if r != c {
+            hess[(c, r)] += v;
+        }
+    }
+    let lag_grad = |nlp: &mut P, w: &[f64]| {
+        let mut g = vec![0.0; n];
+        nlp.gradient(w, &mut g);
+        let mut jv = vec![0.0; js.len()];
+        nlp.jacobian_values(w, &mut jv);
+        let mut out: Vec<f64> = g.iter().map(|v| v * sigma).collect();
+        for (&(r, c), v) in js.iter().zip(&jv) {
+            out[c] += lambda[r] * v;
+        }
+        out
+    };
+    for i in 0..n {
+        let (mut wp, mut wm) = (w.clone(), w.clone());
+        wp[i] += eps;
+        wm[i] -= eps;
+        let fd = (nlp.objective(&wp) - nlp.objective(&wm)) / (2.0 * eps);
+        assert_relative_eq!(grad[i], fd, epsilon = 1e-5, max_relative = 1e-6);
+        let (mut cp, mut cm) = (vec![0.0; m], vec![0.0; m]);
+        nlp.constraints(&wp, &mut cp);
+        nlp.constraints(&wm, &mut cm);
+        for r in 0..m {
+            assert_relative_eq!(
+                jac[(r, i)],
+                (cp[r] - cm[r]) / (2.0 * eps),
+                epsilon = 1e-6,
+                max_relative = 1e-6
+            );
+        }
+        let (gp, gm) = (lag_grad(nlp, &wp), lag_grad(nlp, &wm));
+        for j in 0..n {
+            assert_relative_eq!(
+                hess[(j, i)],
+                (gp[j] - gm[j]) / (2.0 * eps),
+                epsilon = 1e-5,
+                max_relative = 1e-5
+            );
+        }
+    }
+}
+
+/// Every sign and index of the objective, constraints and their derivatives, on Duffing (a
+/// noisy and a clean state, a time-dependent forcing) with four estimated parameters.
+#[test]
+fn derivatives_match_finite_differences() {
+    let p = preset("duffing").unwrap();
+    let data = data_for(&p, &[0.0, 0.3, 0.6]);
+    for (transcription, estimate) in [
+        (Transcription::HermiteSimpson, vec![0, 1, 2, 5]),
+        (Transcription::Trapezoidal, vec![0, 2, 4, 5]),
+        (Transcription::Euler, vec![1, 2, 4, 5]),
+    ] {
+        for merit in [Merit::OnsagerMachlup, Merit::Energy] {
+            let prob = problem(&p, &data, &estimate);
+            let options = PathOptions::new(merit, transcription).with_step(0.15);
+            let mut nlp = build_nlp(&prob, &options).unwrap();
+            assert_eq!(nlp.grid().intervals, 4);
+            check_derivatives(&mut nlp);
+        }
+    }
+}
+
+/// With noise w(t) = sin 2t + ½ on [0, 2] (piece coefficients a_k = w at the midpoint,
+/// b_k = the change of w across the piece), the Hermite–Simpson energy part converges to
+/// −∫½w² dt = −½[1 − sin(8)/8 + (1 − cos 4)/2 + ½] (closed form), at second order in h.
+#[test]
+fn hermite_simpson_energy_converges_to_the_continuous_energy() {
+    let p = preset("ou").unwrap();
+    let data = data_for(&p, &[0.0, 2.0]);
+    let exact = -0.5 * (1.0 - (8.0f64).sin() / 8.0 + (1.0 - (4.0f64).cos()) / 2.0 + 0.5);
+    let noise = |t: f64| (2.0 * t).sin() + 0.5;
+    let mut errors = Vec::new();
+    for pieces in [10usize, 20, 40] {
+        let h = 2.0 / pieces as f64;
+        let prob = problem(&p, &data, &[]);
+        let nlp = build_nlp(&prob, &PathOptions::default().with_step(h)).unwrap();
+        let mut w = vec![0.0; nlp.num_variables()];
+        for k in 0..pieces {
+            let t = k as f64 * h;
+            nlp.set_piece_noise(&mut w, k, &[noise(t + 0.5 * h)], &[noise(t + h) - noise(t)]);
+        }
+        errors.push((nlp.merit_parts(&w).energy - exact).abs());
+    }
+    // Second order: the error falls by ~4 per halving (midpoint-rule error h²/24 ∫(w²)''/2).
+    for pair in errors.windows(2) {
+        assert!(pair[1] < pair[0] / 3.5, "errors {errors:?}");
+    }
+    assert!(errors[2] < 1e-3, "errors {errors:?}");
+}
+
+#[test]
+fn measurement_off_the_grid_is_an_error() {
+    let p = preset("ou").unwrap();
+    let data = data_for(&p, &[0.0, 0.5, 1.0]);
+    let prob = problem(&p, &data, &[]);
+    let err = build_nlp(&prob, &PathOptions::default().with_step(0.3)).err().unwrap();
+    assert!(err.to_string().contains("not on the grid"), "{err}");
+}
+
+#[test]
+fn initial_theta_outside_its_bounds_is_an_error() {
+    let mut p = preset("ou").unwrap();
+    p.theta_prior[0] = p.theta_prior[0].with_bounds(2.0, 3.0);
+    let data = data_for(&p, &[0.0, 0.5]);
+    let prob = problem(&p, &data, &[0]);
+    let err = build_nlp(&prob, &PathOptions::default()).err().unwrap();
+    assert!(err.to_string().contains("violates its bounds"), "{err}");
+}
+
+#[test]
+fn estimating_a_noise_parameter_with_hermite_simpson_is_an_error() {
+    let p = preset("ou").unwrap();
+    let data = data_for(&p, &[0.0, 0.5]);
+    let prob = problem(&p, &data, &[1]);
+    assert!(build_nlp(&prob, &PathOptions::default()).is_err());
+    assert!(build_nlp(&prob, &PathOptions::new(Merit::Energy, Transcription::Euler)).is_ok());
+}
+
+/// The multipliers returned with the solution follow the convention the Laplace step relies
+/// on, ∇f + Jᵀλ = 0 at the optimum, on a problem with nonlinear constraints (Duffing, cubic
+/// stiffness, estimated a, b, d).
+#[test]
+fn multipliers_satisfy_stationarity_at_the_optimum() {
+    let p = preset("duffing").unwrap();
+    let data = data_for(&p, &[0.0, 0.3, 0.6, 0.9]);
+    let estimate = [0, 1, 2];
+    let prob = problem(&p, &data, &estimate);
+    let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson).with_step(0.1);
+    let mut nlp = build_nlp(&prob, &options).unwrap();
+    let sol = crate::nlp::solve(&mut nlp, NlpOptions::default()).unwrap();
+    assert_eq!(sol.report.status, crate::Status::Converged);
+    let n = nlp.num_variables();
+    let mut g = vec![0.0; n];
+    nlp.gradient(&sol.w, &mut g);
+    let js = nlp.jacobian_structure();
+    let mut jv = vec![0.0; js.len()];
+    nlp.jacobian_values(&sol.w, &mut jv);
+    for (&(r, c), v) in js.iter().zip(&jv) {
+        g[c] += sol.lambda[r] * v;
+    }
+    let norm = g.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    assert!(norm < 1e-6, "‖∇f + Jᵀλ‖∞ = {norm}");
+}
+
+/// Non-convergence is a status, not an error: two iterations are not enough for Duffing.
+#[test]
+fn iteration_limit_is_a_status() {
+    let p = preset("duffing").unwrap();
+    let data = data_for(&p, &[0.0, 0.3, 0.6, 0.9]);
+    let estimate = [0, 1, 2];
+    let prob = problem(&p, &data, &estimate);
+    let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson)
+        .with_step(0.1)
+        .with_nlp(NlpOptions::default().with_max_iterations(2));
+    let sol = estimate_path(&prob, options).unwrap();
+    assert_eq!(sol.estimate.status, crate::Status::MaxIterations);
+    assert!(sol.estimate.path.sd.is_none(), "no Laplace sd at a non-converged point");
+}
+
+/// The interpolation guess: linear between measurements (here 0.8 cos(1.3 t) at 0.5 and 1.0),
+/// constant before the first, zeros for the unmeasured state.
+#[test]
+fn interpolation_guess_interpolates_measured_states() {
+    let p = preset("duffing").unwrap();
+    let data = data_for(&p, &[0.5, 1.0]);
+    let g = interpolation_guess(vec!["x".into(), "z".into()], 2, &p.observation.states, &data, 0.0);
+    assert_eq!(g.times, vec![0.0, 0.5, 1.0]);
+    let y = |t: f64| 0.8 * (1.3 * t).cos();
+    for (row, expected) in g.values.iter().zip([y(0.5), y(0.5), y(1.0)]) {
+        assert_eq!(row[0], 0.0);
+        assert_relative_eq!(row[1], expected, epsilon = 1e-15);
+    }
+    let grid = Grid::try_new(0.0, 0.25, &data.times).unwrap();
+    let on_grid = guess_on_grid(Some(&g), &grid, 2).unwrap();
+    assert_relative_eq!(on_grid[3][1], 0.5 * (y(0.5) + y(1.0)), epsilon = 1e-15);
+}
+
+/// Van der Pol: u̇ = v; Duffing: ż = x (000 Sec. 4.1.1); Ornstein–Uhlenbeck: none.
+#[test]
+fn derivative_states_are_detected_from_the_drift() {
+    for (name, expected) in
+        [("van-der-pol", vec![Some(1), None]), ("duffing", vec![None, Some(0)]), ("ou", vec![None])]
+    {
+        let p = preset(name).unwrap();
+        assert_eq!(derivative_states(&p.model, &p.theta), expected, "{name}");
+    }
+}
+
+/// A measurement model whose outputs are not the data's columns is an error, not a NaN.
+#[test]
+fn likelihood_with_the_wrong_output_count_is_an_error() {
+    let mut p = preset("ou").unwrap();
+    let data = data_for(&p, &[0.0, 0.5]);
+    p.observation = StateMeasurement::new(vec![0, 0], vec!["y".into(), "y2".into()], p.observation.noise);
+    let prob = problem(&p, &data, &[]);
+    let err = build_nlp(&prob, &PathOptions::default()).err().unwrap();
+    assert!(err.to_string().contains("outputs"), "{err}");
+}
