@@ -31,6 +31,17 @@
 //! - [`simulate`]: Euler–Maruyama and the strong order 1.5 Itô–Taylor scheme, measurement
 //!   sampling.
 //! - [`data`]: measurement datasets and state paths with CSV I/O and precise errors.
+//! - [`estimate`]: what every estimator takes ([`estimate::EstimationProblem`]) and returns
+//!   ([`estimate::PathEstimate`]), so that methods compare on equal terms.
+//! - [`path`]: the path-space MAP estimators (Onsager–Machlup and minimum-energy paths by Euler,
+//!   trapezoidal and Hermite–Simpson transcriptions, joint with parameters), solved by [`nlp`],
+//!   a sparse primal–dual interior-point solver; [`spline`] gives their initial guesses.
+//! - [`action`]: Eyink's effective action on a grid — the exact KSP smoother, the mean-optimal
+//!   estimator through its concave dual, and the ensemble dispersion; [`closures`] holds the
+//!   trial densities of the Rayleigh–Ritz closures.
+//! - [`kalman`] and [`particle`]: the baselines (EKF/EKS, UKF/UKS, the prediction error method,
+//!   a bootstrap particle filter with a backward-simulation smoother), and the exact
+//!   Kalman/RTS reference for linear models ([`kalman::linear`]).
 //!
 //! Misuse is an [`Error`]; numerical outcomes are statuses in reports. Randomness is always
 //! injected (`&mut impl Rng`). Library code never prints.
