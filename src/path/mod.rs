@@ -55,7 +55,7 @@ use crate::model::{Observation, Sde};
 use crate::nlp::{self, NlpOptions, NlpProblem, NlpReport};
 use crate::{Error, Result};
 
-pub use guess::{derivative_states, spline_guess};
+pub use guess::{derivative_states, regression_theta_guess, spline_guess, ThetaGuess, ThetaSource};
 pub use transcription::{MeritParts, PathNlp};
 
 /// Which continuous-time merit the path maximises.
@@ -452,6 +452,18 @@ pub fn estimate_path<S: Sde + ?Sized, O: Observation + ?Sized>(
     details.insert("evaluation_seconds".into(), json!(report.times.evaluation.as_secs_f64()));
     details.insert("factorization_seconds".into(), json!(report.times.factorization.as_secs_f64()));
     details.insert("kkt_solve_seconds".into(), json!(report.times.solve.as_secs_f64()));
+    details.insert("numeric_factorizations".into(), json!(report.numeric_factorizations));
+    details
+        .insert("inertia_correction_factorizations".into(), json!(report.inertia_correction_factorizations));
+    details.insert("other_factorizations".into(), json!(report.other_factorizations));
+    let e = &report.evaluations;
+    details.insert(
+        "evaluations".into(),
+        json!({"objective": e.objective, "gradient": e.gradient, "constraints": e.constraints,
+               "jacobian": e.jacobian, "hessian": e.hessian}),
+    );
+    details.insert("kkt_nnz".into(), json!(report.kkt_nnz));
+    details.insert("factor_nnz".into(), json!(report.factor_nnz));
     let estimate = PathEstimate {
         method,
         path: StatePath {

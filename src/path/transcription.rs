@@ -20,6 +20,10 @@ use crate::model::ad::{self, ScalarFn, VectorFn};
 use crate::model::{Observation, Scalar, Sde};
 use crate::nlp::NlpProblem;
 
+/// Length of the stack buffers of the per-point AD evaluations (θ, the rate); longer vectors
+/// fall back to the heap.
+const STACK_LEN: usize = 8;
+
 /// The four parts of the log-merit of a path (all are log-densities, to be maximised).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct MeritParts<D = f64> {
@@ -259,6 +263,23 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
             theta[i] = est[j];
         }
         theta
+    }
+
+    /// Calls `f` with the full θ (fixed values with the estimated ones `est` put in), held on
+    /// the stack when θ is short, so the per-point AD evaluations do not allocate.
+    fn with_theta<D: Scalar, R>(&self, est: &[D], f: impl FnOnce(&[D]) -> R) -> R {
+        let nt = self.problem.theta.len();
+        if nt > STACK_LEN {
+            return f(&self.theta_full(est));
+        }
+        let mut buf = [D::from(0.0); STACK_LEN];
+        for (b, &v) in buf.iter_mut().zip(self.problem.theta.iter()) {
+            *b = D::from(v);
+        }
+        for (j, &i) in self.problem.estimate.iter().enumerate() {
+            buf[i] = est[j];
+        }
+        f(&buf[..nt])
     }
 
     /// The log-merit contribution of a block at its local vector.
@@ -585,10 +606,12 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> PointFn<'_, '_, S, O> {
     fn rate<D: Scalar>(&self, w: &[D], out: &mut [D]) {
         let d = self.nlp.problem.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
-        let theta = self.nlp.theta_full(&w[ns..]);
         let (x, z) = w[..ns].split_at(nx);
-        self.nlp.problem.sde.drift(D::from(self.t), x, z, &theta, &mut out[..nx]);
-        self.nlp.problem.sde.clean_drift(D::from(self.t), x, z, &theta, &mut out[nx..]);
+        let sde = self.nlp.problem.sde;
+        self.nlp.with_theta(&w[ns..], |theta| {
+            sde.drift(D::from(self.t), x, z, theta, &mut out[..nx]);
+            sde.clean_drift(D::from(self.t), x, z, theta, &mut out[nx..]);
+        });
     }
 }
 
@@ -601,15 +624,23 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> ScalarFn for PointFn<'_, '_, S, O
         let (ns, nx) = (d.states(), d.noisy);
         let mut v = D::from(0.0);
         if self.div_weight != 0.0 {
-            let theta = self.nlp.theta_full(&w[ns..]);
-            v += self.nlp.problem.sde.divergence(D::from(self.t), &w[..nx], &w[nx..ns], &theta)
+            let sde = self.nlp.problem.sde;
+            v += self
+                .nlp
+                .with_theta(&w[ns..], |theta| sde.divergence(D::from(self.t), &w[..nx], &w[nx..ns], theta))
                 * self.div_weight;
         }
         if let Some(mu) = self.mu {
-            let mut r = vec![D::from(0.0); ns];
-            self.rate(w, &mut r);
-            for (ri, &m) in r.iter().zip(mu) {
-                v += *ri * m;
+            let mut dot = |r: &mut [D]| {
+                self.rate(w, r);
+                for (ri, &m) in r.iter().zip(mu) {
+                    v += *ri * m;
+                }
+            };
+            if ns <= STACK_LEN {
+                dot(&mut [D::from(0.0); STACK_LEN][..ns]);
+            } else {
+                dot(&mut vec![D::from(0.0); ns]);
             }
         }
         v
