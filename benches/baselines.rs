@@ -11,10 +11,8 @@ use rand::rngs::StdRng;
 use rand::SeedableRng;
 
 use onsager::data::Dataset;
-use onsager::estimate::EstimationProblem;
 use onsager::kalman::{estimate, pem, KalmanMethod, KalmanOptions, PemOptions};
-use onsager::model::library::{preset, BuiltinModel, Preset};
-use onsager::model::observation::StateMeasurement;
+use onsager::model::library::{preset, Preset};
 use onsager::particle::{self, ParticleOptions};
 use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
 
@@ -28,23 +26,6 @@ fn data(p: &Preset, t_end: f64) -> Dataset {
         .expect("measurements")
 }
 
-fn problem<'a>(
-    p: &'a Preset,
-    data: &'a Dataset,
-    estimate: &'a [usize],
-) -> EstimationProblem<'a, BuiltinModel, StateMeasurement> {
-    EstimationProblem {
-        sde: &p.model,
-        observation: &p.observation,
-        theta: &p.theta,
-        theta_prior: &p.theta_prior,
-        estimate,
-        x0_prior: &p.x0_prior,
-        z0_prior: &p.z0_prior,
-        data,
-    }
-}
-
 fn bench(c: &mut Criterion) {
     let p = preset("duffing").expect("preset");
     let d = data(&p, 20.0);
@@ -54,26 +35,26 @@ fn bench(c: &mut Criterion) {
     group.sample_size(10);
     let opts = KalmanOptions::default();
     group.bench_function("uks", |b| {
-        b.iter(|| black_box(estimate(&problem(&p, &d, &[]), KalmanMethod::Uks, &opts).expect("uks")))
+        b.iter(|| black_box(estimate(&p.problem(&d, &[]), KalmanMethod::Uks, &opts).expect("uks")))
     });
     group.bench_function("eks", |b| {
-        b.iter(|| black_box(estimate(&problem(&p, &d, &[]), KalmanMethod::Eks, &opts).expect("eks")))
+        b.iter(|| black_box(estimate(&p.problem(&d, &[]), KalmanMethod::Eks, &opts).expect("eks")))
     });
     group.bench_function("pem", |b| {
-        b.iter(|| black_box(pem(&problem(&p, &d, &est), &PemOptions::default()).expect("pem")))
+        b.iter(|| black_box(pem(&p.problem(&d, &est), &PemOptions::default()).expect("pem")))
     });
     group.bench_function("particle_500", |b| {
         b.iter(|| {
             let mut rng = StdRng::seed_from_u64(2);
             let options = ParticleOptions::default().with_particles(500);
-            black_box(particle::estimate(&problem(&p, &d, &[]), &options, &mut rng).expect("particle"))
+            black_box(particle::estimate(&p.problem(&d, &[]), &options, &mut rng).expect("particle"))
         })
     });
     group.finish();
 
     let ou = preset("ou").expect("preset");
     let d = data(&ou, 10.0);
-    let problem = problem(&ou, &d, &[]);
+    let problem = ou.problem(&d, &[]);
     let mut group = c.benchmark_group("baselines_ou_t10");
     group.sample_size(10);
     group.bench_function("particle_ffbsi_1000_500", |b| {

@@ -10,11 +10,11 @@ use rand::rngs::StdRng;
 use rand::SeedableRng;
 
 use onsager::data::{Dataset, StatePath};
-use onsager::estimate::{EstimationProblem, Status};
+use onsager::estimate::Status;
 use onsager::kalman::linear::{kalman_rts, KalmanSmoothing, LinearGaussianModel};
 use onsager::kalman::{self, Approximation, KalmanMethod, KalmanOptions, PemOptions, UnscentedParams};
-use onsager::model::library::{preset, BuiltinModel, Preset};
-use onsager::model::observation::{Noise, Param, StateMeasurement};
+use onsager::model::library::{preset, Preset};
+use onsager::model::observation::{Noise, Param};
 use onsager::particle::{self, ParticleOptions};
 use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
 use onsager::Error;
@@ -28,23 +28,6 @@ fn simulated(p: &Preset, t_end: f64, seed: u64) -> Dataset {
         simulate(&p.model, &p.theta, &x0, &z0, &SimulateOptions::new(0.0, t_end, p.dt), &mut rng).unwrap();
     let n = p.dims().noisy;
     sample_measurements(&p.observation, &p.theta, &path, n, p.sample_every, &mut rng).unwrap()
-}
-
-fn problem<'a>(
-    p: &'a Preset,
-    data: &'a Dataset,
-    estimate: &'a [usize],
-) -> EstimationProblem<'a, BuiltinModel, StateMeasurement> {
-    EstimationProblem {
-        sde: &p.model,
-        observation: &p.observation,
-        theta: &p.theta,
-        theta_prior: &p.theta_prior,
-        estimate,
-        x0_prior: &p.x0_prior,
-        z0_prior: &p.z0_prior,
-        data,
-    }
 }
 
 /// The exact Kalman filter and RTS smoother of the `ou` preset (x0 ~ N(0, 1) at t = 0).
@@ -71,7 +54,7 @@ fn kalman_methods_equal_the_exact_kalman_filter_and_rts_smoother_on_ou() {
     let reference = ou_reference(&p, &data);
     let options = KalmanOptions::default().with_dt(0.005);
     for method in [KalmanMethod::Ekf, KalmanMethod::Eks, KalmanMethod::Ukf, KalmanMethod::Uks] {
-        let est = kalman::estimate(&problem(&p, &data, &[]), method, &options).unwrap();
+        let est = kalman::estimate(&p.problem(&data, &[]), method, &options).unwrap();
         assert_eq!(est.status, Status::Converged);
         let smoothed = matches!(method, KalmanMethod::Eks | KalmanMethod::Uks);
         let sd = est.path.sd.as_ref().unwrap();
@@ -112,7 +95,7 @@ fn particle_smoother_mean_is_within_four_monte_carlo_standard_errors_of_the_rts_
     let runs: Vec<Vec<f64>> = (0..r)
         .map(|rep| {
             let mut rng = StdRng::seed_from_u64(1000 + rep);
-            let est = particle::estimate(&problem(&p, &data, &[]), &options, &mut rng).unwrap();
+            let est = particle::estimate(&p.problem(&data, &[]), &options, &mut rng).unwrap();
             assert_eq!(est.status, Status::Converged);
             assert_eq!(est.details["smoother"], "ffbsi");
             assert_eq!(est.path.times, data.times);
@@ -147,7 +130,7 @@ fn pem_recovers_the_duffing_parameters_on_a_short_record() {
     let p = preset("duffing").unwrap();
     let data = simulated(&p, 30.0, 1);
     let estimate: Vec<usize> = ["a", "b", "d", "sigma_y"].iter().map(|n| p.param_index(n).unwrap()).collect();
-    let est = kalman::pem(&problem(&p, &data, &estimate), &PemOptions::default()).unwrap();
+    let est = kalman::pem(&p.problem(&data, &estimate), &PemOptions::default()).unwrap();
     assert!(est.status.is_success(), "{}", est.status);
     assert_eq!(est.estimated, estimate);
     let sd = est.theta_sd.clone().unwrap();
@@ -185,23 +168,20 @@ fn non_gaussian_likelihoods_are_rejected_by_the_kalman_methods_and_accepted_by_t
         other => panic!("expected a clear error, got {other:?}"),
     };
     for method in [KalmanMethod::Ekf, KalmanMethod::Eks, KalmanMethod::Ukf, KalmanMethod::Uks] {
-        check(kalman::estimate(&problem(&p, &data, &[]), method, &KalmanOptions::default()));
+        check(kalman::estimate(&p.problem(&data, &[]), method, &KalmanOptions::default()));
     }
-    check(kalman::pem(&problem(&p, &data, &[0]), &PemOptions::default()));
+    check(kalman::pem(&p.problem(&data, &[0]), &PemOptions::default()));
     assert!(kalman::filter(
-        &problem(&p, &data, &[]),
+        &p.problem(&data, &[]),
         &p.theta,
         Approximation::Unscented(UnscentedParams::default()),
         &KalmanOptions::default()
     )
     .is_err());
     let mut rng = StdRng::seed_from_u64(5);
-    let est = particle::estimate(
-        &problem(&p, &data, &[]),
-        &ParticleOptions::default().with_particles(200),
-        &mut rng,
-    )
-    .unwrap();
+    let est =
+        particle::estimate(&p.problem(&data, &[]), &ParticleOptions::default().with_particles(200), &mut rng)
+            .unwrap();
     assert_eq!(est.status, Status::Converged);
     assert!(est.details["log_likelihood"].as_f64().unwrap().is_finite());
 }
@@ -225,8 +205,7 @@ fn cli_eks_writes_the_library_path() {
         .unwrap();
     assert!(out.status.success(), "stderr: {}", String::from_utf8_lossy(&out.stderr));
     let path = StatePath::read_csv(&out_csv).unwrap();
-    let lib =
-        kalman::estimate(&problem(&p, &data, &[]), KalmanMethod::Eks, &KalmanOptions::default()).unwrap();
+    let lib = kalman::estimate(&p.problem(&data, &[]), KalmanMethod::Eks, &KalmanOptions::default()).unwrap();
     assert_eq!(path.times.len(), lib.path.times.len());
     for (a, b) in path.values.iter().zip(&lib.path.values) {
         assert_relative_eq!(a[0], b[0], epsilon = 1e-12, max_relative = 1e-12);

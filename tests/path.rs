@@ -6,10 +6,8 @@ use approx::assert_relative_eq;
 use nalgebra::{DMatrix, DVector};
 
 use onsager::data::Dataset;
-use onsager::estimate::EstimationProblem;
 use onsager::kalman::linear::{kalman_rts, LinearGaussianModel};
-use onsager::model::library::{preset, BuiltinModel, Preset};
-use onsager::model::observation::StateMeasurement;
+use onsager::model::library::{preset, Preset};
 use onsager::model::Prior;
 use onsager::path::{estimate_path, Merit, PathOptions, Transcription};
 use onsager::Status;
@@ -21,23 +19,6 @@ fn ou_data(p: &Preset) -> Dataset {
     Dataset::try_new(p.observation.names.clone(), times, values).unwrap()
 }
 
-fn problem<'a>(
-    p: &'a Preset,
-    data: &'a Dataset,
-    estimate: &'a [usize],
-) -> EstimationProblem<'a, BuiltinModel, StateMeasurement> {
-    EstimationProblem {
-        sde: &p.model,
-        observation: &p.observation,
-        theta: &p.theta,
-        theta_prior: &p.theta_prior,
-        estimate,
-        x0_prior: &p.x0_prior,
-        z0_prior: &p.z0_prior,
-        data,
-    }
-}
-
 /// Sup-norm distances of a path estimate (one state) and of its Laplace sd to the RTS smoothed
 /// mean and sd at its nodes.
 fn distance_to_rts(
@@ -47,7 +28,7 @@ fn distance_to_rts(
     transcription: Transcription,
     step: f64,
 ) -> (f64, f64) {
-    let prob = problem(p, data, &[]);
+    let prob = p.problem(data, &[]);
     let sol = estimate_path(&prob, PathOptions::new(merit, transcription).with_step(step)).unwrap();
     assert_eq!(sol.estimate.status, Status::Converged);
     // The preset's x0 prior is N(0, 1) at t0 = 0 (ou preset).
@@ -113,7 +94,7 @@ fn joint_parameter_estimate_maximises_the_profile_merit() {
     let mut p = preset("ou").unwrap();
     p.theta_prior[0] = Prior::gaussian(1.0, 0.5).with_bounds(0.0, 10.0);
     let data = ou_data(&p);
-    let prob = problem(&p, &data, &[0]);
+    let prob = p.problem(&data, &[0]);
     let options = || PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson).with_step(0.1);
     let joint = estimate_path(&prob, options()).unwrap();
     assert_eq!(joint.estimate.status, Status::Converged);
@@ -123,7 +104,7 @@ fn joint_parameter_estimate_maximises_the_profile_merit() {
     for delta in [-0.05, 0.05, 0.0] {
         let mut q = p.clone();
         q.theta[0] = theta_hat + delta;
-        let fixed_prob = problem(&q, &data, &[]);
+        let fixed_prob = q.problem(&data, &[]);
         let fixed = estimate_path(&fixed_prob, options()).unwrap();
         // add the θ prior, which the fixed-θ merit does not include
         let profile = fixed.parts.total() + p.theta_prior[0].log_density(theta_hat + delta);
@@ -196,7 +177,7 @@ fn cli_estimate_jme_writes_path_and_report() {
 fn tanh_euler_converges_to_mee_and_trapezoidal_to_om() {
     let p = preset("tanh").unwrap();
     let data = Dataset::try_new(p.observation.names.clone(), vec![5.0], vec![vec![1.5]]).unwrap();
-    let prob = problem(&p, &data, &[]);
+    let prob = p.problem(&data, &[]);
     let guess = onsager::data::StatePath {
         names: vec!["x".into()],
         times: vec![0.0, 5.0],
@@ -259,7 +240,7 @@ fn van_der_pol_student_t_converges_quickly() {
         let sim = SimulateOptions::new(0.0, 16.0, 5e-4);
         let truth = simulate(&p.model, &p.theta, &[0.0, 0.0], &[], &sim, &mut rng).unwrap();
         let data = sample_measurements(&p.observation, &p.theta, &truth, 2, 0.1, &mut rng).unwrap();
-        let prob = problem(&est, &data, &[]);
+        let prob = est.problem(&data, &[]);
         let times: Vec<f64> = (0..=3200).map(|k| k as f64 * 0.005).collect();
         let guess =
             onsager::path::spline_guess(&est.model, &est.theta, &est.observation.states, &data, &times)

@@ -109,17 +109,7 @@ impl Setup {
 
     /// The problem, borrowing from `self`.
     pub fn problem(&self) -> CliProblem<'_> {
-        let p = &self.preset;
-        EstimationProblem {
-            sde: &p.model,
-            observation: &p.observation,
-            theta: &p.theta,
-            theta_prior: &p.theta_prior,
-            estimate: &self.estimate,
-            x0_prior: &p.x0_prior,
-            z0_prior: &p.z0_prior,
-            data: &self.data,
-        }
+        self.preset.problem(&self.data, &self.estimate)
     }
 }
 

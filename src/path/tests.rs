@@ -1,7 +1,6 @@
 use approx::assert_relative_eq;
 
 use super::*;
-use crate::model::library::BuiltinModel;
 use crate::model::library::{preset, Preset};
 use crate::model::observation::StateMeasurement;
 use crate::nlp::{NlpOptions, NlpProblem};
@@ -11,23 +10,6 @@ use crate::nlp::{NlpOptions, NlpProblem};
 fn data_for(p: &Preset, times: &[f64]) -> Dataset {
     let values = times.iter().map(|&t| vec![0.8 * (1.3 * t).cos()]).collect();
     Dataset::try_new(p.observation.names.clone(), times.to_vec(), values).unwrap()
-}
-
-fn problem<'a>(
-    p: &'a Preset,
-    data: &'a Dataset,
-    estimate: &'a [usize],
-) -> EstimationProblem<'a, BuiltinModel, StateMeasurement> {
-    EstimationProblem {
-        sde: &p.model,
-        observation: &p.observation,
-        theta: &p.theta,
-        theta_prior: &p.theta_prior,
-        estimate,
-        x0_prior: &p.x0_prior,
-        z0_prior: &p.z0_prior,
-        data,
-    }
 }
 
 /// Dense central finite differences of the NLP's gradient, constraint Jacobian and Hessian of
@@ -117,7 +99,7 @@ fn derivatives_match_finite_differences() {
         (Transcription::Euler, vec![1, 2, 4, 5]),
     ] {
         for merit in [Merit::OnsagerMachlup, Merit::Energy] {
-            let prob = problem(&p, &data, &estimate);
+            let prob = p.problem(&data, &estimate);
             let options = PathOptions::new(merit, transcription).with_step(0.15);
             let mut nlp = build_nlp(&prob, &options).unwrap();
             assert_eq!(nlp.grid().intervals, 4);
@@ -138,7 +120,7 @@ fn hermite_simpson_energy_converges_to_the_continuous_energy() {
     let mut errors = Vec::new();
     for pieces in [10usize, 20, 40] {
         let h = 2.0 / pieces as f64;
-        let prob = problem(&p, &data, &[]);
+        let prob = p.problem(&data, &[]);
         let nlp = build_nlp(&prob, &PathOptions::default().with_step(h)).unwrap();
         let mut w = vec![0.0; nlp.num_variables()];
         for k in 0..pieces {
@@ -158,7 +140,7 @@ fn hermite_simpson_energy_converges_to_the_continuous_energy() {
 fn measurement_off_the_grid_is_an_error() {
     let p = preset("ou").unwrap();
     let data = data_for(&p, &[0.0, 0.5, 1.0]);
-    let prob = problem(&p, &data, &[]);
+    let prob = p.problem(&data, &[]);
     let err = build_nlp(&prob, &PathOptions::default().with_step(0.3)).err().unwrap();
     assert!(err.to_string().contains("not on the grid"), "{err}");
 }
@@ -168,7 +150,7 @@ fn initial_theta_outside_its_bounds_is_an_error() {
     let mut p = preset("ou").unwrap();
     p.theta_prior[0] = p.theta_prior[0].with_bounds(2.0, 3.0);
     let data = data_for(&p, &[0.0, 0.5]);
-    let prob = problem(&p, &data, &[0]);
+    let prob = p.problem(&data, &[0]);
     let err = build_nlp(&prob, &PathOptions::default()).err().unwrap();
     assert!(err.to_string().contains("violates its bounds"), "{err}");
 }
@@ -177,7 +159,7 @@ fn initial_theta_outside_its_bounds_is_an_error() {
 fn estimating_a_noise_parameter_with_hermite_simpson_is_an_error() {
     let p = preset("ou").unwrap();
     let data = data_for(&p, &[0.0, 0.5]);
-    let prob = problem(&p, &data, &[1]);
+    let prob = p.problem(&data, &[1]);
     assert!(build_nlp(&prob, &PathOptions::default()).is_err());
     assert!(build_nlp(&prob, &PathOptions::new(Merit::Energy, Transcription::Euler)).is_ok());
 }
@@ -190,7 +172,7 @@ fn multipliers_satisfy_stationarity_at_the_optimum() {
     let p = preset("duffing").unwrap();
     let data = data_for(&p, &[0.0, 0.3, 0.6, 0.9]);
     let estimate = [0, 1, 2];
-    let prob = problem(&p, &data, &estimate);
+    let prob = p.problem(&data, &estimate);
     let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson).with_step(0.1);
     let mut nlp = build_nlp(&prob, &options).unwrap();
     let sol = crate::nlp::solve(&mut nlp, NlpOptions::default()).unwrap();
@@ -214,7 +196,7 @@ fn iteration_limit_is_a_status() {
     let p = preset("duffing").unwrap();
     let data = data_for(&p, &[0.0, 0.3, 0.6, 0.9]);
     let estimate = [0, 1, 2];
-    let prob = problem(&p, &data, &estimate);
+    let prob = p.problem(&data, &estimate);
     let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson)
         .with_step(0.1)
         .with_nlp(NlpOptions::default().with_max_iterations(2));
@@ -258,7 +240,7 @@ fn likelihood_with_the_wrong_output_count_is_an_error() {
     let mut p = preset("ou").unwrap();
     let data = data_for(&p, &[0.0, 0.5]);
     p.observation = StateMeasurement::new(vec![0, 0], vec!["y".into(), "y2".into()], p.observation.noise);
-    let prob = problem(&p, &data, &[]);
+    let prob = p.problem(&data, &[]);
     let err = build_nlp(&prob, &PathOptions::default()).err().unwrap();
     assert!(err.to_string().contains("outputs"), "{err}");
 }

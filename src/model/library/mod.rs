@@ -38,6 +38,8 @@ pub use van_der_pol::VanDerPol;
 use super::observation::{Noise, StateMeasurement};
 use super::prior::Prior;
 use super::{check_len, Dims, Param, Scalar, Sde};
+use crate::data::Dataset;
+use crate::estimate::EstimationProblem;
 use crate::{Error, Result};
 
 /// Owned names from string literals.
@@ -216,6 +218,25 @@ impl Preset {
         }
         let n = ((t1 - t0) / h + 1e-9).floor() as usize;
         (0..=n).map(|k| t0 + k as f64 * h).collect()
+    }
+
+    /// The estimation problem of this preset's model, measurement model, θ and priors on
+    /// `data`, estimating the θ components `estimate`.
+    pub fn problem<'a>(
+        &'a self,
+        data: &'a Dataset,
+        estimate: &'a [usize],
+    ) -> EstimationProblem<'a, BuiltinModel, StateMeasurement> {
+        EstimationProblem {
+            sde: &self.model,
+            observation: &self.observation,
+            theta: &self.theta,
+            theta_prior: &self.theta_prior,
+            estimate,
+            x0_prior: &self.x0_prior,
+            z0_prior: &self.z0_prior,
+            data,
+        }
     }
 
     /// Checks the preset after user changes: lengths of θ, priors and flags against the
