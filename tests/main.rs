@@ -3,4 +3,5 @@
 mod action;
 mod baselines;
 mod cli;
+mod closure;
 mod path;

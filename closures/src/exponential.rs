@@ -345,6 +345,24 @@ impl Exponential {
         &self.grid
     }
 
+    /// The moment functions at every [grid](Self::grid) node, row-major (node $k$, moment
+    /// $a$) at index $kR + a$: callers that integrate their own functions against
+    /// $p(\cdot;\lambda)$ on the fixed nodes (a closure's generator average) reuse them.
+    pub fn moment_table(&self) -> &[f64] {
+        &self.table
+    }
+
+    /// Node probabilities $\pi_k = e^{s_k - F}$ (summing to 1) and $F(\lambda)$ by
+    /// log-sum-exp (`003_d2fc48a470e528fc.txt (II.36)`–(II.38)); the nodes are those of
+    /// [`Exponential::grid`] and do not move with $\lambda$, so
+    /// $\partial\pi_k/\partial\lambda = \pi_k(M(x_k) - \mu)$.
+    ///
+    /// # Errors
+    /// [`Error::DimensionMismatch`], [`Error::NonFinite`], [`Error::NotNormalizable`].
+    pub fn node_probabilities(&self, lambda: &[f64]) -> Result<(Vec<f64>, f64), Error> {
+        self.probabilities(lambda)
+    }
+
     /// Node probabilities $\pi_k = e^{s_k - F}$ and $F$ (log-sum-exp), the core of every other
     /// routine (`003_d2fc48a470e528fc.txt (II.36)`–(II.38)).
     fn probabilities(&self, lambda: &[f64]) -> Result<(Vec<f64>, f64), Error> {

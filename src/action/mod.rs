@@ -14,14 +14,20 @@
 //! - [`dispersion`]: the ensemble dispersion from ((∇²F)⁻¹ + R⁻¹)⁻¹ (`(I.85)–(I.90)`) and by the
 //!   Lagrange-multiplier finite difference (`(I.99)–(I.106)`).
 //!
-//! See `docs/effective-action.md` for the theory.
+//! - [`closure`]: the Rayleigh–Ritz closures (Gaussian, exponential family) with their jump
+//!   conditions (`(II.36)–(II.53)`, `(A.30)`) on the same [`dual::EffectiveAction`] interface,
+//!   and [`closure::closure_estimate`].
+//!
+//! See `docs/effective-action.md` and `docs/closures.md` for the theory.
 
+pub mod closure;
 pub mod dispersion;
 pub mod dual;
 pub mod exact;
 pub mod fokker_planck;
 pub mod grid;
 
+pub use closure::{closure_estimate, ClosureAction, ClosureKind, ClosureOptions};
 pub use dual::{maximize_dual, DualData, DualOptions, DualSolution, EffectiveAction, History};
 pub use exact::{
     ksp_smoother, mean_optimal, ExactAction, ExactGrid, ExactOptions, KspSmoothing, MeanOptimal,

@@ -1,0 +1,530 @@
+//! The closure drift W(λ, t) = C⁻¹V of an exponential-family Ansatz and its Jacobian ∂W/∂λ.
+//!
+//! For a trial density p(x; λ) ∝ exp(λᵀM(x)) p_*(x) (`003_d2fc48a470e528fc.txt (II.36)`) the
+//! moment equation of the closure is μ̇ = V(λ, t) with
+//!
+//! $$ V_a(\lambda, t) = \langle (\partial_t + \hat L^*) M_a \rangle_\lambda
+//!    = \langle f\cdot\nabla M_a + D : \nabla\nabla M_a \rangle_\lambda , $$
+//!
+//! (`(II.3)`, D = ½GGᵀ, time-independent M) and, since μ̇ = C λ̇ with C = ∂μ/∂λ, the natural
+//! parameters evolve by λ̇ = W(λ, t) := C⁻¹V (`(II.45)–(II.46)`). The averages are taken through
+//! the family's quadrature nodes:
+//!
+//! - [`GaussianDrift`]: nodes m + Lξ_k that move with the mean and covariance; W is written once
+//!   over the scalar and differentiated by dual numbers through the nodes;
+//! - [`ExponentialDrift`]: the fixed nodes of an [`Exponential`] family, where
+//!   ∂π_k/∂λ = π_k(M_k − μ) gives ∂V/∂λ = Cov(L*M, M) and ∂C/∂λ = the third cumulant
+//!   (`(II.43)`) in closed form.
+
+use nalgebra::{DMatrix, DVector};
+use num_dual::Dual64;
+use onsager_closures::{cholesky, cholesky_inverse, Exponential, Gaussian, TrialFamily};
+
+use crate::model::{Scalar, Sde};
+use crate::{Error, Result};
+
+/// Why W could not be evaluated at λ: the density is not normalizable or its moments are not
+/// realizable (a numerical outcome of a sweep, not misuse).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Unrealizable(pub String);
+
+/// The log-partition function and the first two cumulants of M at λ.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FamilyMoments {
+    /// F(λ) = log N(λ), `003_d2fc48a470e528fc.txt (II.38)`.
+    pub log_partition: f64,
+    /// μ = ∂F/∂λ.
+    pub mean: Vec<f64>,
+    /// C = ∂μ/∂λ (row-major R × R).
+    pub covariance: Vec<f64>,
+}
+
+/// The dynamics of a closure in its natural parameters: λ̇ = W(λ, t), with the family's
+/// cumulants (`003_d2fc48a470e528fc.txt (II.38), (II.46)`).
+pub trait ClosureDrift {
+    /// The number R of moment functions (the length of λ).
+    fn n_params(&self) -> usize;
+
+    /// The dimension of the state x of the family.
+    fn state_dim(&self) -> usize;
+
+    /// W(λ, t) into `out`.
+    fn w(&self, t: f64, lambda: &[f64], out: &mut [f64]) -> std::result::Result<(), Unrealizable>;
+
+    /// W(λ, t) into `w` and ∂W/∂λ into `jac` (row-major R × R: `jac[a * R + b]` = ∂W_a/∂λ_b).
+    fn w_jacobian(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable>;
+
+    /// F(λ), μ(λ), C(λ).
+    fn moments(&self, lambda: &[f64]) -> std::result::Result<FamilyMoments, Unrealizable>;
+
+    /// Index in M of the linear moment x_i (state i), if the family has it.
+    fn linear_index(&self, state: usize) -> Option<usize>;
+
+    /// Index in M of the square x_i², if the family has it.
+    fn square_index(&self, state: usize) -> Option<usize>;
+}
+
+/// D = ½GGᵀ of the full state [x; z] (zero rows and columns for the clean states).
+fn diffusion_matrix<S: Sde + ?Sized>(sde: &S, theta: &[f64]) -> Result<Vec<f64>> {
+    let d = sde.dims();
+    let g = sde.diffusion_matrix(theta)?;
+    let gg = &g * g.transpose() * 0.5;
+    let n = d.states();
+    let mut out = vec![0.0; n * n];
+    for i in 0..d.noisy {
+        for j in 0..d.noisy {
+            out[i * n + j] = gg[(i, j)];
+        }
+    }
+    Ok(out)
+}
+
+fn unrealizable(e: onsager_closures::Error) -> Unrealizable {
+    Unrealizable(e.to_string())
+}
+
+/// The Gaussian closure of any model: M = (x_i, x_ix_j (i ≤ j)) on the full state [x; z]
+/// ([`Gaussian`]). Between measurements the closure is the moment equation
+/// ṁ = ⟨f⟩, Σ̇ = ⟨f(x − m)ᵀ⟩ + ⟨(x − m)fᵀ⟩ + 2D, the node averages taken by the family's rule
+/// (Gauss–Hermite or cubature); it is mapped to the natural parameters (a, b) = (Pm, −½P_ii,
+/// −P_ij) with Ṗ = −PΣ̇P, ȧ = Ṗm + Pṁ, which is W = C⁻¹V (`003_d2fc48a470e528fc.txt (II.46)`)
+/// without forming C. Exact for linear drifts.
+pub struct GaussianDrift<'a, S: Sde + ?Sized> {
+    sde: &'a S,
+    theta: Vec<f64>,
+    family: Gaussian,
+    diffusion: Vec<f64>,
+}
+
+impl<S: Sde + ?Sized> std::fmt::Debug for GaussianDrift<'_, S> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GaussianDrift").field("family", &self.family).finish()
+    }
+}
+
+impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
+    /// The Gaussian closure of `sde` at θ on the full state. Errors: a singular or non-finite G.
+    pub fn try_new(sde: &'a S, theta: &[f64]) -> Result<Self> {
+        let n = sde.dims().states();
+        let family = Gaussian::try_new(n).map_err(|e| Error::InvalidOption {
+            name: "model".into(),
+            reason: format!("Gaussian closure: {e}"),
+        })?;
+        Ok(GaussianDrift { sde, theta: theta.to_vec(), family, diffusion: diffusion_matrix(sde, theta)? })
+    }
+
+    /// The family.
+    pub fn family(&self) -> &Gaussian {
+        &self.family
+    }
+
+    /// W(λ, t) generic over the scalar (see the type's documentation).
+    fn w_generic<D: Scalar>(
+        &self,
+        t: f64,
+        lambda: &[D],
+        out: &mut [D],
+    ) -> std::result::Result<(), Unrealizable> {
+        let n = self.family.dim();
+        let (m, s) = self.family.mean_cov_from_natural(lambda).map_err(unrealizable)?;
+        let nodes = self.family.nodes(&m, &s).map_err(unrealizable)?;
+        let theta: Vec<D> = self.theta.iter().map(|&v| D::from(v)).collect();
+        let mut f = vec![D::zero(); n];
+        let mut fbar = vec![D::zero(); n];
+        let mut fx = vec![D::zero(); n * n];
+        for (x, w) in &nodes {
+            self.sde.state_drift(D::from(t), x, &theta, &mut f);
+            for i in 0..n {
+                let fw = f[i] * *w;
+                fbar[i] += fw;
+                for j in 0..n {
+                    fx[i * n + j] += fw * (x[j] - m[j]);
+                }
+            }
+        }
+        // Σ̇ = ⟨f(x − m)ᵀ⟩ + ⟨(x − m)fᵀ⟩ + 2D; P = Σ⁻¹; Ṗ = −PΣ̇P; ȧ = Ṗm + Pṁ.
+        let sdot: Vec<D> =
+            (0..n * n).map(|k| fx[k] + fx[(k % n) * n + k / n] + self.diffusion[k] * 2.0).collect();
+        let l = cholesky(&s, n).map_err(unrealizable)?;
+        let p = cholesky_inverse(&l, n).map_err(unrealizable)?;
+        let mut ps = vec![D::zero(); n * n];
+        for i in 0..n {
+            for j in 0..n {
+                ps[i * n + j] = (0..n).map(|k| p[i * n + k] * sdot[k * n + j]).sum();
+            }
+        }
+        let mut pdot = vec![D::zero(); n * n];
+        for i in 0..n {
+            for j in 0..n {
+                pdot[i * n + j] = -(0..n).map(|k| ps[i * n + k] * p[k * n + j]).sum::<D>();
+            }
+        }
+        for i in 0..n {
+            out[i] = (0..n).map(|j| pdot[i * n + j] * m[j] + p[i * n + j] * fbar[j]).sum();
+        }
+        for i in 0..n {
+            for j in i..n {
+                let q = self.family.quadratic_index(i, j).expect("in range");
+                out[q] = if i == j { -pdot[i * n + i] * 0.5 } else { -pdot[i * n + j] };
+            }
+        }
+        if out.iter().any(|v| !v.re().is_finite()) {
+            return Err(Unrealizable("the Gaussian closure drift is not finite".into()));
+        }
+        Ok(())
+    }
+}
+
+impl<S: Sde + ?Sized> ClosureDrift for GaussianDrift<'_, S> {
+    fn n_params(&self) -> usize {
+        self.family.n_moments()
+    }
+
+    fn state_dim(&self) -> usize {
+        self.family.dim()
+    }
+
+    fn w(&self, t: f64, lambda: &[f64], out: &mut [f64]) -> std::result::Result<(), Unrealizable> {
+        self.w_generic(t, lambda, out)
+    }
+
+    /// ∂W/∂λ by one dual-number pass per column, through the moving nodes.
+    fn w_jacobian(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        let r = lambda.len();
+        let mut ld: Vec<Dual64> = lambda.iter().map(|&v| Dual64::from(v)).collect();
+        let mut out = vec![Dual64::from(0.0); r];
+        for b in 0..r {
+            ld[b].eps = 1.0;
+            self.w_generic(t, &ld, &mut out)?;
+            ld[b].eps = 0.0;
+            for a in 0..r {
+                jac[a * r + b] = out[a].eps;
+                w[a] = out[a].re;
+            }
+        }
+        Ok(())
+    }
+
+    fn moments(&self, lambda: &[f64]) -> std::result::Result<FamilyMoments, Unrealizable> {
+        let c = self.family.cumulants(lambda).map_err(unrealizable)?;
+        Ok(FamilyMoments { log_partition: c.log_partition, mean: c.mean, covariance: c.covariance })
+    }
+
+    fn linear_index(&self, state: usize) -> Option<usize> {
+        (state < self.family.dim()).then_some(state)
+    }
+
+    fn square_index(&self, state: usize) -> Option<usize> {
+        self.family.quadratic_index(state, state)
+    }
+}
+
+/// An exponential-family closure on the fixed nodes of an [`Exponential`] family (1-D or 2-D,
+/// the family's state = the model's full state). The generator averages
+/// g_k = f(x_k)·∇M(x_k) + D:∇∇M(x_k) (`003_d2fc48a470e528fc.txt (II.3)`) are formed at the
+/// nodes, with ∇M and ∇∇M computed once; then V = Σπ_k g_k, W = C⁻¹V and
+///
+/// $$ \partial W/\partial\lambda = C^{-1}\sum_k \pi_k\,(g_k - (d_k\cdot W)\,d_k)\,d_k^\top,
+///    \qquad d_k = M(x_k) - \mu , $$
+///
+/// from ∂V/∂λ = Σπ_k g_k d_kᵀ and ∂C_ab/∂λ_j = Σπ_k d_a d_b d_j (`(II.43)`).
+pub struct ExponentialDrift<'a, S: Sde + ?Sized> {
+    sde: &'a S,
+    theta: Vec<f64>,
+    family: Exponential,
+    diffusion: Vec<f64>,
+    /// ∂M_a/∂x_i at every node (node-major, R × dim per node).
+    jac: Vec<f64>,
+    /// D : ∇∇M_a at every node (node-major, R per node).
+    second: Vec<f64>,
+    linear: Vec<Option<usize>>,
+    square: Vec<Option<usize>>,
+}
+
+impl<S: Sde + ?Sized> std::fmt::Debug for ExponentialDrift<'_, S> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ExponentialDrift").field("family", &self.family).finish()
+    }
+}
+
+impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
+    /// The closure of `sde` at θ with `family` (whose dimension must be the model's number of
+    /// states and whose moment functions must have derivatives). Errors:
+    /// [`Error::InvalidOption`] for a dimension mismatch or missing derivatives; a singular G.
+    pub fn try_new(sde: &'a S, theta: &[f64], family: Exponential) -> Result<Self> {
+        let n = sde.dims().states();
+        if family.dim() != n {
+            return Err(Error::InvalidOption {
+                name: "method".into(),
+                reason: format!(
+                    "the exponential family has dimension {} but the model has {n} states",
+                    family.dim()
+                ),
+            });
+        }
+        let diffusion = diffusion_matrix(sde, theta)?;
+        let r = family.n_moments();
+        let nodes = family.grid().len();
+        let mut jac = vec![0.0; nodes * r * n];
+        let mut second = vec![0.0; nodes * r];
+        let mut h = vec![0.0; r * n * n];
+        let grid = family.grid().clone();
+        for (k, (x, _)) in grid.iter().enumerate() {
+            family.moment_derivatives(x, &mut jac[k * r * n..(k + 1) * r * n], &mut h).map_err(|e| {
+                Error::InvalidOption { name: "method".into(), reason: format!("exponential closure: {e}") }
+            })?;
+            for a in 0..r {
+                second[k * r + a] = (0..n * n).map(|ij| diffusion[ij] * h[a * n * n + ij]).sum::<f64>();
+            }
+        }
+        // Find x_i and x_i² among the moments numerically on the nodes.
+        let table = family.moment_table();
+        let find = |g: &dyn Fn(&[f64]) -> f64| -> Option<usize> {
+            (0..r).find(|&a| {
+                grid.iter().enumerate().all(|(k, (x, _))| {
+                    let v = g(x);
+                    (table[k * r + a] - v).abs() <= 1e-12 * (1.0 + v.abs())
+                })
+            })
+        };
+        let linear = (0..n).map(|i| find(&|x: &[f64]| x[i])).collect();
+        let square = (0..n).map(|i| find(&|x: &[f64]| x[i] * x[i])).collect();
+        Ok(ExponentialDrift { sde, theta: theta.to_vec(), family, diffusion, jac, second, linear, square })
+    }
+
+    /// The family.
+    pub fn family(&self) -> &Exponential {
+        &self.family
+    }
+
+    /// The diffusion D = ½GGᵀ of the full state (row-major).
+    pub fn diffusion(&self) -> &[f64] {
+        &self.diffusion
+    }
+
+    /// π, μ, C (as matrices) and the generator averages g_k at every node (node-major).
+    #[allow(clippy::type_complexity)]
+    fn pass(
+        &self,
+        t: f64,
+        lambda: &[f64],
+    ) -> std::result::Result<(Vec<f64>, DVector<f64>, DMatrix<f64>, Vec<f64>), Unrealizable> {
+        let n = self.family.dim();
+        let r = self.family.n_moments();
+        let (p, _) = self.family.node_probabilities(lambda).map_err(unrealizable)?;
+        let table = self.family.moment_table();
+        let mut mu = DVector::zeros(r);
+        for (row, &pk) in table.chunks_exact(r).zip(&p) {
+            for a in 0..r {
+                mu[a] += pk * row[a];
+            }
+        }
+        let mut c = DMatrix::zeros(r, r);
+        let mut g = vec![0.0; p.len() * r];
+        let mut f = vec![0.0; n];
+        for (k, (x, _)) in self.family.grid().iter().enumerate() {
+            let row = &table[k * r..(k + 1) * r];
+            let pk = p[k];
+            for a in 0..r {
+                for b in a..r {
+                    c[(a, b)] += pk * (row[a] - mu[a]) * (row[b] - mu[b]);
+                }
+            }
+            if pk == 0.0 {
+                continue;
+            }
+            self.sde.state_drift(t, x, &self.theta, &mut f);
+            let jk = &self.jac[k * r * n..(k + 1) * r * n];
+            for a in 0..r {
+                g[k * r + a] = (0..n).map(|i| jk[a * n + i] * f[i]).sum::<f64>() + self.second[k * r + a];
+            }
+        }
+        for a in 0..r {
+            for b in 0..a {
+                c[(a, b)] = c[(b, a)];
+            }
+        }
+        if g.iter().any(|v| !v.is_finite()) {
+            return Err(Unrealizable("the drift is not finite on the family's grid".into()));
+        }
+        Ok((p, mu, c, g))
+    }
+}
+
+fn solve_spd(c: &DMatrix<f64>, rhs: &DMatrix<f64>) -> std::result::Result<DMatrix<f64>, Unrealizable> {
+    // Jacobi scaling keeps the moment covariance (entries of very different sizes) well posed.
+    let r = c.nrows();
+    let s = DVector::from_fn(r, |a, _| 1.0 / c[(a, a)].max(f64::MIN_POSITIVE).sqrt());
+    let cs = DMatrix::from_fn(r, r, |a, b| c[(a, b)] * s[a] * s[b]);
+    let ch = cs
+        .cholesky()
+        .ok_or_else(|| Unrealizable("the moment covariance C is not positive definite".into()))?;
+    let scaled = DMatrix::from_fn(rhs.nrows(), rhs.ncols(), |a, j| rhs[(a, j)] * s[a]);
+    let y = ch.solve(&scaled);
+    Ok(DMatrix::from_fn(y.nrows(), y.ncols(), |a, j| y[(a, j)] * s[a]))
+}
+
+impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
+    fn n_params(&self) -> usize {
+        self.family.n_moments()
+    }
+
+    fn state_dim(&self) -> usize {
+        self.family.dim()
+    }
+
+    fn w(&self, t: f64, lambda: &[f64], out: &mut [f64]) -> std::result::Result<(), Unrealizable> {
+        let r = self.family.n_moments();
+        let (p, _, c, g) = self.pass(t, lambda)?;
+        let mut v = DMatrix::zeros(r, 1);
+        for (gk, &pk) in g.chunks_exact(r).zip(&p) {
+            for a in 0..r {
+                v[(a, 0)] += pk * gk[a];
+            }
+        }
+        let w = solve_spd(&c, &v)?;
+        out.iter_mut().zip(w.iter()).for_each(|(o, v)| *o = *v);
+        Ok(())
+    }
+
+    fn w_jacobian(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        let r = self.family.n_moments();
+        let (p, mu, c, g) = self.pass(t, lambda)?;
+        let table = self.family.moment_table();
+        let mut v = DMatrix::zeros(r, 1);
+        for (gk, &pk) in g.chunks_exact(r).zip(&p) {
+            for a in 0..r {
+                v[(a, 0)] += pk * gk[a];
+            }
+        }
+        let wv = solve_spd(&c, &v)?;
+        let mut b = DMatrix::zeros(r, r);
+        let mut d = vec![0.0; r];
+        for (k, &pk) in p.iter().enumerate() {
+            if pk == 0.0 {
+                continue;
+            }
+            for a in 0..r {
+                d[a] = table[k * r + a] - mu[a];
+            }
+            let u: f64 = (0..r).map(|a| d[a] * wv[(a, 0)]).sum();
+            for a in 0..r {
+                let ga = pk * (g[k * r + a] - u * d[a]);
+                for j in 0..r {
+                    b[(a, j)] += ga * d[j];
+                }
+            }
+        }
+        let jw = solve_spd(&c, &b)?;
+        for a in 0..r {
+            w[a] = wv[(a, 0)];
+            for j in 0..r {
+                jac[a * r + j] = jw[(a, j)];
+            }
+        }
+        Ok(())
+    }
+
+    fn moments(&self, lambda: &[f64]) -> std::result::Result<FamilyMoments, Unrealizable> {
+        let c = self.family.cumulants(lambda).map_err(unrealizable)?;
+        Ok(FamilyMoments { log_partition: c.log_partition, mean: c.mean, covariance: c.covariance })
+    }
+
+    fn linear_index(&self, state: usize) -> Option<usize> {
+        self.linear.get(state).copied().flatten()
+    }
+
+    fn square_index(&self, state: usize) -> Option<usize> {
+        self.square.get(state).copied().flatten()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::library::{DoubleWell, Ou};
+    use approx::assert_relative_eq;
+
+    fn fd_jacobian<Dr: ClosureDrift>(dr: &Dr, t: f64, lambda: &[f64]) -> Vec<f64> {
+        let r = lambda.len();
+        let mut out = vec![0.0; r * r];
+        let (mut wp, mut wm) = (vec![0.0; r], vec![0.0; r]);
+        for b in 0..r {
+            let h = 1e-6 * (1.0 + lambda[b].abs());
+            let mut l = lambda.to_vec();
+            l[b] += h;
+            dr.w(t, &l, &mut wp).unwrap();
+            l[b] -= 2.0 * h;
+            dr.w(t, &l, &mut wm).unwrap();
+            for a in 0..r {
+                out[a * r + b] = (wp[a] - wm[a]) / (2.0 * h);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn gaussian_drift_of_ou_is_the_exact_moment_equation() {
+        // OU dX = −θX dt + σ dW (θ = 1, σ = 0.5): ṁ = −m, v̇ = −2v + σ² (closed form). In natural
+        // parameters a = m/v, b = −1/(2v): ȧ = ṁ/v − m v̇/v², ḃ = v̇/(2v²).
+        let dr = GaussianDrift::try_new(&Ou, &[1.0, 0.5]).unwrap();
+        let (m, v) = (0.7, 0.3);
+        let lambda = [m / v, -0.5 / v];
+        let mut w = [0.0; 2];
+        dr.w(0.0, &lambda, &mut w).unwrap();
+        let (mdot, vdot) = (-m, -2.0 * v + 0.25);
+        assert_relative_eq!(w[0], mdot / v - m * vdot / (v * v), epsilon = 1e-12);
+        assert_relative_eq!(w[1], vdot / (2.0 * v * v), epsilon = 1e-12);
+        let (mut w2, mut jac) = ([0.0; 2], [0.0; 4]);
+        dr.w_jacobian(0.0, &lambda, &mut w2, &mut jac).unwrap();
+        let fd = fd_jacobian(&dr, 0.0, &lambda);
+        for k in 0..4 {
+            assert_relative_eq!(jac[k], fd[k], epsilon = 1e-6, max_relative = 1e-6);
+        }
+    }
+
+    #[test]
+    fn exponential_drift_jacobian_matches_finite_differences_and_w_is_c_inverse_v() {
+        let family = Exponential::quartic(-3.0, 3.0).unwrap();
+        let dr = ExponentialDrift::try_new(&DoubleWell, &[0.5], family.clone()).unwrap();
+        let lambda = [0.3, 1.0, -0.2, -0.8];
+        let (mut w, mut jac) = ([0.0; 4], [0.0; 16]);
+        dr.w_jacobian(0.0, &lambda, &mut w, &mut jac).unwrap();
+        let fd = fd_jacobian(&dr, 0.0, &lambda);
+        for k in 0..16 {
+            assert_relative_eq!(jac[k], fd[k], epsilon = 1e-5, max_relative = 1e-5);
+        }
+        // V = ⟨f M' + D M''⟩ with f = 4x − 4x³, D = 0.5, M = x^a: V_a = ⟨a x^{a−1} f + a(a−1)/2 x^{a−2}⟩.
+        let rule = family.quadrature(&lambda).unwrap();
+        let c = family.covariance(&lambda).unwrap();
+        for a in 1..=4i32 {
+            let v = rule.integrate(|x| {
+                let x = x[0];
+                let f = 4.0 * x - 4.0 * x.powi(3);
+                a as f64 * x.powi(a - 1) * f + 0.5 * (a * (a - 1)) as f64 * x.powi((a - 2).max(0))
+            });
+            let cw: f64 = (0..4).map(|b| c[(a as usize - 1) * 4 + b] * w[b]).sum();
+            assert_relative_eq!(cw, v, epsilon = 1e-9, max_relative = 1e-9);
+        }
+        assert_eq!(dr.linear_index(0), Some(0));
+        assert_eq!(dr.square_index(0), Some(1));
+    }
+}

@@ -1,0 +1,507 @@
+//! Rayleigh–Ritz closures of the effective action (`003_d2fc48a470e528fc.txt` Part II): the
+//! mean-optimal estimator with the density restricted to an exponential family
+//! p(x; λ) ∝ exp(λᵀM(x)) p_*(x) (`(II.36)`).
+//!
+//! - [`drift`]: the closure drift W = C⁻¹⟨L*M⟩ (`(II.3)`, `(II.46)`) for the Gaussian family in
+//!   any dimension and for exponential families on fixed nodes (user moment sets, e.g. the
+//!   quartic M = (x, x², x³, x⁴));
+//! - [`sweep`]: the forward sweep with the jumps λ(t_k+) = λ(t_k−) + λ_k (`(II.49)`), F = ΣΔF_k
+//!   (`(II.51)`), the backward (adjoint) sweep with the jumps (`(II.47)`, `(II.50)`), the history
+//!   m(t) = μ + γ (`(II.48)`) and ∂F/∂λ_k = m(t_k) (`(A.30)`), as an
+//!   [`EffectiveAction`](super::dual::EffectiveAction), so the dual estimator
+//!   ([`maximize_dual`](super::dual::maximize_dual)) and the ensemble dispersion
+//!   ([`super::dispersion`]) are those of the exact grid;
+//! - [`closure_estimate`]: the estimator as a [`PathEstimate`].
+//!
+//! See `docs/closures.md`.
+
+pub mod drift;
+pub mod sweep;
+
+pub use drift::{ClosureDrift, ExponentialDrift, FamilyMoments, GaussianDrift, Unrealizable};
+pub use sweep::ClosureAction;
+
+use std::time::Instant;
+
+use onsager_closures::{Exponential, LegendreOptions, TrialFamily};
+use serde_json::json;
+
+use crate::data::StatePath;
+use crate::estimate::{EstimationProblem, PathEstimate};
+use crate::model::observation::StateMeasurement;
+use crate::model::prior::{Prior, PriorDensity};
+use crate::model::Sde;
+use crate::{Error, Result};
+
+use super::dual::{maximize_dual, DualData, DualOptions, DualSolution, EffectiveAction};
+use super::exact::gaussian_dual_data;
+
+/// Which closure.
+#[non_exhaustive]
+#[derive(Debug, Clone, PartialEq)]
+pub enum ClosureKind {
+    /// The Gaussian family M = (x_i, x_ix_j) on all states (any dimension).
+    Gaussian,
+    /// The polynomial exponential family M = (x, x², …, x^degree) (1-D models), e.g. the
+    /// quartic family (degree 4) for the double well.
+    Exponential {
+        /// The highest power (≥ 2).
+        degree: usize,
+    },
+    /// The closure of the KSP smoother (`(II.64)–(II.65)`): not implemented yet.
+    Ksp,
+    /// The double-exponential closure (`(II.54)–(II.63)`): not implemented yet.
+    DoubleExponential,
+}
+
+impl ClosureKind {
+    /// The method's name on the command line.
+    pub fn method_name(&self) -> &'static str {
+        match self {
+            ClosureKind::Gaussian => "gaussian-closure",
+            ClosureKind::Exponential { .. } => "exp-closure",
+            ClosureKind::Ksp => "ksp-closure",
+            ClosureKind::DoubleExponential => "double-exp-closure",
+        }
+    }
+
+    /// The kind of a method name (`gaussian-closure`, `exp-closure`, `ksp-closure`,
+    /// `double-exp-closure`); `degree` is the exponential family's degree (default 4).
+    /// Errors: [`Error::UnknownName`] for another name, [`Error::InvalidOption`] for a degree
+    /// given to another closure or a degree below 2.
+    pub fn parse(method: &str, degree: Option<usize>) -> Result<ClosureKind> {
+        let kind = match method {
+            "gaussian-closure" => ClosureKind::Gaussian,
+            "exp-closure" => ClosureKind::Exponential { degree: degree.unwrap_or(4) },
+            "ksp-closure" => ClosureKind::Ksp,
+            "double-exp-closure" => ClosureKind::DoubleExponential,
+            _ => {
+                return Err(Error::UnknownName {
+                    kind: "closure method".into(),
+                    name: method.into(),
+                    known: ["gaussian-closure", "exp-closure", "ksp-closure", "double-exp-closure"]
+                        .map(String::from)
+                        .to_vec(),
+                })
+            }
+        };
+        match (&kind, degree) {
+            (ClosureKind::Exponential { degree }, _) if *degree < 2 => Err(Error::InvalidOption {
+                name: "moments".into(),
+                reason: format!("the exponential closure needs degree ≥ 2, got {degree}"),
+            }),
+            (ClosureKind::Exponential { .. }, _) | (_, None) => Ok(kind),
+            (_, Some(_)) => Err(Error::InvalidOption {
+                name: "moments".into(),
+                reason: format!("--moments applies to exp-closure only, not {method}"),
+            }),
+        }
+    }
+}
+
+/// Options of [`closure_estimate`].
+#[non_exhaustive]
+#[derive(Debug, Clone, PartialEq)]
+pub struct ClosureOptions {
+    /// Time of the initial law (the x0 prior). Default 0.
+    pub t0: f64,
+    /// Step of the output grid. Default: the mean measurement spacing / 10 (the horizon / 10
+    /// with a single measurement).
+    pub output_step: Option<f64>,
+    /// Relative tolerance of the Runge–Kutta integration. Default 1e-8.
+    pub rtol: f64,
+    /// Absolute tolerance of the Runge–Kutta integration. Default 1e-10.
+    pub atol: f64,
+    /// Support [a, b] of the exponential family (its quadrature grid). Default: the range of
+    /// the data and of the x0 prior (mean ± 5 sd), widened by half its width plus 1 on each side.
+    pub domain: Option<(f64, f64)>,
+    /// Panels × 8 Gauss–Legendre points of the exponential family's grid. Default 32.
+    pub panels: usize,
+    /// Further output times (finite, ≥ `t0`). Default none.
+    pub extra_times: Vec<f64>,
+    /// Whether to compute the ensemble dispersion (sd columns) at the output times
+    /// (`(I.85)–(I.90)`; costs 2 history sweeps per measurement). Default true.
+    pub dispersion: bool,
+    /// Options of the dual maximisation.
+    pub dual: DualOptions,
+}
+
+impl Default for ClosureOptions {
+    fn default() -> Self {
+        ClosureOptions {
+            t0: 0.0,
+            output_step: None,
+            rtol: 1e-8,
+            atol: 1e-10,
+            domain: None,
+            panels: 32,
+            extra_times: Vec::new(),
+            dispersion: true,
+            dual: DualOptions::default(),
+        }
+    }
+}
+
+impl ClosureOptions {
+    /// The defaults.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Sets the initial time.
+    pub fn with_t0(mut self, t0: f64) -> Self {
+        self.t0 = t0;
+        self
+    }
+
+    /// Sets the output step.
+    pub fn with_output_step(mut self, step: f64) -> Self {
+        self.output_step = Some(step);
+        self
+    }
+
+    /// Sets the Runge–Kutta tolerances.
+    pub fn with_tolerances(mut self, rtol: f64, atol: f64) -> Self {
+        self.rtol = rtol;
+        self.atol = atol;
+        self
+    }
+
+    /// Sets the exponential family's support.
+    pub fn with_domain(mut self, lower: f64, upper: f64) -> Self {
+        self.domain = Some((lower, upper));
+        self
+    }
+
+    /// Sets the number of Gauss–Legendre panels of the exponential family's grid.
+    pub fn with_panels(mut self, panels: usize) -> Self {
+        self.panels = panels;
+        self
+    }
+
+    /// Adds output times.
+    pub fn with_extra_times(mut self, times: &[f64]) -> Self {
+        self.extra_times.extend_from_slice(times);
+        self
+    }
+
+    /// Whether to compute the dispersion.
+    pub fn with_dispersion(mut self, dispersion: bool) -> Self {
+        self.dispersion = dispersion;
+        self
+    }
+
+    /// Sets the dual options.
+    pub fn with_dual(mut self, dual: DualOptions) -> Self {
+        self.dual = dual;
+        self
+    }
+
+    fn validate(&self) -> Result<()> {
+        let bad = |name: &str, reason: String| Err(Error::InvalidOption { name: name.into(), reason });
+        if !self.t0.is_finite() {
+            return bad("t0", format!("must be finite, got {}", self.t0));
+        }
+        if let Some(s) = self.output_step {
+            if !(s.is_finite() && s > 0.0) {
+                return bad("output step", format!("must be positive and finite, got {s}"));
+            }
+        }
+        if let Some((a, b)) = self.domain {
+            if !(a.is_finite() && b.is_finite() && a < b) {
+                return bad("domain", format!("need finite a < b, got [{a}, {b}]"));
+            }
+        }
+        if self.panels == 0 {
+            return bad("panels", "must be at least 1".into());
+        }
+        if let Some(&t) = self.extra_times.iter().find(|&&t| !t.is_finite() || t < self.t0) {
+            return bad("output times", format!("must be finite and not before t0 = {}, got {t}", self.t0));
+        }
+        self.dual.validate()
+    }
+}
+
+fn invalid(name: &str, reason: impl Into<String>) -> Error {
+    Error::InvalidOption { name: name.into(), reason: reason.into() }
+}
+
+/// (mean, variance) of a Gaussian, unbounded prior; an error naming the state otherwise.
+fn gaussian_prior(p: &Prior, state: &str) -> Result<(f64, f64)> {
+    match p.density {
+        PriorDensity::Gaussian { mean, sd } if p.lower == f64::NEG_INFINITY && p.upper == f64::INFINITY => {
+            Ok((mean, sd * sd))
+        }
+        _ => Err(invalid(
+            "x0 prior",
+            format!("the closures need a Gaussian initial prior (untruncated) for state `{state}`"),
+        )),
+    }
+}
+
+/// The output grid t0 + kΔ up to the last measurement (and the extra times).
+fn output_times(data_times: &[f64], options: &ClosureOptions) -> Result<Vec<f64>> {
+    let t0 = options.t0;
+    let t_last = *data_times.last().expect("validated non-empty");
+    let t_end = options.extra_times.iter().copied().fold(t_last.max(t0), f64::max);
+    let span = t_end - t0;
+    let n = data_times.len();
+    let step = match options.output_step {
+        Some(s) => s,
+        None if n > 1 => (t_last - data_times[0]) / (n - 1) as f64 / 10.0,
+        None if span > 0.0 => span / 10.0,
+        None => 1.0,
+    };
+    if !(step.is_finite() && step > 0.0) || span / step > 1e7 {
+        return Err(invalid("output step", format!("{step} gives too many output times")));
+    }
+    let k = (span / step + 1e-9).floor() as usize;
+    let mut out: Vec<f64> = (0..=k).map(|i| t0 + i as f64 * step).collect();
+    out.extend(&options.extra_times);
+    out.push(t_end);
+    Ok(out)
+}
+
+/// The support of the exponential family (see [`ClosureOptions::domain`]).
+fn default_domain(values: &[f64], mean: f64, var: f64) -> (f64, f64) {
+    let sd = var.sqrt();
+    let (mut a, mut b) = (mean - 5.0 * sd, mean + 5.0 * sd);
+    for &v in values.iter().filter(|v| v.is_finite()) {
+        a = a.min(v);
+        b = b.max(v);
+    }
+    let w = b - a;
+    (a - 0.5 * w - 1.0, b + 0.5 * w + 1.0)
+}
+
+/// The mean-optimal estimate of a closure: the action, the dual solution and the estimate.
+#[derive(Debug)]
+struct Solved {
+    history: crate::action::dual::History,
+    sd: Vec<Vec<f64>>,
+    dual: DualSolution,
+    sweeps: usize,
+}
+
+fn solve<D: ClosureDrift>(
+    mut action: ClosureAction<D>,
+    data: &DualData,
+    options: &ClosureOptions,
+) -> Result<Solved> {
+    // Start from λ_k = R⁻¹(r_k − ⟨x⟩_prior-propagated): the condition (I.60) at the closure's
+    // prior prediction (λ = 0).
+    let zero = vec![0.0; data.r.len()];
+    let prior = action.evaluate(&zero)?;
+    let start: Vec<f64> = if prior.z.iter().all(|v| v.is_finite()) {
+        (0..zero.len())
+            .map(|m| if data.r[m].is_nan() { 0.0 } else { 0.5 * (data.r[m] - prior.z[m]) / data.variance[m] })
+            .collect()
+    } else {
+        zero
+    };
+    let mut dual = maximize_dual(&mut action, data, &options.dual, Some(&start))?;
+    if !dual.status.is_success() {
+        // Retry from λ = 0 (the closure's prior prediction).
+        let retry = maximize_dual(&mut action, data, &options.dual, None)?;
+        if retry.status.is_success() || retry.residual < dual.residual {
+            dual = retry;
+        }
+    }
+    let ok = dual.status.is_success();
+    let mut history = action.history(&dual.lambda, ok && options.dispersion)?;
+    let sd = match (&history.cross, &dual.hessian) {
+        (Some(_), _) => {
+            let h = action.hessian(&dual.lambda)?;
+            let var = super::dispersion::posterior_variance(&history, &h, data)?;
+            var.iter().map(|v| v.iter().map(|x| x.max(0.0).sqrt()).collect()).collect()
+        }
+        _ => history.variance.iter().map(|v| v.iter().map(|x| x.sqrt()).collect()).collect(),
+    };
+    history.cross = None;
+    Ok(Solved { history, sd, dual, sweeps: action.sweeps() })
+}
+
+/// The closure's [`ClosureAction`] for a problem, built as [`closure_estimate`] builds it (for
+/// tests, diagnostics and custom solvers). Errors as [`closure_estimate`].
+pub fn gaussian_closure_action<'a, S: Sde + ?Sized>(
+    problem: &EstimationProblem<'a, S, StateMeasurement>,
+    options: &ClosureOptions,
+) -> Result<ClosureAction<GaussianDrift<'a, S>>> {
+    let (drift, lambda0) = gaussian_setup(problem)?;
+    let measured = problem.observation.states.clone();
+    action_of(problem, options, drift, lambda0, measured)
+}
+
+/// The polynomial exponential closure's [`ClosureAction`] of `degree` for a 1-D problem.
+/// Errors as [`closure_estimate`].
+pub fn exponential_closure_action<'a, S: Sde + ?Sized>(
+    problem: &EstimationProblem<'a, S, StateMeasurement>,
+    degree: usize,
+    options: &ClosureOptions,
+) -> Result<ClosureAction<ExponentialDrift<'a, S>>> {
+    let (drift, lambda0) = exponential_setup(problem, degree, options)?;
+    let measured = problem
+        .observation
+        .states
+        .iter()
+        .map(|&s| drift.linear_index(s).ok_or_else(|| invalid("method", "no linear moment")))
+        .collect::<Result<Vec<_>>>()?;
+    action_of(problem, options, drift, lambda0, measured)
+}
+
+fn common_checks<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    options: &ClosureOptions,
+) -> Result<()> {
+    problem.validate()?;
+    options.validate()?;
+    problem.observation.validate(problem.sde.dims(), problem.theta)?;
+    if !problem.estimate.is_empty() {
+        return Err(invalid("estimate", "the closures do not estimate parameters; θ is taken as given"));
+    }
+    if problem.data.times[0] < options.t0 {
+        return Err(invalid(
+            "t0",
+            format!("the data start at {} before the initial time {}", problem.data.times[0], options.t0),
+        ));
+    }
+    Ok(())
+}
+
+fn action_of<S: Sde + ?Sized, D: ClosureDrift>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    options: &ClosureOptions,
+    drift: D,
+    lambda0: Vec<f64>,
+    measured: Vec<usize>,
+) -> Result<ClosureAction<D>> {
+    let outs = output_times(&problem.data.times, options)?;
+    ClosureAction::try_new(
+        drift,
+        options.t0,
+        lambda0,
+        &problem.data.times,
+        measured,
+        &outs,
+        options.rtol,
+        options.atol,
+    )
+}
+
+fn gaussian_setup<'a, S: Sde + ?Sized>(
+    problem: &EstimationProblem<'a, S, StateMeasurement>,
+) -> Result<(GaussianDrift<'a, S>, Vec<f64>)> {
+    let names = problem.sde.state_names();
+    let priors: Vec<&Prior> = problem.x0_prior.iter().chain(problem.z0_prior).collect();
+    let n = priors.len();
+    let mut mean = vec![0.0; n];
+    let mut cov = vec![0.0; n * n];
+    for (i, p) in priors.iter().enumerate() {
+        let (m, v) = gaussian_prior(p, &names[i])?;
+        mean[i] = m;
+        cov[i * n + i] = v;
+    }
+    let drift = GaussianDrift::try_new(problem.sde, problem.theta)?;
+    let lambda0 = drift
+        .family()
+        .natural_from_mean_cov(&mean, &cov)
+        .map_err(|e| invalid("x0 prior", format!("Gaussian closure: {e}")))?;
+    Ok((drift, lambda0))
+}
+
+fn exponential_setup<'a, S: Sde + ?Sized>(
+    problem: &EstimationProblem<'a, S, StateMeasurement>,
+    degree: usize,
+    options: &ClosureOptions,
+) -> Result<(ExponentialDrift<'a, S>, Vec<f64>)> {
+    let d = problem.sde.dims();
+    if d.states() != 1 {
+        return Err(invalid(
+            "method",
+            format!(
+                "the exponential closure handles models with one state (this model has {}); use gaussian-closure",
+                d.states()
+            ),
+        ));
+    }
+    if !(2..=12).contains(&degree) {
+        return Err(invalid(
+            "moments",
+            format!("the exponential closure needs degree 2 to 12, got {degree}"),
+        ));
+    }
+    let names = problem.sde.state_names();
+    let prior = problem.x0_prior.iter().chain(problem.z0_prior).next().expect("one state");
+    let (m0, v0) = gaussian_prior(prior, &names[0])?;
+    let values: Vec<f64> = problem.data.values.iter().flatten().copied().collect();
+    let (a, b) = options.domain.unwrap_or_else(|| default_domain(&values, m0, v0));
+    let grid = onsager_closures::panel_grid(&[(a, b)], options.panels, 8)
+        .map_err(|e| invalid("domain", e.to_string()))?;
+    let family = Exponential::polynomial(grid, onsager_closures::Reference::Lebesgue, degree as u32)
+        .map_err(|e| invalid("moments", e.to_string()))?;
+    // λ_0: the Gaussian prior is the member (m/v, −1/(2v), 0, …); polished by the Legendre
+    // inverse of its moments on the grid (moment matching, (II.39)).
+    let mut guess = vec![0.0; degree];
+    guess[0] = m0 / v0;
+    guess[1] = -0.5 / v0;
+    let mu0 = family.mean(&guess).map_err(|e| invalid("x0 prior", e.to_string()))?;
+    let lambda0 = family
+        .legendre(&mu0, &LegendreOptions::default().with_initial(guess.clone()))
+        .map(|s| s.lambda)
+        .unwrap_or(guess);
+    let drift = ExponentialDrift::try_new(problem.sde, problem.theta, family)?;
+    Ok((drift, lambda0))
+}
+
+/// The mean-optimal estimate of a Rayleigh–Ritz closure (`003_d2fc48a470e528fc.txt` Part II)
+/// as the common [`PathEstimate`] (method = `kind.method_name()`): the history m(t) of every
+/// state at the output times (`(II.48)`), the ensemble dispersion as sd columns
+/// (`(I.85)–(I.90)` with the closure's F), the dual status and Newton iterations; details:
+/// λ*, z* at the measurement times, the optimality residual, F(λ*), Φ(λ*), sweeps, the family.
+///
+/// The measurements must be Gaussian measurements of states (as for the exact mean-optimal
+/// estimator, the dual needs Gaussian errors, `(I.52)`), the initial priors Gaussian.
+///
+/// Errors ([`Error::InvalidOption`] unless noted): a non-Gaussian likelihood or prior, parameters
+/// to estimate, data before `t0`, invalid options, an exponential closure on a model with more
+/// than one state, and the kinds not implemented yet (`ksp-closure`, `double-exp-closure`).
+/// Non-convergence of the dual, or sweeps that leave the moment space, are a [`Status`].
+pub fn closure_estimate<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    kind: &ClosureKind,
+    options: &ClosureOptions,
+) -> Result<PathEstimate> {
+    let start = Instant::now();
+    common_checks(problem, options)?;
+    let data = gaussian_dual_data(problem)?;
+    let solved = match kind {
+        ClosureKind::Gaussian => solve(gaussian_closure_action(problem, options)?, &data, options)?,
+        ClosureKind::Exponential { degree } => {
+            solve(exponential_closure_action(problem, *degree, options)?, &data, options)?
+        }
+        ClosureKind::Ksp | ClosureKind::DoubleExponential => {
+            return Err(invalid("method", format!("{} is not implemented", kind.method_name())))
+        }
+    };
+    let path = StatePath {
+        names: problem.sde.state_names(),
+        times: solved.history.times.clone(),
+        values: solved.history.mean.clone(),
+        sd: Some(solved.sd.clone()),
+    };
+    let mut est = super::base_estimate(kind.method_name(), problem, path);
+    let dual = &solved.dual;
+    est.status = dual.status;
+    est.iterations = dual.iterations;
+    est.solve_seconds = start.elapsed().as_secs_f64();
+    let finite =
+        |v: &[f64]| v.iter().map(|x| if x.is_finite() { json!(x) } else { json!(null) }).collect::<Vec<_>>();
+    est.details.insert("closure".into(), json!(format!("{kind:?}")));
+    est.details.insert("lambda".into(), json!(finite(&dual.lambda)));
+    est.details.insert("z_at_measurements".into(), json!(finite(&dual.z)));
+    est.details.insert("optimality_residual".into(), json!(finite(&[dual.residual])[0]));
+    est.details.insert("f_value".into(), json!(finite(&[dual.f_value])[0]));
+    est.details.insert("phi".into(), json!(finite(&[dual.phi])[0]));
+    est.details.insert("sweeps".into(), json!(solved.sweeps));
+    Ok(est)
+}
