@@ -70,7 +70,7 @@ pub fn spline_guess<S: Sde + ?Sized>(
     let ns = sde.dims().states();
     let t0 = times.first().copied().unwrap_or(0.0);
     let linear = super::interpolation_guess(sde.state_names(), ns, measured, data, t0);
-    let mut values: Vec<Vec<f64>> = times.iter().map(|&t| super::guess_on_times(&linear, t)).collect();
+    let mut values = super::path_on_times(&linear, times);
     let derivative_of = derivative_states(sde, theta);
     for (k, &s) in measured.iter().enumerate() {
         if s >= ns {

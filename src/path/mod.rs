@@ -329,17 +329,16 @@ fn guess_on_grid(path: Option<&StatePath>, grid: &Grid, n_states: usize) -> Resu
     if path.values.iter().flatten().any(|v| !v.is_finite()) || path.times.is_empty() {
         return Err(Error::NonFinite { what: "initial path".into() });
     }
-    Ok(times.iter().map(|&t| guess_on_times(path, t)).collect())
+    Ok(path_on_times(path, &times))
 }
 
-/// The states of `path` at time `t` by linear interpolation (constant outside).
-fn guess_on_times(path: &StatePath, t: f64) -> Vec<f64> {
-    (0..path.names.len())
-        .map(|s| {
-            let pts: Vec<(f64, f64)> = path.times.iter().zip(&path.values).map(|(&t, r)| (t, r[s])).collect();
-            interpolate(&pts, t)
-        })
-        .collect()
+/// The states of `path` at `times` by linear interpolation (constant outside); the
+/// interpolation points of each state are gathered once, not once per time.
+fn path_on_times(path: &StatePath, times: &[f64]) -> Vec<Vec<f64>> {
+    let columns: Vec<Vec<(f64, f64)>> = (0..path.names.len())
+        .map(|s| path.times.iter().zip(&path.values).map(|(&t, r)| (t, r[s])).collect())
+        .collect();
+    times.iter().map(|&t| columns.iter().map(|pts| interpolate(pts, t)).collect()).collect()
 }
 
 /// Checks that no estimated parameter changes G(θ) (Hermite–Simpson only).

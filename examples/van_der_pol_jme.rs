@@ -1,0 +1,73 @@
+//! One Van der Pol JME solve, the problem of `benches/path.rs` (issue 4's performance target):
+//! Student-t likelihood (ν = 4, scale 0.5), Hermite–Simpson with step 0.005 on [0, 16]
+//! (3200 pieces, 25,602 unknowns; 001_8aefdf0570c96f51.txt Sec. 9), data simulated with seed 1,
+//! spline guess, no Laplace sd.
+//!
+//! Prints, for each of REPEATS solves, the status, iterations, factorisation counts and the
+//! time per phase, so that the solve can be profiled (`valgrind --tool=callgrind`) or timed
+//! outside criterion.
+//!
+//! Run with `cargo run --release --example van_der_pol_jme [REPEATS] [jme|mee]`.
+
+use rand::SeedableRng;
+
+use onsager::estimate::EstimationProblem;
+use onsager::model::library::preset;
+use onsager::model::observation::{Noise, Param};
+use onsager::path::{estimate_path, spline_guess, Merit, PathOptions, Transcription};
+use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
+
+fn main() -> onsager::Result<()> {
+    let repeats: usize = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(1);
+    let merit = match std::env::args().nth(2).as_deref() {
+        Some("mee") => Merit::Energy,
+        _ => Merit::OnsagerMachlup,
+    };
+    let p = preset("van-der-pol")?;
+    let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+    let truth =
+        simulate(&p.model, &p.theta, &[0.0, 0.0], &[], &SimulateOptions::new(0.0, 16.0, 5e-4), &mut rng)?;
+    let data = sample_measurements(&p.observation, &p.theta, &truth, 2, 0.1, &mut rng)?;
+    let mut observation = p.observation.clone();
+    observation.noise = Noise::StudentT { nu: Param::Fixed(4.0), scale: Param::Fixed(0.5) };
+    let problem = EstimationProblem {
+        sde: &p.model,
+        observation: &observation,
+        theta: &p.theta,
+        theta_prior: &p.theta_prior,
+        estimate: &[],
+        x0_prior: &p.x0_prior,
+        z0_prior: &p.z0_prior,
+        data: &data,
+    };
+    let times: Vec<f64> = (0..=3200).map(|k| k as f64 * 0.005).collect();
+    let guess = spline_guess(&p.model, &p.theta, &observation.states, &data, &times)?;
+    println!(
+        "{:>3} {:>10} {:>5} {:>5} {:>5} {:>5} {:>9} {:>9} {:>9} {:>9}",
+        "run", "status", "iter", "fact", "ic", "other", "solve_s", "eval_s", "factor_s", "kktsol_s"
+    );
+    for run in 0..repeats {
+        let options = PathOptions::new(merit, Transcription::HermiteSimpson)
+            .with_step(0.005)
+            .with_laplace(false)
+            .with_initial_path(guess.clone());
+        let sol = estimate_path(&problem, options)?;
+        let r = &sol.report;
+        println!(
+            "{run:>3} {:>10} {:>5} {:>5} {:>5} {:>5} {:>9.4} {:>9.4} {:>9.4} {:>9.4}",
+            r.status.name(),
+            r.iterations,
+            r.numeric_factorizations,
+            r.inertia_correction_factorizations,
+            r.other_factorizations,
+            sol.estimate.solve_seconds,
+            r.times.evaluation.as_secs_f64(),
+            r.times.factorization.as_secs_f64(),
+            r.times.solve.as_secs_f64(),
+        );
+        if run + 1 == repeats {
+            println!("unknowns {}, kkt nnz {}, factor nnz {}", sol.estimate.path.values.len(), r.kkt_nnz, r.factor_nnz);
+        }
+    }
+    Ok(())
+}
