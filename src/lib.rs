@@ -43,6 +43,9 @@
 //!   a bootstrap particle filter with a backward-simulation smoother), and the exact
 //!   Kalman/RTS reference for linear models ([`kalman::linear`]).
 //!
+//! - [`methods`]: every estimator by name with one set of options, as the CLI and the
+//!   experiments call them.
+//!
 //! Misuse is an [`Error`]; numerical outcomes are statuses in reports. Randomness is always
 //! injected (`&mut impl Rng`). Library code never prints.
 pub mod action;
@@ -50,6 +53,7 @@ pub mod data;
 pub mod error;
 pub mod estimate;
 pub mod kalman;
+pub mod methods;
 pub mod model;
 pub mod nlp;
 pub mod particle;

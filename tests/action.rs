@@ -437,7 +437,11 @@ fn cli_writes_the_path_and_the_report_and_rejects_bad_input() {
         assert!(!out.status.success() && err.contains(needle), "{method} {extra:?}: {err}");
     };
     fails("ksp", &["--grid", "lo=-0.5,hi=0.5,cells=50"], "does not cover");
-    fails("ksp", &[], "--grid");
+    // Without --grid the default grid (data range with margins) is used and reported.
+    let out = run("ksp", &[]);
+    assert!(out.status.success());
+    assert!(String::from_utf8_lossy(&out.stdout).contains("(the default: data range with margins)"));
+    fails("ksp", &["--step", "0.1"], "`step`");
     fails(
         "mean-optimal",
         &["--grid", "lo=-3,hi=3,cells=50", "--likelihood", "laplace:scale=0.2"],

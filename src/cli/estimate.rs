@@ -3,10 +3,11 @@
 
 use std::path::PathBuf;
 
-use clap::{Args, ValueEnum};
+use clap::Args;
 
 use onsager::data::Dataset;
 use onsager::estimate::{EstimationProblem, PathEstimate};
+use onsager::methods::{self, Method, MethodOptions};
 use onsager::model::library::{BuiltinModel, Preset};
 use onsager::model::observation::StateMeasurement;
 use onsager::model::{Observation, Sde};
@@ -14,29 +15,18 @@ use onsager::Result;
 
 use super::{create_parent, ModelArgs};
 
-/// The estimation methods of the command line.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum Method {
-    /// Exact Kushner–Stratonovich–Pardoux smoother on a grid (003 eq. 0.3–0.7).
-    Ksp,
-    /// Exact mean-optimal (effective-action) estimator on a grid (003 I.60–I.76).
-    MeanOptimal,
-    /// Continuous-discrete extended Kalman filter.
-    Ekf,
-    /// Extended Rauch–Tung–Striebel smoother.
-    Eks,
-    /// Continuous-discrete unscented Kalman filter.
-    Ukf,
-    /// Unscented Rauch–Tung–Striebel smoother.
-    Uks,
-    /// Prediction error method (UKF likelihood) followed by the UKS at θ̂.
-    Pem,
-    /// Bootstrap particle filter with a backward-simulation smoother.
-    Particle,
-    /// Joint Onsager–Machlup MAP path and parameters (000 eq. 2.49–2.51).
-    Jme,
-    /// Minimum-energy path and parameters (000 eq. 2.58–2.60).
-    Mee,
+/// Parses `--method` (the names of [`Method`]).
+pub fn parse_method(s: &str) -> std::result::Result<Method, String> {
+    s.parse::<Method>().map_err(|e| e.to_string())
+}
+
+/// The `--method` help: every method with its description.
+pub fn methods_help() -> String {
+    let mut h = String::from("The estimator:");
+    for m in Method::ALL {
+        h.push_str(&format!("\n  {:<14} {}", m.name(), m.description()));
+    }
+    h
 }
 
 /// Flags of `onsager estimate`.
@@ -47,8 +37,8 @@ pub struct EstimateArgs {
     /// Measurements CSV (`t,<outputs>`).
     #[arg(long)]
     pub data: PathBuf,
-    /// The estimator.
-    #[arg(long, value_enum)]
+    /// The estimator (see `--help` for the list).
+    #[arg(long, value_parser = parse_method, long_help = methods_help())]
     pub method: Method,
     /// Parameters to estimate, comma-separated names (methods that estimate parameters).
     #[arg(long, value_delimiter = ',')]
@@ -78,6 +68,27 @@ pub struct EstimateArgs {
     /// Where to write the JSON report.
     #[arg(long)]
     pub report: Option<PathBuf>,
+}
+
+impl EstimateArgs {
+    /// The method options given by the flags.
+    pub fn method_options(&self) -> MethodOptions {
+        let mut o = MethodOptions::default();
+        o.grid = self.grid.clone();
+        o.dt = self.dt;
+        o.particles = self.particles;
+        o.transcription = self.transcription.clone();
+        o.step = self.step;
+        o.seed = self.seed;
+        o.keep_initial = self
+            .model
+            .params
+            .iter()
+            .filter_map(|s| s.split_once('='))
+            .map(|(k, _)| k.trim().to_string())
+            .collect();
+        o
+    }
 }
 
 /// The estimation problem of the command line: a built-in model with the flags applied.
@@ -119,13 +130,11 @@ pub fn run(args: &EstimateArgs) -> Result<bool> {
     let setup = Setup::new(args)?;
     let problem = setup.problem();
     problem.validate()?;
-    let est: PathEstimate = match args.method {
-        Method::Ksp | Method::MeanOptimal => super::action::run(args, &problem)?,
-        Method::Ekf | Method::Eks | Method::Ukf | Method::Uks | Method::Pem | Method::Particle => {
-            super::baselines::run(args, &problem)?
-        }
-        Method::Jme | Method::Mee => super::path::run(args, &problem)?,
-    };
+    let run = methods::run(args.method, &problem, &args.method_options())?;
+    for note in &run.notes {
+        outln!("note: {note}");
+    }
+    let est = run.estimate;
     print_summary(&est, &problem);
     create_parent(&args.out)?;
     est.path.write_csv(&args.out)?;

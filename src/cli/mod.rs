@@ -1,9 +1,6 @@
 //! The subcommands of the `onsager` binary. Output goes to stdout here, never in the library.
 
-pub mod action;
-pub mod baselines;
 pub mod estimate;
-pub mod path;
 pub mod simulate;
 
 use std::path::Path;
