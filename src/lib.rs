@@ -58,6 +58,7 @@ pub mod model;
 pub mod nlp;
 pub mod particle;
 pub mod path;
+pub mod plot;
 pub mod simulate;
 pub mod spline;
 pub mod status;
