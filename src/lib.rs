@@ -46,6 +46,8 @@
 //! - [`methods`]: every estimator by name with one set of options, as the CLI and the
 //!   experiments call them.
 //!
+//! - [`metrics`]: distances between paths (ISE, RMSE, same-well fraction) for comparisons.
+//!
 //! Misuse is an [`Error`]; numerical outcomes are statuses in reports. Randomness is always
 //! injected (`&mut impl Rng`). Library code never prints.
 pub mod action;
@@ -54,6 +56,7 @@ pub mod error;
 pub mod estimate;
 pub mod kalman;
 pub mod methods;
+pub mod metrics;
 pub mod model;
 pub mod nlp;
 pub mod particle;

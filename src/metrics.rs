@@ -1,0 +1,201 @@
+//! Distances between paths, shared by `onsager compare` and the experiments: the normalised
+//! integrated square error of `000_74b95e149527c64e.txt (4.1)`, the root-mean-square error over a
+//! reference's times, and the fraction of time an estimate is on the same side of a threshold
+//! (the well) as the truth.
+//!
+//! An estimate and its reference usually live on different time grids (a KSP output grid, a
+//! transcription's nodes, the measurement times of a filter): the estimate is interpolated
+//! linearly at the reference's times, and only the reference times inside the estimate's time
+//! span count.
+
+use crate::data::StatePath;
+use crate::{Error, Result};
+
+/// Linear interpolation of `values` (one value per time of the increasing `times`) at `t`;
+/// `None` outside [times₀, times_last] or on an empty path.
+pub fn interpolate(times: &[f64], values: &[f64], t: f64) -> Option<f64> {
+    let (&first, &last) = (times.first()?, times.last()?);
+    if !(t >= first && t <= last) {
+        return None;
+    }
+    let j = times.partition_point(|&s| s <= t);
+    if j == 0 {
+        return Some(values[0]);
+    }
+    if j == times.len() {
+        return Some(values[j - 1]);
+    }
+    let (t0, t1) = (times[j - 1], times[j]);
+    let w = if t1 > t0 { (t - t0) / (t1 - t0) } else { 0.0 };
+    Some(values[j - 1] + w * (values[j] - values[j - 1]))
+}
+
+/// The state columns compared: the reference's state names, each found in `estimate`.
+fn columns(
+    estimate: &StatePath,
+    reference: &StatePath,
+    states: Option<&[String]>,
+) -> Result<Vec<(usize, usize)>> {
+    let names: Vec<String> = match states {
+        Some(s) => s.to_vec(),
+        None => reference.names.clone(),
+    };
+    names
+        .iter()
+        .map(|n| {
+            let e = estimate.names.iter().position(|m| m == n);
+            let r = reference.names.iter().position(|m| m == n);
+            match (e, r) {
+                (Some(e), Some(r)) => Ok((e, r)),
+                _ => Err(Error::UnknownName {
+                    kind: "state".into(),
+                    name: n.clone(),
+                    known: estimate.names.iter().filter(|m| reference.names.contains(m)).cloned().collect(),
+                }),
+            }
+        })
+        .collect()
+}
+
+/// Squared differences Σ_states (estimate − reference)² at each reference time inside the
+/// estimate's span, as (time, value) pairs.
+fn squared_differences(
+    estimate: &StatePath,
+    reference: &StatePath,
+    states: Option<&[String]>,
+) -> Result<Vec<(f64, f64)>> {
+    let cols = columns(estimate, reference, states)?;
+    let est_columns: Vec<Vec<f64>> =
+        cols.iter().map(|&(e, _)| estimate.values.iter().map(|row| row[e]).collect()).collect();
+    let mut out = Vec::with_capacity(reference.times.len());
+    'times: for (i, &t) in reference.times.iter().enumerate() {
+        let mut s = 0.0;
+        for (c, &(_, r)) in cols.iter().enumerate() {
+            match interpolate(&estimate.times, &est_columns[c], t) {
+                Some(v) => s += (v - reference.values[i][r]).powi(2),
+                None => continue 'times,
+            }
+        }
+        out.push((t, s));
+    }
+    if out.is_empty() {
+        return Err(Error::InvalidOption {
+            name: "reference".into(),
+            reason: "no reference time lies inside the estimate's time span".into(),
+        });
+    }
+    Ok(out)
+}
+
+/// The normalised integrated square error (`000_74b95e149527c64e.txt (4.1)`),
+/// (1/T)∫ Σ_states |estimate − reference|² dt, by the trapezoidal rule over the reference's
+/// times inside the estimate's span (T = that span). `states` restricts the sum (default: every
+/// state of the reference). A single common time gives the squared difference there.
+///
+/// Errors: a state missing from either path; no common time.
+pub fn ise(estimate: &StatePath, reference: &StatePath, states: Option<&[String]>) -> Result<f64> {
+    let d = squared_differences(estimate, reference, states)?;
+    if d.len() == 1 {
+        return Ok(d[0].1);
+    }
+    let span = d[d.len() - 1].0 - d[0].0;
+    let integral: f64 = d.windows(2).map(|w| 0.5 * (w[1].0 - w[0].0) * (w[0].1 + w[1].1)).sum();
+    Ok(integral / span)
+}
+
+/// The root-mean-square error over the reference's times inside the estimate's span,
+/// sqrt(mean over times of Σ_states (estimate − reference)²).
+///
+/// Errors: as [`ise`].
+pub fn rmse(estimate: &StatePath, reference: &StatePath, states: Option<&[String]>) -> Result<f64> {
+    let d = squared_differences(estimate, reference, states)?;
+    Ok((d.iter().map(|p| p.1).sum::<f64>() / d.len() as f64).sqrt())
+}
+
+/// The fraction of the reference's times (inside the estimate's span) at which `state` of the
+/// estimate is on the same side of `threshold` as the reference (the same well of a double well
+/// when the threshold is the barrier).
+///
+/// Errors: as [`ise`].
+pub fn same_side_fraction(
+    estimate: &StatePath,
+    reference: &StatePath,
+    state: &str,
+    threshold: f64,
+) -> Result<f64> {
+    let cols = columns(estimate, reference, Some(&[state.to_string()]))?;
+    let (e, r) = cols[0];
+    let est: Vec<f64> = estimate.values.iter().map(|row| row[e]).collect();
+    let (mut same, mut n) = (0usize, 0usize);
+    for (i, &t) in reference.times.iter().enumerate() {
+        if let Some(v) = interpolate(&estimate.times, &est, t) {
+            n += 1;
+            if (v > threshold) == (reference.values[i][r] > threshold) {
+                same += 1;
+            }
+        }
+    }
+    if n == 0 {
+        return Err(Error::InvalidOption {
+            name: "reference".into(),
+            reason: "no reference time lies inside the estimate's time span".into(),
+        });
+    }
+    Ok(same as f64 / n as f64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn path(times: Vec<f64>, f: impl Fn(f64) -> f64) -> StatePath {
+        let values = times.iter().map(|&t| vec![f(t)]).collect();
+        StatePath { names: vec!["x".into()], times, values, sd: None }
+    }
+
+    #[test]
+    fn interpolation_is_linear_and_bounded() {
+        let t = [0.0, 1.0, 3.0];
+        let v = [0.0, 2.0, 6.0];
+        assert_eq!(interpolate(&t, &v, 0.5), Some(1.0));
+        assert_eq!(interpolate(&t, &v, 2.0), Some(4.0));
+        assert_eq!(interpolate(&t, &v, 3.0), Some(6.0));
+        assert_eq!(interpolate(&t, &v, 0.0), Some(0.0));
+        assert_eq!(interpolate(&t, &v, 3.1), None);
+        assert_eq!(interpolate(&t, &v, f64::NAN), None);
+        assert_eq!(interpolate(&[], &[], 0.0), None);
+    }
+
+    #[test]
+    fn ise_and_rmse_closed_forms() {
+        // Estimate t, reference 0 on [0, 1]: ISE = ∫ t² dt = 1/3, and the trapezoidal rule on
+        // a step h gives exactly 1/3 + h²/6; RMSE² is the mean of t_i².
+        let n = 1000;
+        let times: Vec<f64> = (0..=n).map(|i| i as f64 / n as f64).collect();
+        let est = path(vec![0.0, 1.0], |t| t);
+        let reference = path(times.clone(), |_| 0.0);
+        let h = 1.0 / n as f64;
+        assert!((ise(&est, &reference, None).unwrap() - (1.0 / 3.0 + h * h / 6.0)).abs() < 1e-12);
+        let mean_sq: f64 = times.iter().map(|t| t * t).sum::<f64>() / times.len() as f64;
+        assert!((rmse(&est, &reference, None).unwrap() - mean_sq.sqrt()).abs() < 1e-12);
+        // Identical paths.
+        assert_eq!(ise(&reference, &reference, None).unwrap(), 0.0);
+        // Only the estimate's span counts: estimate on [0, 0.5] vs reference on [0, 1].
+        let half = path(vec![0.0, 0.5], |t| t);
+        let ise_half = ise(&half, &reference, None).unwrap();
+        assert!((ise_half - (1.0 / 12.0 + h * h / 6.0)).abs() < 1e-12, "{ise_half}");
+    }
+
+    #[test]
+    fn same_side_and_errors() {
+        let times: Vec<f64> = (0..=100).map(|i| i as f64 / 100.0).collect();
+        let truth = path(times.clone(), |t| if t < 0.5 { -1.0 } else { 1.0 });
+        let est = path(times.clone(), |t| if t < 0.25 { -1.0 } else { 1.0 });
+        let f = same_side_fraction(&est, &truth, "x", 0.0).unwrap();
+        assert!((f - 76.0 / 101.0).abs() < 1e-12, "{f}");
+        let other = StatePath { names: vec!["y".into()], ..est.clone() };
+        assert!(matches!(rmse(&other, &truth, None), Err(Error::UnknownName { .. })));
+        let late = path(vec![2.0, 3.0], |t| t);
+        assert!(rmse(&late, &truth, None).is_err());
+    }
+}
