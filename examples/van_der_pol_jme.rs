@@ -66,7 +66,12 @@ fn main() -> onsager::Result<()> {
             r.times.solve.as_secs_f64(),
         );
         if run + 1 == repeats {
-            println!("unknowns {}, kkt nnz {}, factor nnz {}", sol.estimate.path.values.len(), r.kkt_nnz, r.factor_nnz);
+            println!(
+                "unknowns {}, kkt nnz {}, factor nnz {}",
+                sol.estimate.path.values.len(),
+                r.kkt_nnz,
+                r.factor_nnz
+            );
         }
     }
     Ok(())

@@ -7,9 +7,14 @@
 //!
 //! Because Rust closures cannot be generic, a differentiable function is a type implementing
 //! [`ScalarFn`] or [`VectorFn`].
+//!
+//! The `*_into` variants write into caller-provided buffers and, for at most [`MAX_FIXED`]
+//! inputs, evaluate the function once with fixed-size vector dual numbers ([`DualSVec64`] for
+//! first, [`Dual2SVec64`] for second derivatives, held on the stack), instead of once per
+//! input or pair of inputs; they allocate nothing.
 
 use nalgebra::DMatrix;
-use num_dual::{Dual64, HyperDual64};
+use num_dual::{Dual2SVec64, Dual64, DualSVec64, HyperDual64};
 
 use super::Scalar;
 
@@ -100,6 +105,151 @@ pub fn jacobian<F: VectorFn + ?Sized>(f: &F, w: &[f64]) -> (Vec<f64>, DMatrix<f6
     (value, jac)
 }
 
+/// Largest number of inputs handled by the fixed-size vector dual numbers of the `*_into`
+/// functions; above it they fall back to [`gradient`], [`hessian`] and [`jacobian`].
+pub const MAX_FIXED: usize = 8;
+
+/// Largest number of outputs of [`jacobian_into`] held on the stack.
+const MAX_FIXED_OUT: usize = 16;
+
+/// Calls `$body` with the const generic `$n` bound to `$dim` when `1 ≤ $dim ≤ MAX_FIXED`,
+/// otherwise evaluates `$fallback`.
+macro_rules! with_fixed_dim {
+    ($dim:expr, $n:ident => $body:expr, $fallback:expr) => {
+        match $dim {
+            1 => {
+                const $n: usize = 1;
+                $body
+            }
+            2 => {
+                const $n: usize = 2;
+                $body
+            }
+            3 => {
+                const $n: usize = 3;
+                $body
+            }
+            4 => {
+                const $n: usize = 4;
+                $body
+            }
+            5 => {
+                const $n: usize = 5;
+                $body
+            }
+            6 => {
+                const $n: usize = 6;
+                $body
+            }
+            7 => {
+                const $n: usize = 7;
+                $body
+            }
+            8 => {
+                const $n: usize = 8;
+                $body
+            }
+            _ => $fallback,
+        }
+    };
+}
+
+/// Value of `f` at `w`, with its gradient written into `grad` (length `w.len()`): one pass of
+/// [`DualSVec64`] for at most [`MAX_FIXED`] inputs.
+pub fn gradient_into<F: ScalarFn + ?Sized>(f: &F, w: &[f64], grad: &mut [f64]) -> f64 {
+    fn fixed<const N: usize, F: ScalarFn + ?Sized>(f: &F, w: &[f64], grad: &mut [f64]) -> f64 {
+        let x: [DualSVec64<N>; N] = std::array::from_fn(|i| DualSVec64::<N>::from_re(w[i]).derivative(i));
+        let r = f.eval(&x);
+        match &r.eps.0 {
+            Some(g) => grad[..N].copy_from_slice(g.as_slice()),
+            None => grad[..N].fill(0.0),
+        }
+        r.re
+    }
+    with_fixed_dim!(w.len(), N => fixed::<N, F>(f, w, grad), {
+        if w.is_empty() {
+            return f.eval::<f64>(w);
+        }
+        let (v, g) = gradient(f, w);
+        grad.copy_from_slice(&g);
+        v
+    })
+}
+
+/// Value of `f` at `w`, with its gradient written into `grad` (length n = `w.len()`) and its
+/// Hessian into `hess` (n × n, column-major, symmetric): one pass of [`Dual2SVec64`] for at
+/// most [`MAX_FIXED`] inputs.
+pub fn hessian_into<F: ScalarFn + ?Sized>(f: &F, w: &[f64], grad: &mut [f64], hess: &mut [f64]) -> f64 {
+    fn fixed<const N: usize, F: ScalarFn + ?Sized>(
+        f: &F,
+        w: &[f64],
+        grad: &mut [f64],
+        hess: &mut [f64],
+    ) -> f64 {
+        let x: [Dual2SVec64<N>; N] = std::array::from_fn(|i| Dual2SVec64::<N>::from_re(w[i]).derivative(i));
+        let r = f.eval(&x);
+        match &r.v1.0 {
+            Some(g) => grad[..N].copy_from_slice(g.as_slice()),
+            None => grad[..N].fill(0.0),
+        }
+        match &r.v2.0 {
+            Some(h) => hess[..N * N].copy_from_slice(h.as_slice()),
+            None => hess[..N * N].fill(0.0),
+        }
+        r.re
+    }
+    with_fixed_dim!(w.len(), N => fixed::<N, F>(f, w, grad, hess), {
+        if w.is_empty() {
+            return f.eval::<f64>(w);
+        }
+        let (v, g, h) = hessian(f, w);
+        grad.copy_from_slice(&g);
+        hess.copy_from_slice(h.as_slice());
+        v
+    })
+}
+
+/// Writes the value of `f` at `w` into `value` (length `dim_out`) and its Jacobian into `jac`
+/// (`dim_out × dim_in`, column-major): one pass of [`DualSVec64`] for at most [`MAX_FIXED`]
+/// inputs and 16 outputs.
+pub fn jacobian_into<F: VectorFn + ?Sized>(f: &F, w: &[f64], value: &mut [f64], jac: &mut [f64]) {
+    fn fixed<const N: usize, F: VectorFn + ?Sized>(f: &F, w: &[f64], value: &mut [f64], jac: &mut [f64]) {
+        let m = value.len();
+        let x: [DualSVec64<N>; N] = std::array::from_fn(|i| DualSVec64::<N>::from_re(w[i]).derivative(i));
+        let mut out = [DualSVec64::<N>::from_re(0.0); MAX_FIXED_OUT];
+        f.eval(&x, &mut out[..m]);
+        for (i, o) in out[..m].iter().enumerate() {
+            value[i] = o.re;
+            match &o.eps.0 {
+                Some(g) => {
+                    for j in 0..N {
+                        jac[i + j * m] = g[j];
+                    }
+                }
+                None => {
+                    for j in 0..N {
+                        jac[i + j * m] = 0.0;
+                    }
+                }
+            }
+        }
+    }
+    let m = f.dim_out();
+    let fallback = |value: &mut [f64], jac: &mut [f64]| {
+        if w.is_empty() {
+            f.eval::<f64>(w, value);
+            return;
+        }
+        let (v, j) = jacobian(f, w);
+        value.copy_from_slice(&v);
+        jac.copy_from_slice(j.as_slice());
+    };
+    if m > MAX_FIXED_OUT {
+        return fallback(value, jac);
+    }
+    with_fixed_dim!(w.len(), N => fixed::<N, F>(f, w, value, jac), fallback(value, jac))
+}
+
 /// Solves the small dense system `A u = b` in place by Gaussian elimination with partial
 /// pivoting (pivots chosen on the real parts), generic over the scalar so it can be
 /// differentiated. `a` is `n × n`, column-major, and is overwritten by its LU factors.
@@ -182,6 +332,71 @@ mod tests {
         let (v2, g2) = gradient(&Rosen, &[x, y]);
         assert_eq!(v, v2);
         assert_eq!(g, g2);
+    }
+
+    /// f(w) = (Σ i·wᵢ)² + Π exp(wᵢ/10): exercises every fixed size and the fallback.
+    struct Mixed;
+    impl ScalarFn for Mixed {
+        fn dim_in(&self) -> usize {
+            0
+        }
+        fn eval<D: Scalar>(&self, w: &[D]) -> D {
+            let mut s = D::from(0.0);
+            let mut p = D::from(1.0);
+            for (i, &v) in w.iter().enumerate() {
+                s += v * (i as f64 + 1.0);
+                p *= (v / 10.0).exp();
+            }
+            s * s + p
+        }
+    }
+
+    struct Map;
+    impl VectorFn for Map {
+        fn dim_in(&self) -> usize {
+            0
+        }
+        fn dim_out(&self) -> usize {
+            3
+        }
+        fn eval<D: Scalar>(&self, w: &[D], out: &mut [D]) {
+            let s: D = w.iter().copied().sum();
+            out[0] = s.sin();
+            out[1] = w[0] * w[w.len() - 1];
+            out[2] = D::from(2.0);
+        }
+    }
+
+    #[test]
+    fn fixed_size_derivatives_equal_the_pass_per_input_ones() {
+        // the one-pass vector duals against the per-input / per-pair passes, every size
+        for n in 1..=MAX_FIXED + 2 {
+            let w: Vec<f64> = (0..n).map(|i| 0.3 * i as f64 - 0.7).collect();
+            let (v, g, h) = hessian(&Mixed, &w);
+            let (mut g2, mut h2) = (vec![0.0; n], vec![0.0; n * n]);
+            let v2 = hessian_into(&Mixed, &w, &mut g2, &mut h2);
+            assert_relative_eq!(v, v2, max_relative = 1e-14);
+            for i in 0..n {
+                assert_relative_eq!(g[i], g2[i], max_relative = 1e-14, epsilon = 1e-14);
+                for j in 0..n {
+                    assert_relative_eq!(h[(i, j)], h2[i + j * n], max_relative = 1e-14, epsilon = 1e-14);
+                }
+            }
+            let mut g3 = vec![0.0; n];
+            assert_relative_eq!(gradient_into(&Mixed, &w, &mut g3), v, max_relative = 1e-14);
+            for i in 0..n {
+                assert_relative_eq!(g[i], g3[i], max_relative = 1e-14, epsilon = 1e-14);
+            }
+            let (jv, jm) = jacobian(&Map, &w);
+            let (mut v4, mut j4) = (vec![0.0; 3], vec![0.0; 3 * n]);
+            jacobian_into(&Map, &w, &mut v4, &mut j4);
+            for i in 0..3 {
+                assert_relative_eq!(jv[i], v4[i], max_relative = 1e-14);
+                for j in 0..n {
+                    assert_relative_eq!(jm[(i, j)], j4[i + j * 3], max_relative = 1e-14, epsilon = 1e-14);
+                }
+            }
+        }
     }
 
     #[test]

@@ -7,8 +7,9 @@
 use std::ops::ControlFlow;
 use std::time::Instant;
 
-use super::kkt::{FaerLdlt, KktSolver, KktStructure, KktValues};
-use super::options::{IterationSummary, NlpOptions, Verbosity};
+use super::band::BandLdlt;
+use super::kkt::{AutoLdlt, FaerLdlt, KktSolver, KktStructure, KktValues};
+use super::options::{IterationSummary, LinearSolver, NlpOptions, Verbosity};
 use super::problem::NlpProblem;
 use super::report::{EvaluationCounts, NlpReport, NlpSolution, PhaseTimes, Status};
 use crate::{Error, Result};
@@ -71,7 +72,7 @@ pub struct InteriorPoint {
     options: NlpOptions,
 }
 
-/// Solves `problem` with `options` and faer's LDLᵀ ([`FaerLdlt`]); shorthand for
+/// Solves `problem` with `options`; shorthand for
 /// `InteriorPoint::try_new(options)?.solve(problem)`.
 ///
 /// # Errors
@@ -95,15 +96,18 @@ impl InteriorPoint {
         &self.options
     }
 
-    /// Solves `problem` with faer's sparse LDLᵀ ([`FaerLdlt`]).
+    /// Solves `problem` with the KKT solver chosen by [`NlpOptions::linear_solver`].
     ///
     /// # Errors
     /// Only for misuse: [`Error::DimensionMismatch`] for a pattern index out of range or no
     /// variables, [`Error::InvalidOption`] for `l > u` or a NaN bound, [`Error::NonFinite`]
     /// for a non-finite initial point. Numerical outcomes are in the report's [`Status`].
     pub fn solve<P: NlpProblem + ?Sized>(&mut self, problem: &mut P) -> Result<NlpSolution> {
-        let mut kkt = FaerLdlt::new();
-        self.solve_with(problem, &mut kkt)
+        match self.options.linear_solver {
+            LinearSolver::Auto => self.solve_with(problem, &mut AutoLdlt::new()),
+            LinearSolver::Faer => self.solve_with(problem, &mut FaerLdlt::new()),
+            LinearSolver::Band => self.solve_with(problem, &mut BandLdlt::new()),
+        }
     }
 
     /// Solves `problem` with a given KKT solver.
@@ -486,7 +490,12 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
 
     /// Scaled optimality error E_μ (eq. (5)).
     fn optimality_error(&self, mu: f64) -> f64 {
-        let dual = norm_inf(&self.dual_residual());
+        self.optimality_error_with(mu, norm_inf(&self.dual_residual()))
+    }
+
+    /// [`Self::optimality_error`] given ‖∇f + Jᵀy − z_L + z_U‖∞ (scaled) at the current point,
+    /// which does not depend on μ.
+    fn optimality_error_with(&self, mu: f64, dual: f64) -> f64 {
         let primal = norm_inf(&self.c);
         let mut compl = 0.0f64;
         let mut z1 = 0.0;
@@ -806,7 +815,8 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         }
         loop {
             // convergence test (Sect. 2.1)
-            let e0 = self.optimality_error(0.0);
+            let dual = norm_inf(&self.dual_residual());
+            let e0 = self.optimality_error_with(0.0, dual);
             let primal_unscaled = self.unscaled_primal();
             let f_unscaled = self.f / self.sf;
             if self.callback() {
@@ -814,7 +824,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             }
             if e0 <= self.opt.tolerance
                 && primal_unscaled <= self.opt.constraint_tolerance
-                && self.unscaled_dual() <= 1.0
+                && dual / self.sf <= 1.0
             {
                 return Status::Converged;
             }
@@ -838,7 +848,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             // barrier update (Sect. 2.1, eqs. (7)-(8)), repeated while the barrier problem is
             // already solved
             let mu_min = self.opt.tolerance / 10.0;
-            while (self.optimality_error(self.mu) <= KAPPA_EPS * self.mu || self.tiny_step)
+            while (self.optimality_error_with(self.mu, dual) <= KAPPA_EPS * self.mu || self.tiny_step)
                 && self.mu > mu_min
             {
                 self.tiny_step = false;
@@ -1389,6 +1399,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             restoration_steps: self.restoration_steps,
             non_finite_trials: self.non_finite_trials,
             max_kkt_residual: self.max_residual,
+            linear_solver: self.kkt.name(),
             kkt_nnz: self.kkt.nnz().0,
             factor_nnz: self.kkt.nnz().1,
             times: self.times,

@@ -43,6 +43,7 @@ use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side};
 
+use super::band::BandLdlt;
 use crate::{Error, Result};
 
 /// The fixed sparsity structure of a KKT system: dimensions and the problem's patterns.
@@ -119,6 +120,78 @@ pub trait KktSolver {
     /// Numbers of nonzeros of the KKT matrix (upper triangle) and of its factor, when known.
     fn nnz(&self) -> (usize, usize) {
         (0, 0)
+    }
+
+    /// A short name of the solver, for reports.
+    fn name(&self) -> &'static str {
+        "custom"
+    }
+}
+
+/// [`BandLdlt`] when the analysis finds a narrow band, [`FaerLdlt`] otherwise (decided in
+/// [`KktSolver::analyse`]).
+#[derive(Debug)]
+pub enum AutoLdlt {
+    /// The variable-band solver.
+    Band(Box<BandLdlt>),
+    /// faer's sparse solver.
+    Faer(Box<FaerLdlt>),
+}
+
+impl Default for AutoLdlt {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl AutoLdlt {
+    /// Before the analysis: the band solver.
+    pub fn new() -> Self {
+        AutoLdlt::Band(Box::new(BandLdlt::new()))
+    }
+
+    fn solver(&mut self) -> &mut dyn KktSolver {
+        match self {
+            AutoLdlt::Band(b) => b.as_mut(),
+            AutoLdlt::Faer(f) => f.as_mut(),
+        }
+    }
+}
+
+impl KktSolver for AutoLdlt {
+    fn analyse(&mut self, structure: &KktStructure<'_>) -> Result<()> {
+        let mut band = BandLdlt::new();
+        if band.analyse(structure).is_ok() {
+            *self = AutoLdlt::Band(Box::new(band));
+            return Ok(());
+        }
+        drop(band);
+        let mut faer = FaerLdlt::new();
+        faer.analyse(structure)?;
+        *self = AutoLdlt::Faer(Box::new(faer));
+        Ok(())
+    }
+
+    fn factorize(&mut self, values: &KktValues<'_>) -> Option<FactorInfo> {
+        self.solver().factorize(values)
+    }
+
+    fn solve_in_place(&mut self, rhs: &mut [f64]) -> f64 {
+        self.solver().solve_in_place(rhs)
+    }
+
+    fn nnz(&self) -> (usize, usize) {
+        match self {
+            AutoLdlt::Band(b) => b.nnz(),
+            AutoLdlt::Faer(f) => f.nnz(),
+        }
+    }
+
+    fn name(&self) -> &'static str {
+        match self {
+            AutoLdlt::Band(b) => b.name(),
+            AutoLdlt::Faer(f) => f.name(),
+        }
     }
 }
 
@@ -209,28 +282,17 @@ impl FaerLdlt {
             y[j] += acc;
         }
     }
-
-    fn solve_permuted(&mut self, x: &mut [f64]) {
-        let symbolic = self.simplicial();
-        let ldlt = simplicial::SimplicialLdltRef::new(symbolic, &self.l_values);
-        let dim = x.len();
-        let mat = MatMut::from_column_major_slice_mut(x, dim, 1);
-        let mut mem = MemBuffer::new(StackReq::EMPTY);
-        ldlt.solve_in_place_with_conj(Conj::No, mat, Par::Seq, MemStack::new(&mut mem));
-    }
 }
 
-/// Approximate-minimum-degree ordering of the primal graph with each constraint placed after
-/// its last variable. Returns `perm` with `perm[p]` = original index at position `p`.
-///
-/// Variables coupled to very many others (degree above `max(32, 10√n)` in the graph of
-/// $W + J^\top J$, e.g. a static parameter shared by every transition constraint) are
-/// left out of the graph and ordered last, after every constraint; otherwise every constraint
-/// would wait for them and the constraint block would fill in completely. Dense constraint
-/// rows are likewise ordered at the end.
-fn kkt_ordering(s: &KktStructure<'_>) -> Result<Vec<usize>> {
+/// The variables coupled to very many others and the dense constraint rows of a KKT
+/// structure, which both orderings put last: a row is dense when it has more than
+/// `max(32, 10√n)` distinct variables, a variable when a cheap upper bound of its degree in
+/// the graph of $W + J^\top J$ (Hessian neighbours plus the sizes of the non-dense rows it
+/// appears in) exceeds the same limit (e.g. a static parameter shared by every transition
+/// constraint). Otherwise every constraint would wait for them and the constraint block would
+/// fill in completely.
+pub(crate) fn dense_variables_and_rows(s: &KktStructure<'_>) -> (Vec<bool>, Vec<bool>) {
     let (n, m) = (s.n, s.m);
-    // rows of the Jacobian, deduplicated
     let mut row_vars: Vec<Vec<usize>> = vec![Vec::new(); m];
     for &(r, c) in s.jacobian {
         row_vars[r].push(c);
@@ -240,8 +302,7 @@ fn kkt_ordering(s: &KktStructure<'_>) -> Result<Vec<usize>> {
         v.dedup();
     }
     let dense_limit = 32.max((10.0 * (n as f64).sqrt()) as usize);
-    // a cheap upper bound of each variable's degree: Hessian neighbours plus the sizes of the
-    // (non-dense) constraint rows it appears in
+    let dense_row: Vec<bool> = row_vars.iter().map(|v| v.len() > dense_limit).collect();
     let mut degree = vec![0usize; n];
     for &(i, j) in s.hessian {
         if i != j {
@@ -254,39 +315,97 @@ fn kkt_ordering(s: &KktStructure<'_>) -> Result<Vec<usize>> {
             degree[c] += v.len() - 1;
         }
     }
-    let dense_var: Vec<bool> = degree.iter().map(|&d| d > dense_limit).collect();
+    (degree.iter().map(|&d| d > dense_limit).collect(), dense_row)
+}
+
+/// The KKT ordering from an ordering of the (non-dense) primal variables: `order[p]` is the
+/// variable at position `p` and `pos` its inverse (`usize::MAX` for dense variables). Each
+/// non-dense constraint row is placed right after the last of its non-dense variables; dense
+/// variables, then dense rows (and rows with only dense variables) come last. Returns `perm`
+/// with `perm[p]` = original KKT row at position `p` (constraint r is row n + r).
+pub(crate) fn place_constraints(
+    s: &KktStructure<'_>,
+    order: &[usize],
+    pos: &[usize],
+    dense_var: &[bool],
+    dense_row: &[bool],
+) -> Vec<usize> {
+    let (n, m) = (s.n, s.m);
+    let np = order.len();
+    let mut last_pos = vec![usize::MAX; m];
+    for &(r, c) in s.jacobian {
+        if !dense_row[r] && !dense_var[c] {
+            let p = pos[c];
+            if last_pos[r] == usize::MAX || p > last_pos[r] {
+                last_pos[r] = p;
+            }
+        }
+    }
+    // bucket the constraints by the position of their last variable (counting sort)
+    let mut bucket_start = vec![0usize; np + 2];
+    for &p in &last_pos {
+        if p != usize::MAX {
+            bucket_start[p + 1] += 1;
+        }
+    }
+    for p in 0..=np {
+        bucket_start[p + 1] += bucket_start[p];
+    }
+    let mut bucket = vec![0usize; bucket_start[np + 1]];
+    let mut fill = bucket_start.clone();
+    for (r, &p) in last_pos.iter().enumerate() {
+        if p != usize::MAX {
+            bucket[fill[p]] = r;
+            fill[p] += 1;
+        }
+    }
+    let mut perm = Vec::with_capacity(n + m);
+    for (p, &var) in order.iter().enumerate() {
+        perm.push(var);
+        for &r in &bucket[bucket_start[p]..bucket_start[p + 1]] {
+            perm.push(n + r);
+        }
+    }
+    perm.extend((0..n).filter(|&i| dense_var[i]));
+    perm.extend((0..m).filter(|&r| last_pos[r] == usize::MAX).map(|r| n + r));
+    debug_assert_eq!(perm.len(), n + m);
+    perm
+}
+
+/// Approximate-minimum-degree ordering of the primal graph with each constraint placed after
+/// its last variable ([`place_constraints`]). Returns `perm` with `perm[p]` = original index at
+/// position `p`.
+fn kkt_ordering(s: &KktStructure<'_>) -> Result<Vec<usize>> {
+    let n = s.n;
+    let (dense_var, dense_row) = dense_variables_and_rows(s);
+    // the primal graph without the dense variables and rows; AMD needs a deduplicated upper
+    // CSC pattern, built by counting sorts (column-major, then rows within each column)
     let mut edges: Vec<(usize, usize)> = Vec::new();
     for &(i, j) in s.hessian {
         if i != j && !dense_var[i] && !dense_var[j] {
             edges.push((i.min(j), i.max(j)));
         }
     }
-    for v in row_vars.iter().filter(|v| v.len() <= dense_limit) {
+    let mut row_vars: Vec<Vec<usize>> = vec![Vec::new(); s.m];
+    for &(r, c) in s.jacobian {
+        if !dense_row[r] && !dense_var[c] {
+            row_vars[r].push(c);
+        }
+    }
+    for v in &mut row_vars {
+        v.sort_unstable();
+        v.dedup();
         for (a, &i) in v.iter().enumerate() {
-            if dense_var[i] {
-                continue;
-            }
             for &j in &v[a + 1..] {
-                if !dense_var[j] {
-                    edges.push((i, j));
-                }
+                edges.push((i, j));
             }
         }
     }
-    // upper CSC of the primal graph: column j holds rows i < j, plus the diagonal
+    drop(row_vars);
     for j in 0..n {
         edges.push((j, j));
     }
-    edges.sort_unstable_by_key(|&(i, j)| (j, i));
-    edges.dedup();
-    let mut col_ptr = vec![0usize; n + 1];
-    for &(_, j) in &edges {
-        col_ptr[j + 1] += 1;
-    }
-    for j in 0..n {
-        col_ptr[j + 1] += col_ptr[j];
-    }
-    let row_idx: Vec<usize> = edges.iter().map(|&(i, _)| i).collect();
+    let (col_ptr, row_idx) = upper_csc(n, &edges);
     drop(edges);
     let graph = SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
     let mut pperm = vec![0usize; n];
@@ -297,41 +416,118 @@ fn kkt_ordering(s: &KktStructure<'_>) -> Result<Vec<usize>> {
     amd::order(&mut pperm, &mut pperm_inv, graph, amd::Control::default(), MemStack::new(&mut mem)).map_err(
         |e| Error::InvalidOption { name: "kkt".into(), reason: format!("ordering failed: {e:?}") },
     )?;
-    // bucket the constraints by the position of their last (non-dense) variable
-    let mut bucket_start = vec![0usize; n + 2];
-    let mut last_pos = vec![usize::MAX; m];
-    for (r, v) in row_vars.iter().enumerate() {
-        if v.len() <= dense_limit {
-            if let Some(p) = v.iter().filter(|&&c| !dense_var[c]).map(|&c| pperm_inv[c]).max() {
-                last_pos[r] = p;
-                bucket_start[p + 1] += 1;
+    let order: Vec<usize> = pperm.iter().copied().filter(|&v| !dense_var[v]).collect();
+    let mut pos = vec![usize::MAX; n];
+    for (p, &v) in order.iter().enumerate() {
+        pos[v] = p;
+    }
+    Ok(place_constraints(s, &order, &pos, &dense_var, &dense_row))
+}
+
+/// Deduplicated upper-triangular CSC pattern (`col_ptr`, `row_idx`, rows sorted within each
+/// column) of `entries` `(row, column)` with `row <= column`, by two counting sorts.
+fn upper_csc(dim: usize, entries: &[(usize, usize)]) -> (Vec<usize>, Vec<usize>) {
+    // sort by row (counting), then stable by column: rows end up sorted within each column
+    let mut row_ptr = vec![0usize; dim + 1];
+    for &(i, _) in entries {
+        row_ptr[i + 1] += 1;
+    }
+    for i in 0..dim {
+        row_ptr[i + 1] += row_ptr[i];
+    }
+    let mut by_row = vec![0usize; entries.len()]; // columns, grouped by row
+    let mut fill = row_ptr[..dim].to_vec();
+    for &(i, j) in entries {
+        by_row[fill[i]] = j;
+        fill[i] += 1;
+    }
+    let mut col_ptr = vec![0usize; dim + 1];
+    for &(_, j) in entries {
+        col_ptr[j + 1] += 1;
+    }
+    for j in 0..dim {
+        col_ptr[j + 1] += col_ptr[j];
+    }
+    let mut row_idx = vec![0usize; entries.len()];
+    let mut fill = col_ptr[..dim].to_vec();
+    for i in 0..dim {
+        for &j in &by_row[row_ptr[i]..row_ptr[i + 1]] {
+            row_idx[fill[j]] = i;
+            fill[j] += 1;
+        }
+    }
+    // deduplicate within each column (rows are sorted)
+    let mut out_ptr = vec![0usize; dim + 1];
+    let mut w = 0usize;
+    for j in 0..dim {
+        let mut last = usize::MAX;
+        for k in col_ptr[j]..col_ptr[j + 1] {
+            let i = row_idx[k];
+            if i != last {
+                row_idx[w] = i;
+                w += 1;
+                last = i;
             }
         }
+        out_ptr[j + 1] = w;
     }
-    for p in 0..=n {
-        bucket_start[p + 1] += bucket_start[p];
-    }
-    let mut bucket = vec![0usize; bucket_start[n + 1]];
-    let mut fill = bucket_start.clone();
-    for (r, &p) in last_pos.iter().enumerate() {
-        if p != usize::MAX {
-            bucket[fill[p]] = r;
-            fill[p] += 1;
+    row_idx.truncate(w);
+    (out_ptr, row_idx)
+}
+
+/// Solves `K x = b` given a solver `solve` of the factorised `K` and the product `matvec`, with
+/// iterative refinement: stops when the backward error ‖r‖ / (‖b‖ + ‖K‖‖x‖) is below 1e-15,
+/// stagnates (does not halve), or after `max_steps` refinement steps; keeps the best iterate.
+/// Returns ‖b − K x‖∞ / ‖b‖∞. `r` and `prev` are workspaces of the same length.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn refine(
+    b: &[f64],
+    x: &mut [f64],
+    r: &mut [f64],
+    prev: &mut [f64],
+    norm_k: f64,
+    max_steps: usize,
+    matvec: impl Fn(&[f64], &mut [f64]),
+    mut solve: impl FnMut(&mut [f64]),
+) -> f64 {
+    let dim = b.len();
+    let b_norm = b.iter().fold(0.0f64, |a, &v| a.max(v.abs()));
+    x.copy_from_slice(b);
+    solve(x);
+    // backward error ‖r‖ / (‖b‖ + ‖K‖‖x‖) of the best iterate so far, and ‖r‖ / ‖b‖
+    let mut best = f64::INFINITY;
+    let mut last_residual = f64::INFINITY;
+    for step in 0..=max_steps {
+        matvec(x, r);
+        let mut r_norm = 0.0f64;
+        for p in 0..dim {
+            r[p] = b[p] - r[p];
+            r_norm = r_norm.max(r[p].abs());
+        }
+        let x_norm = x.iter().fold(0.0f64, |a, &v| a.max(v.abs()));
+        let denom = b_norm + norm_k * x_norm;
+        let backward = if denom > 0.0 { r_norm / denom } else { 0.0 };
+        // NaN counts as no improvement
+        let improved = |limit: f64| backward.partial_cmp(&limit).is_some_and(|o| o.is_le());
+        if step > 0 && !improved(0.5 * best) {
+            // refinement stagnates or diverges: keep the better iterate
+            if !improved(best) {
+                x.copy_from_slice(prev);
+            }
+            break;
+        }
+        best = backward;
+        last_residual = if b_norm > 0.0 { r_norm / b_norm } else { r_norm };
+        if !backward.is_finite() || backward <= 1e-15 || step == max_steps {
+            break;
+        }
+        solve(r);
+        prev.copy_from_slice(x);
+        for p in 0..dim {
+            x[p] += r[p];
         }
     }
-    let mut perm = Vec::with_capacity(n + m);
-    for (p, &var) in pperm.iter().enumerate() {
-        if !dense_var[var] {
-            perm.push(var);
-        }
-        for &r in &bucket[bucket_start[p]..bucket_start[p + 1]] {
-            perm.push(n + r);
-        }
-    }
-    perm.extend((0..n).filter(|&i| dense_var[i]));
-    perm.extend((0..m).filter(|&r| last_pos[r] == usize::MAX).map(|r| n + r));
-    debug_assert_eq!(perm.len(), n + m);
-    Ok(perm)
+    last_residual
 }
 
 impl KktSolver for FaerLdlt {
@@ -350,17 +546,9 @@ impl KktSolver for FaerLdlt {
         entries.extend(s.hessian.iter().map(|&(i, j)| upper(iperm[i], iperm[j])));
         entries.extend(s.jacobian.iter().map(|&(r, c)| upper(iperm[n + r], iperm[c])));
         entries.extend((0..dim).map(|g| (iperm[g], iperm[g])));
-        entries.sort_unstable_by_key(|&(i, j)| (j, i));
-        entries.dedup();
-        let mut col_ptr = vec![0usize; dim + 1];
-        for &(_, j) in &entries {
-            col_ptr[j + 1] += 1;
-        }
-        for j in 0..dim {
-            col_ptr[j + 1] += col_ptr[j];
-        }
-        self.row_idx = entries.iter().map(|&(i, _)| i).collect();
+        let (col_ptr, row_idx) = upper_csc(dim, &entries);
         drop(entries);
+        self.row_idx = row_idx;
         self.col_ptr = col_ptr;
         let slot = |me: &Self, a: usize, b: usize| -> usize {
             let (i, j) = upper(a, b);
@@ -486,52 +674,36 @@ impl KktSolver for FaerLdlt {
         (self.matrix_nnz(), self.factor_nnz())
     }
 
+    fn name(&self) -> &'static str {
+        "faer"
+    }
+
     fn solve_in_place(&mut self, rhs: &mut [f64]) -> f64 {
         let dim = self.n + self.m;
         let mut b = std::mem::take(&mut self.work_b);
         let mut x = std::mem::take(&mut self.work_x);
         let mut r = std::mem::take(&mut self.work_r);
+        let mut prev = std::mem::take(&mut self.work_prev);
+        prev.resize(dim, 0.0);
         for p in 0..dim {
             b[p] = rhs[self.perm[p]];
         }
-        let b_norm = b.iter().fold(0.0f64, |a, &v| a.max(v.abs()));
-        x.copy_from_slice(&b);
-        self.solve_permuted(&mut x);
-        let mut prev = std::mem::take(&mut self.work_prev);
-        prev.resize(dim, 0.0);
-        // backward error ‖r‖ / (‖b‖ + ‖K‖‖x‖) of the best iterate so far, and ‖r‖ / ‖b‖
-        let mut best = f64::INFINITY;
-        self.last_residual = f64::INFINITY;
-        for step in 0..=self.max_refinement_steps {
-            self.sym_matvec(&x, &mut r);
-            let mut r_norm = 0.0f64;
-            for p in 0..dim {
-                r[p] = b[p] - r[p];
-                r_norm = r_norm.max(r[p].abs());
-            }
-            let x_norm = x.iter().fold(0.0f64, |a, &v| a.max(v.abs()));
-            let denom = b_norm + self.norm_k * x_norm;
-            let backward = if denom > 0.0 { r_norm / denom } else { 0.0 };
-            // NaN counts as no improvement
-            let improved = |limit: f64| backward.partial_cmp(&limit).is_some_and(|o| o.is_le());
-            if step > 0 && !improved(0.5 * best) {
-                // refinement stagnates or diverges: keep the better iterate
-                if !improved(best) {
-                    x.copy_from_slice(&prev);
-                }
-                break;
-            }
-            best = backward;
-            self.last_residual = if b_norm > 0.0 { r_norm / b_norm } else { r_norm };
-            if !backward.is_finite() || backward <= 1e-15 || step == self.max_refinement_steps {
-                break;
-            }
-            self.solve_permuted(&mut r);
-            prev.copy_from_slice(&x);
-            for p in 0..dim {
-                x[p] += r[p];
-            }
-        }
+        let mut ldlt_mem = MemBuffer::new(StackReq::EMPTY);
+        let ldlt = simplicial::SimplicialLdltRef::new(self.simplicial(), &self.l_values);
+        let residual = refine(
+            &b,
+            &mut x,
+            &mut r,
+            &mut prev,
+            self.norm_k,
+            self.max_refinement_steps,
+            |x, y| self.sym_matvec(x, y),
+            |x| {
+                let mat = MatMut::from_column_major_slice_mut(x, dim, 1);
+                ldlt.solve_in_place_with_conj(Conj::No, mat, Par::Seq, MemStack::new(&mut ldlt_mem));
+            },
+        );
+        self.last_residual = residual;
         for p in 0..dim {
             rhs[self.perm[p]] = x[p];
         }

@@ -65,15 +65,17 @@
 //! [`NlpReport`]).
 
 #![deny(missing_docs)]
+pub mod band;
 mod ipm;
 pub mod kkt;
 mod options;
 mod problem;
 mod report;
 
+pub use band::BandLdlt;
 pub use ipm::{solve, InteriorPoint};
-pub use kkt::{FactorInfo, FaerLdlt, Inertia, KktSolver, KktStructure, KktValues};
-pub use options::{IterationCallback, IterationSummary, NlpOptions, Verbosity};
+pub use kkt::{AutoLdlt, FactorInfo, FaerLdlt, Inertia, KktSolver, KktStructure, KktValues};
+pub use options::{IterationCallback, IterationSummary, LinearSolver, NlpOptions, Verbosity};
 pub use problem::NlpProblem;
 pub use report::{EvaluationCounts, NlpReport, NlpSolution, PhaseTimes, Status};
 

@@ -20,6 +20,23 @@ pub enum Verbosity {
     Detailed,
 }
 
+/// Which linear solver factorises the KKT matrix.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[non_exhaustive]
+pub enum LinearSolver {
+    /// The variable-band [`BandLdlt`](super::BandLdlt) when the matrix can be ordered into a
+    /// narrow band (mean envelope width at most
+    /// [`DEFAULT_MAX_MEAN_WIDTH`](super::band::DEFAULT_MAX_MEAN_WIDTH)), otherwise
+    /// [`FaerLdlt`](super::FaerLdlt).
+    #[default]
+    Auto,
+    /// faer's general sparse LDLᵀ, [`FaerLdlt`](super::FaerLdlt) (the reference).
+    Faer,
+    /// The variable-band LDLᵀ [`BandLdlt`](super::BandLdlt); a solve fails with
+    /// [`Error::InvalidOption`] when the matrix is not banded.
+    Band,
+}
+
 /// What the callback receives after each iteration (and once for the initial point, as
 /// iteration 0).
 #[derive(Clone, Debug, PartialEq)]
@@ -83,6 +100,8 @@ pub struct NlpOptions {
     pub scaling: bool,
     /// What goes into [`IterationSummary::log`]. Default [`Verbosity::Quiet`].
     pub verbosity: Verbosity,
+    /// The KKT solver. Default [`LinearSolver::Auto`].
+    pub linear_solver: LinearSolver,
     /// Called after each iteration. Default `None`.
     pub callback: Option<IterationCallback>,
 }
@@ -100,6 +119,7 @@ impl Default for NlpOptions {
             unbounded_objective: -1e20,
             scaling: true,
             verbosity: Verbosity::Quiet,
+            linear_solver: LinearSolver::Auto,
             callback: None,
         }
     }
@@ -118,6 +138,7 @@ impl fmt::Debug for NlpOptions {
             .field("unbounded_objective", &self.unbounded_objective)
             .field("scaling", &self.scaling)
             .field("verbosity", &self.verbosity)
+            .field("linear_solver", &self.linear_solver)
             .field("callback", &self.callback.as_ref().map(|_| "FnMut"))
             .finish()
     }
@@ -145,6 +166,12 @@ impl NlpOptions {
     /// Sets [`verbosity`](Self::verbosity).
     pub fn with_verbosity(mut self, verbosity: Verbosity) -> Self {
         self.verbosity = verbosity;
+        self
+    }
+
+    /// Sets [`linear_solver`](Self::linear_solver).
+    pub fn with_linear_solver(mut self, linear_solver: LinearSolver) -> Self {
+        self.linear_solver = linear_solver;
         self
     }
 

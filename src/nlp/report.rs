@@ -75,6 +75,8 @@ pub struct NlpReport {
     /// Largest relative residual $\lVert b - K x\rVert_\infty / \lVert b\rVert_\infty$ of
     /// the Newton-step solves (after iterative refinement).
     pub max_kkt_residual: f64,
+    /// The KKT solver that was used ([`KktSolver::name`](super::KktSolver::name)).
+    pub linear_solver: &'static str,
     /// Number of nonzeros in the upper triangle of the KKT matrix.
     pub kkt_nnz: usize,
     /// Number of nonzeros in the factor $L$.
@@ -119,8 +121,8 @@ impl fmt::Display for NlpReport {
         )?;
         writeln!(
             f,
-            "{:<26}nnz(K) {} | nnz(L) {} | max residual {:.1e}",
-            "kkt", self.kkt_nnz, self.factor_nnz, self.max_kkt_residual
+            "{:<26}{} | nnz(K) {} | nnz(L) {} | max residual {:.1e}",
+            "kkt", self.linear_solver, self.kkt_nnz, self.factor_nnz, self.max_kkt_residual
         )?;
         write!(
             f,

@@ -101,6 +101,8 @@ pub struct PathNlp<'a, S: Sde + ?Sized, O: Observation + ?Sized> {
     blocks: Vec<Block>,
     n_jac: usize,
     n_hess: usize,
+    /// G(θ), column-major, for Hermite–Simpson (where no estimated θ enters it).
+    g_fixed: Vec<f64>,
     initial: Vec<f64>,
     lower: Vec<f64>,
     upper: Vec<f64>,
@@ -168,12 +170,23 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         vars.extend(&theta_vars);
         blocks.push(Block { kind: BlockKind::Prior, vars, row0: row, rows: 0, jac0: 0, hess0: 0 });
         let (mut jac, mut hess) = (0, 0);
+        // Hermite–Simpson pieces: the Hessian is block-diagonal over the three Lobatto points'
+        // (s_i, θ_e) plus the noise diagonal (see `hs_hessian_into`); other blocks are dense
+        let npt = ns + ne;
         for b in &mut blocks {
             b.jac0 = jac;
             b.hess0 = hess;
             let nv = b.vars.len();
             jac += b.rows * nv;
-            hess += nv * (nv + 1) / 2;
+            hess += match (hs, b.kind) {
+                (true, BlockKind::Interval(_)) => 3 * npt * (npt + 1) / 2 + 2 * nx,
+                _ => nv * (nv + 1) / 2,
+            };
+        }
+        let mut g_fixed = vec![0.0; nx * nx];
+        if hs {
+            // G does not depend on an estimated θ for Hermite–Simpson (checked by the caller)
+            problem.sde.diffusion(problem.theta, &mut g_fixed);
         }
 
         let mut initial = vec![0.0; n_vars];
@@ -211,6 +224,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
             blocks,
             n_jac: jac,
             n_hess: hess,
+            g_fixed,
             initial,
             lower,
             upper,
@@ -251,8 +265,10 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
     pub fn merit_parts(&self, w: &[f64]) -> MeritParts<f64> {
         let mut parts = MeritParts::zero();
         for b in &self.blocks {
-            let local: Vec<f64> = b.vars.iter().map(|&v| w[v]).collect();
-            parts += self.block_merit(b, &local);
+            parts += with_buffer(b.vars.len(), |local| {
+                Self::locals_into(b, w, local);
+                self.block_merit(b, local)
+            });
         }
         parts
     }
@@ -284,18 +300,22 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
 
     /// The log-merit contribution of a block at its local vector.
     fn block_merit<D: Scalar>(&self, b: &Block, w: &[D]) -> MeritParts<D> {
+        let ne = self.problem.estimate.len();
+        self.with_theta(&w[w.len() - ne..], |theta| self.block_merit_theta(b, w, theta))
+    }
+
+    /// [`Self::block_merit`] given the full θ.
+    fn block_merit_theta<D: Scalar>(&self, b: &Block, w: &[D], theta: &[D]) -> MeritParts<D> {
         let p = self.problem;
         let d = p.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
-        let ne = p.estimate.len();
-        let theta = self.theta_full(&w[w.len() - ne..]);
         let mut out = MeritParts::zero();
         match b.kind {
             BlockKind::Measurement { row, node } => {
                 let s = &w[..ns];
                 let t = self.grid.time(node);
                 out.log_likelihood =
-                    p.observation.log_likelihood(t, &p.data.values[row], &s[..nx], &s[nx..], &theta);
+                    p.observation.log_likelihood(t, &p.data.values[row], &s[..nx], &s[nx..], theta);
             }
             BlockKind::Prior => {
                 let mut lp = D::from(0.0);
@@ -314,22 +334,22 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
                     Transcription::Euler | Transcription::Trapezoidal => {
                         let (s0, s1) = (&w[..ns], &w[ns..2 * ns]);
                         let mut r = vec![D::from(0.0); nx];
-                        p.sde.drift(D::from(t0), &s0[..nx], &s0[nx..], &theta, &mut r);
+                        p.sde.drift(D::from(t0), &s0[..nx], &s0[nx..], theta, &mut r);
                         if self.transcription == Transcription::Trapezoidal {
                             // 001 (21): the mean of the drifts at both ends.
                             let mut f1 = vec![D::from(0.0); nx];
-                            p.sde.drift(D::from(t1), &s1[..nx], &s1[nx..], &theta, &mut f1);
+                            p.sde.drift(D::from(t1), &s1[..nx], &s1[nx..], theta, &mut f1);
                             for (a, b) in r.iter_mut().zip(&f1) {
                                 *a = (*a + *b) * 0.5;
                             }
-                            out.divergence = log_det_implicit(p.sde, t1, h, s1, nx, &theta);
+                            out.divergence = log_det_implicit(p.sde, t1, h, s1, nx, theta);
                         }
                         // residual Δx/δ − f̄
                         for i in 0..nx {
                             r[i] = (s1[i] - s0[i]) / h - r[i];
                         }
                         // −½ δ ‖G⁻¹ r‖² − ln|det G|, 001 (16), (21).
-                        out.energy = match half_sq_ginv(p.sde, &theta, &mut r) {
+                        out.energy = match half_sq_ginv(p.sde, theta, &mut r) {
                             Some((e, logdet)) => -(e * h) - logdet,
                             None => D::from(f64::NAN),
                         };
@@ -346,7 +366,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
                             let tm = 0.5 * (t0 + t1);
                             let (s0, sm, s1) = (&w[..ns], &w[ns..2 * ns], &w[2 * ns..3 * ns]);
                             let div =
-                                |t: f64, s: &[D]| p.sde.divergence(D::from(t), &s[..nx], &s[nx..], &theta);
+                                |t: f64, s: &[D]| p.sde.divergence(D::from(t), &s[..nx], &s[nx..], theta);
                             // −½ ∫ div_x f dt by Simpson's rule, 000 (2.49).
                             out.divergence = -(div(t0, s0) + div(tm, sm) * 4.0 + div(t1, s1)) * (h / 12.0);
                         }
@@ -359,22 +379,26 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
 
     /// The defect constraints of a block at its local vector (`out.len() == b.rows`).
     fn block_constraints<D: Scalar>(&self, b: &Block, w: &[D], out: &mut [D]) {
+        let ne = self.problem.estimate.len();
+        self.with_theta(&w[w.len() - ne..], |theta| self.block_constraints_theta(b, w, theta, out))
+    }
+
+    /// [`Self::block_constraints`] given the full θ.
+    fn block_constraints_theta<D: Scalar>(&self, b: &Block, w: &[D], theta: &[D], out: &mut [D]) {
         let BlockKind::Interval(k) = b.kind else { return };
         let p = self.problem;
         let d = p.sde.dims();
         let (ns, nx, nz) = (d.states(), d.noisy, d.clean);
-        let ne = p.estimate.len();
-        let theta = self.theta_full(&w[w.len() - ne..]);
         let h = self.grid.step;
         let (t0, t1) = (self.grid.time(k), self.grid.time(k + 1));
         match self.transcription {
             Transcription::Euler | Transcription::Trapezoidal => {
                 let (s0, s1) = (&w[..ns], &w[ns..2 * ns]);
                 let mut h0 = vec![D::from(0.0); nz];
-                p.sde.clean_drift(D::from(t0), &s0[..nx], &s0[nx..], &theta, &mut h0);
+                p.sde.clean_drift(D::from(t0), &s0[..nx], &s0[nx..], theta, &mut h0);
                 if self.transcription == Transcription::Trapezoidal {
                     let mut h1 = vec![D::from(0.0); nz];
-                    p.sde.clean_drift(D::from(t1), &s1[..nx], &s1[nx..], &theta, &mut h1);
+                    p.sde.clean_drift(D::from(t1), &s1[..nx], &s1[nx..], theta, &mut h1);
                     for (a, b) in h0.iter_mut().zip(&h1) {
                         *a = (*a + *b) * 0.5;
                     }
@@ -388,21 +412,31 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
                 let (s0, sm, s1) = (&w[..ns], &w[ns..2 * ns], &w[2 * ns..3 * ns]);
                 let off = 3 * ns;
                 let (a, bb) = (&w[off..off + nx], &w[off + nx..off + 2 * nx]);
-                let mut g = vec![D::from(0.0); nx * nx];
-                p.sde.diffusion(&theta, &mut g);
+                // G does not depend on an estimated θ for Hermite–Simpson (checked by the caller)
+                let g = &self.g_fixed;
                 // ṡ = [f + G w; h] at the three Lobatto points, w = a + (σ − ½) b.
-                let rate = |t: f64, s: &[D], sigma: f64| {
-                    let mut v = vec![D::from(0.0); ns];
-                    p.sde.drift(D::from(t), &s[..nx], &s[nx..], &theta, &mut v[..nx]);
-                    p.sde.clean_drift(D::from(t), &s[..nx], &s[nx..], &theta, &mut v[nx..]);
+                let rate = |t: f64, s: &[D], sigma: f64, v: &mut [D]| {
+                    p.sde.drift(D::from(t), &s[..nx], &s[nx..], theta, &mut v[..nx]);
+                    p.sde.clean_drift(D::from(t), &s[..nx], &s[nx..], theta, &mut v[nx..]);
                     for i in 0..nx {
                         for j in 0..nx {
-                            v[i] += g[i + j * nx] * (a[j] + bb[j] * (sigma - 0.5));
+                            v[i] += (a[j] + bb[j] * (sigma - 0.5)) * g[i + j * nx];
                         }
                     }
-                    v
                 };
-                let (r0, rm, r1) = (rate(t0, s0, 0.0), rate(tm, sm, 0.5), rate(t1, s1, 1.0));
+                let mut heap = Vec::new();
+                let mut stack = [D::from(0.0); 3 * STACK_LEN];
+                let r = if ns <= STACK_LEN {
+                    &mut stack[..3 * ns]
+                } else {
+                    heap.resize(3 * ns, D::from(0.0));
+                    &mut heap[..]
+                };
+                let (r0, rest) = r.split_at_mut(ns);
+                let (rm, r1) = rest.split_at_mut(ns);
+                rate(t0, s0, 0.0, r0);
+                rate(tm, sm, 0.5, rm);
+                rate(t1, s1, 1.0, r1);
                 // Hermite–Simpson defects (000 Ch. 4): Simpson quadrature and Hermite midpoint.
                 for i in 0..ns {
                     out[i] = s1[i] - s0[i] - (r0[i] + rm[i] * 4.0 + r1[i]) * (h / 6.0);
@@ -430,13 +464,13 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         [(t0, 0, 1.0, 1.0, -0.5), (0.5 * (t0 + t1), ns, 4.0, 0.0, 0.0), (t1, 2 * ns, 1.0, -1.0, 0.5)]
     }
 
-    /// The point-local vector (s_i, θ_e) of Lobatto point `off` of a piece's local vector.
-    fn hs_point_local(&self, local: &[f64], off: usize) -> Vec<f64> {
+    /// The point-local vector (s_i, θ_e) of Lobatto point `off` of a piece's local vector,
+    /// written into `out` (length ns + ne).
+    fn hs_point_local(&self, local: &[f64], off: usize, out: &mut [f64]) {
         let ns = self.problem.sde.dims().states();
         let ne = self.problem.estimate.len();
-        let mut v = local[off..off + ns].to_vec();
-        v.extend_from_slice(&local[local.len() - ne..]);
-        v
+        out[..ns].copy_from_slice(&local[off..off + ns]);
+        out[ns..ns + ne].copy_from_slice(&local[local.len() - ne..]);
     }
 
     /// Scatters a point-local (s_i, θ_e) index into the piece-local vector.
@@ -450,107 +484,167 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         }
     }
 
-    /// Gradient of −merit of a Hermite–Simpson piece, point by point: the energy
-    /// h(½|a|² + |b|²/24) and, for Onsager–Machlup, (h/12) Σ α_i div_x f(t_i, s_i).
-    fn hs_gradient(&self, k: usize, local: &[f64]) -> Vec<f64> {
+    /// Adds the gradient of −merit of a Hermite–Simpson piece to `grad` (global), point by
+    /// point: the energy h(½|a|² + |b|²/24) and, for Onsager–Machlup,
+    /// (h/12) Σ α_i div_x f(t_i, s_i).
+    fn hs_gradient_into(&self, k: usize, b: &Block, local: &[f64], grad: &mut [f64]) {
         let d = self.problem.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
         let h = self.grid.step;
         let nv = local.len();
-        let mut g = vec![0.0; nv];
         for i in 0..nx {
-            g[3 * ns + i] = h * local[3 * ns + i];
-            g[3 * ns + nx + i] = h * local[3 * ns + nx + i] / 12.0;
+            grad[b.vars[3 * ns + i]] += h * local[3 * ns + i];
+            grad[b.vars[3 * ns + nx + i]] += h * local[3 * ns + nx + i] / 12.0;
         }
         if self.merit == Merit::OnsagerMachlup {
-            for (t, off, alpha, _, _) in self.hs_points(k) {
-                let f = PointFn { nlp: self, t, div_weight: alpha * h / 12.0, mu: None };
-                let (_, pg) = ad::gradient(&f, &self.hs_point_local(local, off));
-                for (j, v) in pg.into_iter().enumerate() {
-                    g[self.hs_point_index(nv, off, j)] += v;
-                }
-            }
+            let npt = ns + self.problem.estimate.len();
+            with_buffer(npt, |pl| {
+                with_buffer(npt, |pg| {
+                    for (t, off, alpha, _, _) in self.hs_points(k) {
+                        let f = PointFn { nlp: self, t, div_weight: alpha * h / 12.0, mu: None };
+                        self.hs_point_local(local, off, pl);
+                        ad::gradient_into(&f, pl, pg);
+                        for (j, &v) in pg.iter().enumerate() {
+                            grad[b.vars[self.hs_point_index(nv, off, j)]] += v;
+                        }
+                    }
+                })
+            });
         }
-        g
     }
 
-    /// Constraint Jacobian of a Hermite–Simpson piece from the drift Jacobians at its three
-    /// points (see [`Self::block_constraints`] for the defects).
-    fn hs_jacobian(&self, k: usize, local: &[f64]) -> nalgebra::DMatrix<f64> {
+    /// Writes the constraint Jacobian of a Hermite–Simpson piece (rows × nv, row-major) into
+    /// `jac`, from the rate Jacobians at its three points (see [`Self::block_constraints`] for
+    /// the defects).
+    fn hs_jacobian_into(&self, k: usize, local: &[f64], jac: &mut [f64]) {
         let p = self.problem;
         let d = p.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
         let h = self.grid.step;
         let nv = local.len();
-        let theta = self.theta_full(&local[nv - p.estimate.len()..]);
-        let mut gm = vec![0.0; nx * nx];
-        p.sde.diffusion(&theta, &mut gm);
-        let mut jac = nalgebra::DMatrix::zeros(2 * ns, nv);
+        let npt = ns + p.estimate.len();
+        let gm = &self.g_fixed;
+        jac.fill(0.0);
         for i in 0..ns {
-            jac[(i, i)] -= 1.0; // c1 = s1 − s0 − …
-            jac[(i, 2 * ns + i)] += 1.0;
-            jac[(ns + i, ns + i)] += 1.0; // c2 = sm − ½(s0 + s1) − …
-            jac[(ns + i, i)] -= 0.5;
-            jac[(ns + i, 2 * ns + i)] -= 0.5;
+            jac[i * nv + i] -= 1.0; // c1 = s1 − s0 − …
+            jac[i * nv + 2 * ns + i] += 1.0;
+            jac[(ns + i) * nv + ns + i] += 1.0; // c2 = sm − ½(s0 + s1) − …
+            jac[(ns + i) * nv + i] -= 0.5;
+            jac[(ns + i) * nv + 2 * ns + i] -= 0.5;
         }
-        for (t, off, alpha, beta, sigma) in self.hs_points(k) {
-            let (w1, w2) = (-alpha * h / 6.0, -beta * h / 8.0);
-            let f = PointFn { nlp: self, t, div_weight: 0.0, mu: None };
-            let (_, jr) = ad::jacobian(&f, &self.hs_point_local(local, off));
-            for r in 0..ns {
-                for j in 0..jr.ncols() {
-                    let c = self.hs_point_index(nv, off, j);
-                    jac[(r, c)] += w1 * jr[(r, j)];
-                    jac[(ns + r, c)] += w2 * jr[(r, j)];
-                }
-            }
-            // ∂r_i/∂a = G, ∂r_i/∂b = (σ_i − ½) G on the noisy rows.
-            for r in 0..nx {
-                for j in 0..nx {
-                    let gv = gm[r + j * nx];
-                    jac[(r, 3 * ns + j)] += w1 * gv;
-                    jac[(ns + r, 3 * ns + j)] += w2 * gv;
-                    jac[(r, 3 * ns + nx + j)] += w1 * sigma * gv;
-                    jac[(ns + r, 3 * ns + nx + j)] += w2 * sigma * gv;
-                }
-            }
-        }
-        jac
+        with_buffer(npt, |pl| {
+            with_buffer(ns, |value| {
+                with_buffer(ns * npt, |jr| {
+                    for (t, off, alpha, beta, sigma) in self.hs_points(k) {
+                        let (w1, w2) = (-alpha * h / 6.0, -beta * h / 8.0);
+                        let f = PointFn { nlp: self, t, div_weight: 0.0, mu: None };
+                        self.hs_point_local(local, off, pl);
+                        ad::jacobian_into(&f, pl, value, jr);
+                        for j in 0..npt {
+                            let c = self.hs_point_index(nv, off, j);
+                            for r in 0..ns {
+                                let v = jr[r + j * ns];
+                                jac[r * nv + c] += w1 * v;
+                                jac[(ns + r) * nv + c] += w2 * v;
+                            }
+                        }
+                        // ∂r_i/∂a = G, ∂r_i/∂b = (σ_i − ½) G on the noisy rows.
+                        for r in 0..nx {
+                            for j in 0..nx {
+                                let gv = gm[r + j * nx];
+                                jac[r * nv + 3 * ns + j] += w1 * gv;
+                                jac[(ns + r) * nv + 3 * ns + j] += w2 * gv;
+                                jac[r * nv + 3 * ns + nx + j] += w1 * sigma * gv;
+                                jac[(ns + r) * nv + 3 * ns + nx + j] += w2 * sigma * gv;
+                            }
+                        }
+                    }
+                })
+            })
+        });
     }
 
-    /// Hessian of σ_f(−merit) + λᵀc of a Hermite–Simpson piece: the energy's constant
-    /// diagonal on (a, b), and at each Lobatto point the Hessian in (s_i, θ_e) of
-    /// σ_f (h/12) α_i div_x f + μ_iᵀ [f; h], μ_i = −(h/6) α_i λ₁ − (h/8) β_i λ₂. The noise term
-    /// G(a + (σ − ½)b) is linear (G does not depend on an estimated θ for Hermite–Simpson).
-    fn hs_hessian(&self, k: usize, local: &[f64], obj_factor: f64, lambda: &[f64]) -> nalgebra::DMatrix<f64> {
+    /// The Hessian pattern of a Hermite–Simpson piece, in the order of
+    /// [`Self::hs_hessian_into`]: the lower triangle of each point's (s_i, θ_e) block, then the
+    /// noise diagonal.
+    fn hs_hessian_structure(&self, b: &Block, out: &mut Vec<(usize, usize)>) {
+        let d = self.problem.sde.dims();
+        let (ns, nx) = (d.states(), d.noisy);
+        let nv = b.vars.len();
+        let npt = ns + self.problem.estimate.len();
+        for off in [0, ns, 2 * ns] {
+            for r in 0..npt {
+                let vr = b.vars[self.hs_point_index(nv, off, r)];
+                for c in 0..=r {
+                    let vc = b.vars[self.hs_point_index(nv, off, c)];
+                    out.push((vr.max(vc), vr.min(vc)));
+                }
+            }
+        }
+        for i in 0..2 * nx {
+            let v = b.vars[3 * ns + i];
+            out.push((v, v));
+        }
+    }
+
+    /// Writes the Hessian of σ_f(−merit) + λᵀc of a Hermite–Simpson piece into `values` (the
+    /// block's slots, see [`Self::hs_hessian_structure`]): at each Lobatto point the Hessian in
+    /// (s_i, θ_e) of σ_f (h/12) α_i div_x f + μ_iᵀ [f; h], μ_i = −(h/6) α_i λ₁ − (h/8) β_i λ₂,
+    /// then the energy's constant diagonal on (a, b). The noise term G(a + (σ − ½)b) is linear
+    /// (G does not depend on an estimated θ for Hermite–Simpson).
+    fn hs_hessian_into(&self, k: usize, local: &[f64], obj_factor: f64, lambda: &[f64], values: &mut [f64]) {
         let d = self.problem.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
         let h = self.grid.step;
-        let nv = local.len();
-        let mut hess = nalgebra::DMatrix::zeros(nv, nv);
-        for i in 0..nx {
-            hess[(3 * ns + i, 3 * ns + i)] = obj_factor * h;
-            hess[(3 * ns + nx + i, 3 * ns + nx + i)] = obj_factor * h / 12.0;
-        }
+        let npt = ns + self.problem.estimate.len();
         let om = self.merit == Merit::OnsagerMachlup;
-        for (t, off, alpha, beta, _) in self.hs_points(k) {
-            let mu: Vec<f64> =
-                (0..ns).map(|r| -alpha * h / 6.0 * lambda[r] - beta * h / 8.0 * lambda[ns + r]).collect();
-            let div_weight = if om { obj_factor * alpha * h / 12.0 } else { 0.0 };
-            let f = PointFn { nlp: self, t, div_weight, mu: Some(&mu) };
-            let (_, _, ph) = ad::hessian(&f, &self.hs_point_local(local, off));
-            for a in 0..ph.nrows() {
-                for b in 0..ph.ncols() {
-                    let (ia, ib) = (self.hs_point_index(nv, off, a), self.hs_point_index(nv, off, b));
-                    hess[(ia, ib)] += ph[(a, b)];
-                }
-            }
+        let mut slot = 0;
+        with_buffer(ns, |mu| {
+            with_buffer(npt, |pl| {
+                with_buffer(npt, |pg| {
+                    with_buffer(npt * npt, |ph| {
+                        for (t, off, alpha, beta, _) in self.hs_points(k) {
+                            for r in 0..ns {
+                                mu[r] = -alpha * h / 6.0 * lambda[r] - beta * h / 8.0 * lambda[ns + r];
+                            }
+                            let div_weight = if om { obj_factor * alpha * h / 12.0 } else { 0.0 };
+                            let f = PointFn { nlp: self, t, div_weight, mu: Some(mu) };
+                            self.hs_point_local(local, off, pl);
+                            ad::hessian_into(&f, pl, pg, ph);
+                            for r in 0..npt {
+                                for c in 0..=r {
+                                    values[slot] = ph[r + c * npt];
+                                    slot += 1;
+                                }
+                            }
+                        }
+                    })
+                })
+            })
+        });
+        for i in 0..nx {
+            values[slot + i] = obj_factor * h;
+            values[slot + nx + i] = obj_factor * h / 12.0;
         }
-        hess
     }
 
-    fn locals(&self, b: &Block, w: &[f64]) -> Vec<f64> {
-        b.vars.iter().map(|&v| w[v]).collect()
+    /// Copies the local vector of block `b` from `w` into `out` (length `b.vars.len()`).
+    fn locals_into(b: &Block, w: &[f64], out: &mut [f64]) {
+        for (o, &v) in out.iter_mut().zip(&b.vars) {
+            *o = w[v];
+        }
+    }
+}
+
+/// Length of the stack buffers of [`with_buffer`].
+const BUFFER_LEN: usize = 64;
+
+/// Calls `f` with a zeroed buffer of length `len`, on the stack when `len ≤ 64`.
+fn with_buffer<R>(len: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
+    if len <= BUFFER_LEN {
+        f(&mut [0.0; BUFFER_LEN][..len])
+    } else {
+        f(&mut vec![0.0; len])
     }
 }
 
@@ -743,21 +837,27 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
     fn gradient(&mut self, w: &[f64], grad: &mut [f64]) {
         grad.fill(0.0);
         for b in &self.blocks {
-            let local = self.locals(b, w);
-            let g = match self.hs_piece(b) {
-                Some(k) => self.hs_gradient(k, &local),
-                None => ad::gradient(&ObjFn { nlp: self, block: b }, &local).1,
-            };
-            for (&v, gi) in b.vars.iter().zip(g) {
-                grad[v] += gi;
-            }
+            with_buffer(b.vars.len(), |local| {
+                Self::locals_into(b, w, local);
+                match self.hs_piece(b) {
+                    Some(k) => self.hs_gradient_into(k, b, local, grad),
+                    None => {
+                        let g = ad::gradient(&ObjFn { nlp: self, block: b }, local).1;
+                        for (&v, gi) in b.vars.iter().zip(g) {
+                            grad[v] += gi;
+                        }
+                    }
+                }
+            });
         }
     }
 
     fn constraints(&mut self, w: &[f64], c: &mut [f64]) {
         for b in self.blocks.iter().filter(|b| b.rows > 0) {
-            let local = self.locals(b, w);
-            self.block_constraints(b, &local, &mut c[b.row0..b.row0 + b.rows]);
+            with_buffer(b.vars.len(), |local| {
+                Self::locals_into(b, w, local);
+                self.block_constraints(b, local, &mut c[b.row0..b.row0 + b.rows]);
+            });
         }
     }
 
@@ -775,23 +875,32 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
 
     fn jacobian_values(&mut self, w: &[f64], values: &mut [f64]) {
         for b in self.blocks.iter().filter(|b| b.rows > 0) {
-            let local = self.locals(b, w);
-            let j = match self.hs_piece(b) {
-                Some(k) => self.hs_jacobian(k, &local),
-                None => ad::jacobian(&ConFn { nlp: self, block: b }, &local).1,
-            };
             let nv = b.vars.len();
-            for r in 0..b.rows {
-                for c in 0..nv {
-                    values[b.jac0 + r * nv + c] = j[(r, c)];
+            let out = &mut values[b.jac0..b.jac0 + b.rows * nv];
+            with_buffer(nv, |local| {
+                Self::locals_into(b, w, local);
+                match self.hs_piece(b) {
+                    Some(k) => self.hs_jacobian_into(k, local, out),
+                    None => {
+                        let j = ad::jacobian(&ConFn { nlp: self, block: b }, local).1;
+                        for r in 0..b.rows {
+                            for c in 0..nv {
+                                out[r * nv + c] = j[(r, c)];
+                            }
+                        }
+                    }
                 }
-            }
+            });
         }
     }
 
     fn hessian_structure(&self) -> Vec<(usize, usize)> {
         let mut s = Vec::with_capacity(self.n_hess);
         for b in &self.blocks {
+            if self.hs_piece(b).is_some() {
+                self.hs_hessian_structure(b, &mut s);
+                continue;
+            }
             for (i, &vi) in b.vars.iter().enumerate() {
                 for &vj in &b.vars[..=i] {
                     s.push((vi.max(vj), vi.min(vj)));
@@ -802,20 +911,26 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
     }
 
     fn hessian_values(&mut self, w: &[f64], obj_factor: f64, lambda: &[f64], values: &mut [f64]) {
-        for b in &self.blocks {
-            let local = self.locals(b, w);
+        for (bi, b) in self.blocks.iter().enumerate() {
             let lam = &lambda[b.row0..b.row0 + b.rows];
-            let h = match self.hs_piece(b) {
-                Some(k) => self.hs_hessian(k, &local, obj_factor, lam),
-                None => ad::hessian(&LagFn { nlp: self, block: b, obj_factor, lambda: lam }, &local).2,
-            };
-            let mut slot = b.hess0;
-            for i in 0..b.vars.len() {
-                for j in 0..=i {
-                    values[slot] = h[(i, j)];
-                    slot += 1;
+            let end = self.blocks.get(bi + 1).map_or(values.len(), |n| n.hess0);
+            let out = &mut values[b.hess0..end];
+            with_buffer(b.vars.len(), |local| {
+                Self::locals_into(b, w, local);
+                match self.hs_piece(b) {
+                    Some(k) => self.hs_hessian_into(k, local, obj_factor, lam, out),
+                    None => {
+                        let h = ad::hessian(&LagFn { nlp: self, block: b, obj_factor, lambda: lam }, local).2;
+                        let mut slot = 0;
+                        for i in 0..b.vars.len() {
+                            for j in 0..=i {
+                                out[slot] = h[(i, j)];
+                                slot += 1;
+                            }
+                        }
+                    }
                 }
-            }
+            });
         }
     }
 }

@@ -1,0 +1,449 @@
+//! A variable-band (envelope, "skyline") LDLᵀ of the KKT matrix, for problems whose
+//! variables can be ordered so that the matrix is banded — transcriptions of optimal control
+//! and estimation problems, whose variables ordered by time couple only neighbouring
+//! intervals.
+//!
+//! **Ordering.** Reverse Cuthill–McKee (A. George and J. W. H. Liu, *Computer Solution of
+//! Large Sparse Positive Definite Systems*, Prentice-Hall 1981, Sect. 4.3; pseudo-peripheral
+//! start node of Sect. 4.3.2) on the primal graph of $W + J^\top J$, traversed through the
+//! constraint rows so that the cliques of $J^\top J$ are never formed; then, as for
+//! [`FaerLdlt`](super::FaerLdlt), each constraint row is placed right after the last of its
+//! variables, and variables coupled to very many others (static parameters) and dense
+//! constraint rows are ordered last (see [`super::kkt`]). For a time-discretised problem RCM
+//! recovers the time order, and the matrix becomes a band of width a few intervals plus a
+//! border of the parameter rows.
+//!
+//! **Storage and factorisation.** Row $p$ of the lower triangle is stored densely from its
+//! first nonzero column $f_p$ to the diagonal (George & Liu, Sect. 4.1, the envelope
+//! scheme); $LDL^\top$ without pivoting fills in only inside this envelope (ibid.,
+//! Theorem 4.1.1). The factorisation is the row-by-row (bordering) form of George & Liu,
+//! Sect. 4.2.1, written for $LDL^\top$: for $j = f_p, \dots, p-1$,
+//! $u_{pj} = a_{pj} - \sum_{k=\max(f_p, f_j)}^{j-1} u_{pk}\, l_{jk}$ with $u_{pk} = l_{pk} d_k$,
+//! then $l_{pj} = u_{pj}/d_j$ and $d_p = a_{pp} - \sum_j u_{pj} l_{pj}$. Each inner sum is a dot
+//! product of two contiguous slices. Pivots with $|d| \le 10^{-30}\max|K_{ij}|$ are replaced by
+//! $\pm 10^{-12}\max|K_{ij}|$, exactly as faer's dynamic regularisation in
+//! [`FaerLdlt`](super::FaerLdlt), and the inertia is read from the signs of $D$.
+//!
+//! No sorting is needed anywhere: the slot of entry $(p, j)$ is `row_ptr[p] + j − f_p`.
+
+// Loops over matrix positions index several arrays (pattern, values, permutation) at once.
+#![allow(clippy::needless_range_loop)]
+
+use super::kkt::{FactorInfo, Inertia, KktSolver, KktStructure, KktValues};
+use crate::{Error, Result};
+
+/// Largest mean envelope width (stored entries per row) accepted by [`BandLdlt::analyse`] in
+/// its default setting; wider matrices are better served by the general sparse
+/// [`FaerLdlt`](super::FaerLdlt).
+pub const DEFAULT_MAX_MEAN_WIDTH: usize = 64;
+
+/// Variable-band LDLᵀ of the KKT matrix (see the [module documentation](self)).
+#[derive(Debug, Default)]
+pub struct BandLdlt {
+    n: usize,
+    m: usize,
+    /// `perm[p]` = original row of position `p`.
+    perm: Vec<usize>,
+    /// First stored column of each row.
+    first: Vec<usize>,
+    /// Start of each row in `values` / `factor`; the row's diagonal is at `row_ptr[p + 1] − 1`.
+    row_ptr: Vec<usize>,
+    /// Assembled lower envelope of the matrix.
+    values: Vec<f64>,
+    /// The factor: unit-lower L below the diagonal, D on the diagonal.
+    factor: Vec<f64>,
+    inv_d: Vec<f64>,
+    hess_map: Vec<usize>,
+    jac_map: Vec<usize>,
+    diag_map: Vec<usize>,
+    work_x: Vec<f64>,
+    work_r: Vec<f64>,
+    work_b: Vec<f64>,
+    work_prev: Vec<f64>,
+    norm_k: f64,
+    last_residual: f64,
+    factored: bool,
+    /// Maximum number of iterative refinement steps (default 10).
+    pub max_refinement_steps: usize,
+    /// Largest mean envelope width accepted by the analysis (default
+    /// [`DEFAULT_MAX_MEAN_WIDTH`]); a wider envelope is an error.
+    pub max_mean_width: usize,
+}
+
+impl BandLdlt {
+    /// A solver with default settings; call [`KktSolver::analyse`] before use.
+    pub fn new() -> Self {
+        Self { max_refinement_steps: 10, max_mean_width: DEFAULT_MAX_MEAN_WIDTH, ..Default::default() }
+    }
+
+    /// Number of stored entries of the envelope (lower triangle with the diagonal), which is
+    /// also the number of entries of the factor.
+    pub fn envelope_size(&self) -> usize {
+        self.values.len()
+    }
+
+    /// ‖b − K x‖∞ / ‖b‖∞ after the last solve.
+    pub fn last_relative_residual(&self) -> f64 {
+        self.last_residual
+    }
+
+    /// The ordering: `perm[p]` = original row at position `p`.
+    pub fn permutation(&self) -> &[usize] {
+        &self.perm
+    }
+
+    /// y = K x in permuted coordinates, from the stored lower envelope.
+    fn sym_matvec(&self, x: &[f64], y: &mut [f64]) {
+        y.fill(0.0);
+        for p in 0..x.len() {
+            let (f, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1] - 1);
+            let row = &self.values[start..end];
+            let xp = x[p];
+            let acc = self.values[end] * xp + dot(row, &x[f..p]);
+            for (yk, &a) in y[f..p].iter_mut().zip(row) {
+                *yk += a * xp;
+            }
+            y[p] += acc;
+        }
+    }
+
+    /// x ← (L D Lᵀ)⁻¹ x in permuted coordinates.
+    fn solve_permuted(&self, x: &mut [f64]) {
+        let dim = x.len();
+        for p in 0..dim {
+            let (f, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1] - 1);
+            x[p] -= dot(&self.factor[start..end], &x[f..p]);
+        }
+        for p in 0..dim {
+            x[p] *= self.inv_d[p];
+        }
+        for p in (0..dim).rev() {
+            let (f, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1] - 1);
+            let xp = x[p];
+            for (xk, &l) in x[f..p].iter_mut().zip(&self.factor[start..end]) {
+                *xk -= l * xp;
+            }
+        }
+    }
+}
+
+/// Σ aᵢbᵢ over the common length, with four independent accumulators (written with exact
+/// chunks so that no bounds are checked in the loop).
+#[inline]
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let (ac, bc) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ar, br) = (ac.remainder(), bc.remainder());
+    let mut acc = [0.0f64; 4];
+    for (x, y) in ac.zip(bc) {
+        acc[0] += x[0] * y[0];
+        acc[1] += x[1] * y[1];
+        acc[2] += x[2] * y[2];
+        acc[3] += x[3] * y[3];
+    }
+    let mut s = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+    for (x, y) in ar.iter().zip(br) {
+        s += x * y;
+    }
+    s
+}
+
+/// Compressed rows of a pattern: `ptr` (length `rows + 1`) and `idx`, built by counting
+/// (no sorting; duplicates kept).
+fn compress(rows: usize, pairs: impl Iterator<Item = (usize, usize)> + Clone) -> (Vec<usize>, Vec<usize>) {
+    let mut ptr = vec![0usize; rows + 1];
+    for (r, _) in pairs.clone() {
+        ptr[r + 1] += 1;
+    }
+    for r in 0..rows {
+        ptr[r + 1] += ptr[r];
+    }
+    let mut fill = ptr[..rows].to_vec();
+    let mut idx = vec![0usize; ptr[rows]];
+    for (r, c) in pairs {
+        idx[fill[r]] = c;
+        fill[r] += 1;
+    }
+    (ptr, idx)
+}
+
+/// Reverse Cuthill–McKee order of the variables that are not `dense` (George & Liu 1981,
+/// Sect. 4.3), in the graph where two variables are adjacent when they share a Hessian entry
+/// or a (non-dense) constraint row. Returns `order[p]` = variable at position `p`.
+fn rcm_order(s: &KktStructure<'_>, dense_var: &[bool], dense_row: &[bool]) -> Vec<usize> {
+    let n = s.n;
+    let keep = |i: usize| !dense_var[i];
+    // Hessian neighbours (both directions, no diagonal)
+    let hess_pairs = s
+        .hessian
+        .iter()
+        .filter(move |&&(i, j)| i != j && keep(i) && keep(j))
+        .flat_map(|&(i, j)| [(i, j), (j, i)]);
+    let (h_ptr, h_idx) = compress(n, hess_pairs);
+    // constraint rows of each variable and variables of each row
+    let jac = s.jacobian.iter().filter(|&&(r, c)| !dense_row[r] && keep(c));
+    let (v_ptr, v_rows) = compress(n, jac.clone().map(|&(r, c)| (c, r)));
+    let (r_ptr, r_vars) = compress(s.m, jac.map(|&(r, c)| (r, c)));
+    let degree: Vec<usize> = (0..n)
+        .map(|i| {
+            h_ptr[i + 1] - h_ptr[i]
+                + v_rows[v_ptr[i]..v_ptr[i + 1]].iter().map(|&r| r_ptr[r + 1] - r_ptr[r] - 1).sum::<usize>()
+        })
+        .collect();
+    let mut level = vec![usize::MAX; n];
+    let mut order: Vec<usize> = Vec::with_capacity(n);
+    let mut next: Vec<usize> = Vec::new();
+    // Breadth-first search from `root`, marking visited vertices with `mark`; appends the
+    // visit order to `out` (neighbours in increasing degree: Cuthill–McKee) and returns the
+    // position in `out` where the last level starts and the number of levels.
+    let bfs = |root: usize, level: &mut [usize], out: &mut Vec<usize>, next: &mut Vec<usize>, mark: usize| {
+        let begin = out.len();
+        level[root] = mark;
+        out.push(root);
+        let (mut head, mut last_level_start, mut level_end, mut depth) = (begin, begin, begin + 1, 1);
+        while head < out.len() {
+            if head == level_end {
+                last_level_start = head;
+                level_end = out.len();
+                depth += 1;
+            }
+            let v = out[head];
+            head += 1;
+            next.clear();
+            for &u in &h_idx[h_ptr[v]..h_ptr[v + 1]] {
+                if level[u] != mark {
+                    level[u] = mark;
+                    next.push(u);
+                }
+            }
+            for &r in &v_rows[v_ptr[v]..v_ptr[v + 1]] {
+                for &u in &r_vars[r_ptr[r]..r_ptr[r + 1]] {
+                    if level[u] != mark {
+                        level[u] = mark;
+                        next.push(u);
+                    }
+                }
+            }
+            next.sort_unstable_by_key(|&u| (degree[u], u));
+            out.extend_from_slice(next);
+        }
+        (last_level_start, depth)
+    };
+    let mut scratch: Vec<usize> = Vec::new();
+    let mut stamp = 0usize;
+    for start in 0..n {
+        if !keep(start) || level[start] != usize::MAX {
+            continue;
+        }
+        // pseudo-peripheral root (George & Liu, Sect. 4.3.2): restart from a vertex of
+        // minimum degree in the last level while the number of levels grows
+        let mut root = start;
+        let mut best_depth = 0usize;
+        for _ in 0..5 {
+            stamp += 1;
+            // distinct from usize::MAX (unvisited) and from 0 (ordered)
+            let mark = usize::MAX - stamp;
+            scratch.clear();
+            let (last, depth) = bfs(root, &mut level, &mut scratch, &mut next, mark);
+            let candidate = scratch[last..].iter().copied().min_by_key(|&u| (degree[u], u)).unwrap_or(root);
+            for &u in &scratch {
+                level[u] = usize::MAX;
+            }
+            if depth <= best_depth {
+                break;
+            }
+            best_depth = depth;
+            root = candidate;
+        }
+        let begin = order.len();
+        bfs(root, &mut level, &mut order, &mut next, 0);
+        order[begin..].reverse();
+    }
+    order
+}
+
+impl KktSolver for BandLdlt {
+    fn analyse(&mut self, s: &KktStructure<'_>) -> Result<()> {
+        let (n, m) = (s.n, s.m);
+        let dim = n + m;
+        self.n = n;
+        self.m = m;
+        self.factored = false;
+        let (dense_var, dense_row) = super::kkt::dense_variables_and_rows(s);
+        let order = rcm_order(s, &dense_var, &dense_row);
+        let mut pos = vec![usize::MAX; n];
+        for (p, &v) in order.iter().enumerate() {
+            pos[v] = p;
+        }
+        self.perm = super::kkt::place_constraints(s, &order, &pos, &dense_var, &dense_row);
+        let mut iperm = vec![0usize; dim];
+        for (p, &g) in self.perm.iter().enumerate() {
+            iperm[g] = p;
+        }
+        // envelope: first stored column of each row
+        let mut first: Vec<usize> = (0..dim).collect();
+        let lower = |a: usize, b: usize| if a >= b { (a, b) } else { (b, a) };
+        let entries = s
+            .hessian
+            .iter()
+            .map(|&(i, j)| lower(iperm[i], iperm[j]))
+            .chain(s.jacobian.iter().map(|&(r, c)| lower(iperm[n + r], iperm[c])));
+        for (r, c) in entries.clone() {
+            first[r] = first[r].min(c);
+        }
+        let mut row_ptr = vec![0usize; dim + 1];
+        for p in 0..dim {
+            row_ptr[p + 1] = row_ptr[p] + (p - first[p] + 1);
+        }
+        let size = row_ptr[dim];
+        if size > self.max_mean_width.saturating_mul(dim.max(1)) {
+            return Err(Error::InvalidOption {
+                name: "linear_solver".into(),
+                reason: format!(
+                    "the KKT matrix is not banded: its envelope has {size} entries for dimension {dim}"
+                ),
+            });
+        }
+        let slot = |(r, c): (usize, usize)| row_ptr[r] + (c - first[r]);
+        self.hess_map = s.hessian.iter().map(|&(i, j)| slot(lower(iperm[i], iperm[j]))).collect();
+        self.jac_map = s.jacobian.iter().map(|&(r, c)| slot(lower(iperm[n + r], iperm[c]))).collect();
+        self.diag_map = (0..dim).map(|g| row_ptr[iperm[g] + 1] - 1).collect();
+        self.first = first;
+        self.row_ptr = row_ptr;
+        self.values = vec![0.0; size];
+        self.factor = vec![0.0; size];
+        self.inv_d = vec![0.0; dim];
+        self.work_x = vec![0.0; dim];
+        self.work_r = vec![0.0; dim];
+        self.work_b = vec![0.0; dim];
+        self.work_prev = vec![0.0; dim];
+        Ok(())
+    }
+
+    fn factorize(&mut self, v: &KktValues<'_>) -> Option<FactorInfo> {
+        let (n, m) = (self.n, self.m);
+        let dim = n + m;
+        self.factored = false;
+        if self.row_ptr.len() != dim + 1 {
+            return None; // `analyse` was not called
+        }
+        self.values.fill(0.0);
+        for (k, &s) in self.hess_map.iter().enumerate() {
+            self.values[s] += v.hessian[k];
+        }
+        for (k, &s) in self.jac_map.iter().enumerate() {
+            self.values[s] += v.jacobian[k];
+        }
+        for i in 0..n {
+            self.values[self.diag_map[i]] += v.primal_diagonal[i] + v.delta_w;
+        }
+        for r in 0..m {
+            self.values[self.diag_map[n + r]] -= v.delta_c;
+        }
+        let mut max_abs = 0.0f64;
+        let mut row_sums = std::mem::take(&mut self.work_r);
+        row_sums.fill(0.0);
+        for p in 0..dim {
+            let (f, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1]);
+            for (k, &a) in self.values[start..end].iter().enumerate() {
+                if !a.is_finite() {
+                    self.work_r = row_sums;
+                    return None;
+                }
+                let a = a.abs();
+                max_abs = max_abs.max(a);
+                row_sums[p] += a;
+                if f + k != p {
+                    row_sums[f + k] += a;
+                }
+            }
+        }
+        self.norm_k = row_sums.iter().fold(0.0f64, |a, &b| a.max(b));
+        self.work_r = row_sums;
+        let scale = if max_abs > 0.0 { max_abs } else { 1.0 };
+        let (eps, delta) = (1e-30 * scale, 1e-12 * scale);
+        let mut regularized = 0usize;
+        let mut inertia = Inertia::default();
+        self.factor.copy_from_slice(&self.values);
+        for p in 0..dim {
+            let (fp, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1] - 1);
+            let (done, rest) = self.factor.split_at_mut(start);
+            let row = &mut rest[..end - start + 1];
+            // u_pj = a_pj − Σ_k u_pk l_jk  (row p holds u_p· for the columns already done)
+            let (first, row_ptr) = (&self.first[fp..p], &self.row_ptr[fp..p + 1]);
+            for (jj, (&fj, ptr)) in first.iter().zip(row_ptr.windows(2)).enumerate() {
+                // column j = fp + jj; row j is stored at ptr[0]..ptr[1] (diagonal last)
+                let k0 = fp.max(fj);
+                let rj = &done[ptr[0] + (k0 - fj)..ptr[1] - 1];
+                let (head, tail) = row.split_at_mut(jj);
+                tail[0] -= dot(&head[k0 - fp..], rj);
+            }
+            let (offdiag, diag) = row.split_at_mut(p - fp);
+            let mut d = diag[0];
+            for (u, &inv) in offdiag.iter_mut().zip(&self.inv_d[fp..p]) {
+                let l = *u * inv;
+                d -= *u * l;
+                *u = l;
+            }
+            if d.abs() <= eps {
+                d = if d < 0.0 { -delta } else { delta };
+                regularized += 1;
+            }
+            if !d.is_finite() {
+                return None;
+            }
+            diag[0] = d;
+            self.inv_d[p] = 1.0 / d;
+            if d > 0.0 {
+                inertia.positive += 1;
+            } else {
+                inertia.negative += 1;
+            }
+        }
+        self.factored = true;
+        Some(FactorInfo { inertia, regularized_pivots: regularized })
+    }
+
+    fn solve_in_place(&mut self, rhs: &mut [f64]) -> f64 {
+        let dim = self.n + self.m;
+        if !self.factored {
+            rhs.fill(f64::NAN);
+            self.last_residual = f64::INFINITY;
+            return self.last_residual;
+        }
+        let mut b = std::mem::take(&mut self.work_b);
+        let mut x = std::mem::take(&mut self.work_x);
+        let mut r = std::mem::take(&mut self.work_r);
+        let mut prev = std::mem::take(&mut self.work_prev);
+        for p in 0..dim {
+            b[p] = rhs[self.perm[p]];
+        }
+        self.last_residual = super::kkt::refine(
+            &b,
+            &mut x,
+            &mut r,
+            &mut prev,
+            self.norm_k,
+            self.max_refinement_steps,
+            |x, y| self.sym_matvec(x, y),
+            |x| self.solve_permuted(x),
+        );
+        for p in 0..dim {
+            rhs[self.perm[p]] = x[p];
+        }
+        self.work_b = b;
+        self.work_x = x;
+        self.work_r = r;
+        self.work_prev = prev;
+        self.last_residual
+    }
+
+    fn nnz(&self) -> (usize, usize) {
+        (self.hess_map.len() + self.jac_map.len() + self.n + self.m, self.envelope_size())
+    }
+
+    fn name(&self) -> &'static str {
+        "band"
+    }
+}
