@@ -59,52 +59,63 @@ pub fn render_pixmap(scene: &Scene, scale: f64) -> Result<Pixmap> {
         return Err(bad(format!("PNG scale must be positive, got {scale}")));
     }
     let (w, h) = ((scene.width * scale).round(), (scene.height * scale).round());
-    if !(w >= 1.0 && h >= 1.0 && w * h <= 1e8) {
+    if !(w >= 1.0 && h >= 1.0 && w * h <= 6e7) {
         return Err(bad(format!("canvas {w}×{h} device pixels is empty or too large")));
     }
     let (w, h) = (w as u32, h as u32);
     let mut pm = Pixmap::new(w, h).ok_or_else(|| bad("cannot allocate the canvas".into()))?;
     pm.fill(tiny_skia::Color::WHITE);
     let base = Transform::from_scale(scale as f32, scale as f32);
-    let masks: Vec<Option<Mask>> = scene
-        .clips
-        .iter()
-        .map(|r| {
-            let mut m = Mask::new(w, h)?;
-            m.fill_path(&rect_path(r.x, r.y, r.w, r.h)?, FillRule::Winding, true, base);
-            Some(m)
-        })
-        .collect();
-    let mask = |clip: &Option<usize>| clip.and_then(|i| masks.get(i).and_then(|m| m.as_ref()));
+    // One clip mask at a time (a mask is as large as the canvas; a grid of panels has one clip
+    // per panel, and primitives come panel by panel).
+    let mut current: Option<(usize, Option<Mask>)> = None;
     for p in &scene.prims {
+        let clip = match p {
+            Prim::Polyline { clip, .. }
+            | Prim::Polygon { clip, .. }
+            | Prim::Rect { clip, .. }
+            | Prim::Circle { clip, .. } => *clip,
+            Prim::Text { .. } => None,
+        };
+        if let Some(i) = clip {
+            if current.as_ref().map(|(j, _)| *j) != Some(i) {
+                let m = scene.clips.get(i).and_then(|r| {
+                    let mut m = Mask::new(w, h)?;
+                    m.fill_path(&rect_path(r.x, r.y, r.w, r.h)?, FillRule::Winding, true, base);
+                    Some(m)
+                });
+                current = Some((i, m));
+            }
+        }
+        let mask = clip.and_then(|_| current.as_ref().and_then(|(_, m)| m.as_ref()));
         match p {
-            Prim::Polyline { points, color, width, dash, clip } => {
+            Prim::Polyline { points, color, width, dash, .. } => {
                 if let Some(path) = poly_path(points, false) {
-                    pm.stroke_path(&path, &paint(*color), &stroke(*width, dash), base, mask(clip));
+                    pm.stroke_path(&path, &paint(*color), &stroke(*width, dash), base, mask);
                 }
             }
-            Prim::Polygon { points, fill, clip } => {
+            Prim::Polygon { points, fill, .. } => {
                 if let Some(path) = poly_path(points, true) {
-                    pm.fill_path(&path, &paint(*fill), FillRule::Winding, base, mask(clip));
+                    pm.fill_path(&path, &paint(*fill), FillRule::Winding, base, mask);
                 }
             }
-            Prim::Rect { rect, fill, stroke: st, clip } => {
+            Prim::Rect { rect, fill, stroke: st, .. } => {
                 if let Some(path) = rect_path(rect.x, rect.y, rect.w, rect.h) {
                     if let Some(f) = fill {
-                        pm.fill_path(&path, &paint(*f), FillRule::Winding, base, mask(clip));
+                        pm.fill_path(&path, &paint(*f), FillRule::Winding, base, mask);
                     }
                     if let Some((c, sw)) = st {
-                        pm.stroke_path(&path, &paint(*c), &stroke(*sw, &[]), base, mask(clip));
+                        pm.stroke_path(&path, &paint(*c), &stroke(*sw, &[]), base, mask);
                     }
                 }
             }
-            Prim::Circle { cx, cy, r, fill, stroke: st, clip } => {
+            Prim::Circle { cx, cy, r, fill, stroke: st, .. } => {
                 if let Some(path) = PathBuilder::from_circle(*cx as f32, *cy as f32, *r as f32) {
                     if let Some(f) = fill {
-                        pm.fill_path(&path, &paint(*f), FillRule::Winding, base, mask(clip));
+                        pm.fill_path(&path, &paint(*f), FillRule::Winding, base, mask);
                     }
                     if let Some((c, sw)) = st {
-                        pm.stroke_path(&path, &paint(*c), &stroke(*sw, &[]), base, mask(clip));
+                        pm.stroke_path(&path, &paint(*c), &stroke(*sw, &[]), base, mask);
                     }
                 }
             }

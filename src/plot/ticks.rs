@@ -7,6 +7,10 @@ pub(crate) fn widen(lo: f64, hi: f64) -> (f64, f64) {
         return (0.0, 1.0);
     }
     let span = hi - lo;
+    if !span.is_finite() {
+        // Beyond what can be drawn: keep the middle of the range (values outside are clipped).
+        return (lo.max(-1e307), hi.min(1e307));
+    }
     if span <= 1e-12 * lo.abs().max(hi.abs()).max(1e-300) {
         let d = (lo.abs() / 10.0).max(0.5);
         return (lo - d, hi + d);
@@ -51,6 +55,9 @@ pub(crate) fn linear_ticks(lo: f64, hi: f64, target: usize) -> (Vec<f64>, f64) {
 }
 
 fn ticks_with_step(lo: f64, hi: f64, step: f64) -> Vec<f64> {
+    if !(lo.is_finite() && hi.is_finite() && step > 0.0) || (hi - lo) / step > 1e4 {
+        return vec![];
+    }
     let first = (lo / step - 1e-9).ceil() as i64;
     let last = (hi / step + 1e-9).floor() as i64;
     (first..=last.max(first - 1))
