@@ -6,7 +6,8 @@ use std::sync::{Arc, Mutex};
 
 use approx::assert_relative_eq;
 
-use super::kkt::{FaerLdlt, KktSolver, KktStructure, KktValues};
+use super::kkt::{AutoLdlt, FaerLdlt, KktSolver, KktStructure, KktValues};
+use super::BandLdlt;
 use super::*;
 use crate::Error;
 
@@ -917,11 +918,16 @@ fn misuse_is_an_error() {
 
 #[test]
 fn kkt_inertia_and_solve() {
+    check_kkt_inertia_and_solve(&mut FaerLdlt::new());
+    check_kkt_inertia_and_solve(&mut BandLdlt::new());
+    check_kkt_inertia_and_solve(&mut AutoLdlt::new());
+}
+
+fn check_kkt_inertia_and_solve(kkt: &mut dyn KktSolver) {
     // K = [[4, 1, 1], [1, 3, 1], [1, 1, -δc]] with H = [[4,1],[1,3]], J = [1 1]:
     // inertia (2, 1, 0).
     let hess = [(0, 0), (1, 0), (1, 1)];
     let jac = [(0, 0), (0, 1)];
-    let mut kkt = FaerLdlt::new();
     kkt.analyse(&KktStructure { n: 2, m: 1, hessian: &hess, jacobian: &jac }).unwrap();
     let info = kkt
         .factorize(&KktValues {
@@ -985,4 +991,124 @@ fn report_display_is_a_table() {
     assert!(text.contains("status"));
     assert!(text.contains("factorizations"));
     assert!(text.lines().count() >= 8);
+}
+
+/// A random KKT pattern: a banded Hessian (bandwidth 3, plus a few long-range entries) and
+/// constraint rows on nearby variables, with one dense variable (column of every row).
+fn random_kkt(rng: &mut impl rand::RngExt, n: usize, m: usize) -> (Vec<(usize, usize)>, Vec<(usize, usize)>) {
+    let mut hess = Vec::new();
+    for i in 0..n {
+        for j in i.saturating_sub(3)..=i {
+            if i == j || rng.random_bool(0.6) {
+                hess.push((i, j));
+            }
+        }
+    }
+    for _ in 0..3 {
+        let (i, j) = (rng.random_range(0..n), rng.random_range(0..n));
+        hess.push((i.max(j), i.min(j)));
+    }
+    let mut jac = Vec::new();
+    for r in 0..m {
+        let c0 = (r * n / m).min(n - 4);
+        for c in c0..c0 + 4 {
+            if c == c0 || rng.random_bool(0.7) {
+                jac.push((r, c));
+            }
+        }
+        jac.push((r, n - 1)); // the dense (parameter) column
+    }
+    (hess, jac)
+}
+
+#[test]
+fn band_and_faer_agree_on_random_kkt_systems() {
+    // The two KKT solvers factorise the same matrix in different orders; both must report the
+    // inertia of the matrix (Sylvester's law) and solve K x = b to the refinement's accuracy.
+    use rand::{RngExt, SeedableRng};
+    let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+    for trial in 0..20 {
+        let (n, m) = (40 + trial, 10 + trial / 2);
+        let (hess, jac) = random_kkt(&mut rng, n, m);
+        let structure = KktStructure { n, m, hessian: &hess, jacobian: &jac };
+        let hv: Vec<f64> = hess
+            .iter()
+            .map(|&(i, j)| if i == j { rng.random_range(-1.0..4.0) } else { rng.random_range(-1.0..1.0) })
+            .collect();
+        let jv: Vec<f64> = jac.iter().map(|_| rng.random_range(-2.0..2.0)).collect();
+        let sigma: Vec<f64> = (0..n).map(|_| rng.random_range(0.0..1.0)).collect();
+        let values =
+            KktValues { hessian: &hv, jacobian: &jv, primal_diagonal: &sigma, delta_w: 0.5, delta_c: 1e-8 };
+        let b: Vec<f64> = (0..n + m).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let mut faer = FaerLdlt::new();
+        faer.analyse(&structure).unwrap();
+        let mut band = BandLdlt::new();
+        band.analyse(&structure).unwrap();
+        let fi = faer.factorize(&values).unwrap();
+        let bi = band.factorize(&values).unwrap();
+        assert_eq!(fi.regularized_pivots, 0);
+        assert_eq!(bi.regularized_pivots, 0);
+        assert_eq!(fi.inertia, bi.inertia, "trial {trial}");
+        let (mut xf, mut xb) = (b.clone(), b.clone());
+        let rf = faer.solve_in_place(&mut xf);
+        let rb = band.solve_in_place(&mut xb);
+        assert!(rf < 1e-10 && rb < 1e-10, "residuals {rf:.1e} {rb:.1e}");
+        let scale = xf.iter().fold(1.0f64, |a, v| a.max(v.abs()));
+        for (u, v) in xf.iter().zip(&xb) {
+            assert!((u - v).abs() <= 1e-6 * scale, "trial {trial}: {u} vs {v}");
+        }
+    }
+}
+
+/// Solves `p` with the given KKT solver and returns the solution and the step norms ‖d_w‖∞
+/// of every iteration.
+fn steps_with<P: NlpProblem>(p: &mut P, solver: LinearSolver) -> (NlpSolution, Vec<f64>) {
+    let steps = Arc::new(Mutex::new(Vec::new()));
+    let record = Arc::clone(&steps);
+    let options = NlpOptions::default().with_linear_solver(solver).with_callback(move |s| {
+        record.lock().unwrap().push(s.step_norm);
+        ControlFlow::Continue(())
+    });
+    let sol = solve(p, options).unwrap();
+    let steps = steps.lock().unwrap().clone();
+    (sol, steps)
+}
+
+fn assert_same_steps<P: NlpProblem>(make: impl Fn() -> P, expect_band: bool) {
+    let (sf, stf) = steps_with(&mut make(), LinearSolver::Faer);
+    let (sb, stb) = steps_with(&mut make(), LinearSolver::Auto);
+    assert_eq!(sf.report.linear_solver, "faer");
+    assert_eq!(sb.report.linear_solver, if expect_band { "band" } else { "faer" });
+    assert_eq!(sf.report.status, sb.report.status);
+    assert_eq!(sf.report.iterations, sb.report.iterations);
+    assert_eq!(sf.report.numeric_factorizations, sb.report.numeric_factorizations);
+    assert_eq!(sf.report.inertia_correction_factorizations, sb.report.inertia_correction_factorizations);
+    assert_eq!(stf.len(), stb.len());
+    for (a, b) in stf.iter().zip(&stb) {
+        assert!((a - b).abs() <= 1e-6 * a.abs().max(1.0), "step norms {a} vs {b}");
+    }
+    let scale = sf.w.iter().fold(1.0f64, |a, v| a.max(v.abs()));
+    for (a, b) in sf.w.iter().zip(&sb.w) {
+        assert!((a - b).abs() <= 1e-7 * scale, "{a} vs {b}");
+    }
+}
+
+#[test]
+fn band_and_faer_take_the_same_steps() {
+    // The same iterates with either KKT solver, on problems with and without bounds, an
+    // indefinite Hessian (inertia corrections), a dense parameter column and a nonconvex
+    // merit with many iterations.
+    assert_same_steps(hs71, true);
+    assert_same_steps(hs1, true);
+    assert_same_steps(|| DoubleWell::new(2_000), true);
+    assert_same_steps(|| JointDoubleWell { dw: DoubleWell::new(2_000) }, true);
+    assert_same_steps(
+        || {
+            let mut dw = DoubleWell::new(2_000);
+            dw.stride = 100;
+            dw.r = 0.5;
+            OmDoubleWell { dw }
+        },
+        true,
+    );
 }

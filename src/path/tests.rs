@@ -244,3 +244,47 @@ fn likelihood_with_the_wrong_output_count_is_an_error() {
     let err = build_nlp(&prob, &PathOptions::default()).err().unwrap();
     assert!(err.to_string().contains("outputs"), "{err}");
 }
+
+/// The band KKT solver (chosen automatically for these time-ordered programs) and faer's
+/// general sparse LDLᵀ give the same joint Duffing estimate, for every transcription and
+/// merit.
+#[test]
+fn band_and_faer_kkt_solvers_give_the_same_estimate() {
+    use crate::nlp::LinearSolver;
+    let p = preset("duffing").unwrap();
+    let times: Vec<f64> = (0..=20).map(|k| 0.1 * k as f64).collect();
+    let data = data_for(&p, &times);
+    for transcription in [Transcription::HermiteSimpson, Transcription::Trapezoidal, Transcription::Euler] {
+        for merit in [Merit::OnsagerMachlup, Merit::Energy] {
+            let prob = p.problem(&data, &[0, 1, 2]);
+            let run = |solver| {
+                let options = PathOptions::new(merit, transcription)
+                    .with_step(0.025)
+                    .with_laplace(false)
+                    .with_nlp(NlpOptions::default().with_linear_solver(solver));
+                estimate_path(&prob, options).unwrap()
+            };
+            let (faer, auto) = (run(LinearSolver::Faer), run(LinearSolver::Auto));
+            assert_eq!(faer.report.linear_solver, "faer");
+            assert_eq!(auto.report.linear_solver, "band");
+            eprintln!(
+                "{transcription:?} {merit:?}: faer {} / {} iterations, band {} / {}",
+                faer.report.status, faer.report.iterations, auto.report.status, auto.report.iterations
+            );
+            assert_eq!(faer.report.status, crate::Status::Converged);
+            assert_eq!(auto.report.status, faer.report.status);
+            // the orders of elimination differ, so do rounding and which pivots need
+            // regularisation: on these nonconvex programs the iterates may part ways, but both
+            // must reach the same optimum, the band solver in no more iterations (+2)
+            assert!(auto.report.iterations <= faer.report.iterations + 2, "{transcription:?} {merit:?}");
+            for (ra, rf) in auto.estimate.path.values.iter().zip(&faer.estimate.path.values) {
+                for (a, f) in ra.iter().zip(rf) {
+                    assert_relative_eq!(a, f, epsilon = 1e-6, max_relative = 1e-6);
+                }
+            }
+            for (a, f) in auto.estimate.theta.iter().zip(&faer.estimate.theta) {
+                assert_relative_eq!(a, f, epsilon = 1e-6, max_relative = 1e-6);
+            }
+        }
+    }
+}
