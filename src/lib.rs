@@ -54,6 +54,7 @@ pub mod action;
 pub mod data;
 pub mod error;
 pub mod estimate;
+pub mod experiment;
 pub mod kalman;
 pub mod methods;
 pub mod metrics;

@@ -19,7 +19,7 @@ macro_rules! outln {
 
 mod cli;
 
-use cli::{estimate::EstimateArgs, simulate::SimulateArgs};
+use cli::{estimate::EstimateArgs, experiment::ExperimentArgs, simulate::SimulateArgs};
 
 #[derive(Parser)]
 #[command(name = "onsager", version, about = "State-path and parameter estimation in nonlinear SDEs")]
@@ -36,6 +36,8 @@ enum Command {
     Simulate(SimulateArgs),
     /// Estimate the state path (and parameters) of a model from measurements.
     Estimate(EstimateArgs),
+    /// Run Monte Carlo experiments (built-in reproductions of the papers or TOML specs).
+    Experiment(ExperimentArgs),
 }
 
 fn main() -> ExitCode {
@@ -47,6 +49,7 @@ fn main() -> ExitCode {
         }
         Some(Command::Simulate(args)) => cli::simulate::run(&args).map(|()| true),
         Some(Command::Estimate(args)) => cli::estimate::run(&args),
+        Some(Command::Experiment(args)) => cli::experiment::run_command(&args).map(|()| true),
         None => {
             // The main job on the built-in default.
             let Some(Command::Simulate(mut args)) = Cli::parse_from(["onsager", "simulate"]).command else {

@@ -1,6 +1,7 @@
 //! The subcommands of the `onsager` binary. Output goes to stdout here, never in the library.
 
 pub mod estimate;
+pub mod experiment;
 pub mod simulate;
 
 use std::path::Path;

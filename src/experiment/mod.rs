@@ -1,0 +1,38 @@
+//! Monte Carlo experiments: the papers' comparisons as TOML specs, run in parallel with
+//! resumable results, summaries and plots.
+//!
+//! An [`Experiment`] (a TOML document; [`ExperimentSpec`] per scenario) names a built-in model with parameter overrides, how the true path is
+//! simulated (scheme, step, horizon, initial law), how it is measured (times, the likelihood
+//! that generates the data and the one the estimators use), the estimators (any
+//! [`Method`](crate::methods::Method) with its [`MethodOptions`](crate::methods::MethodOptions),
+//! run through [`methods::run`](crate::methods::run)), the metrics, the grid of scenarios, the
+//! number of replicates and the seed. [`run`] simulates every (scenario, replicate) with a seed
+//! derived from (seed, scenario, replicate) ([`replicate_seed`]), so the results do not depend
+//! on the number of threads, and appends one row per estimator to `results.csv` as soon as it
+//! finishes:
+//!
+//! `scenario,replicate,estimator,method,status,iterations,solve_seconds,<metrics>,theta_<p>...,message`
+//!
+//! A method's error is a row with status `error` and its message; a non-converged estimate is
+//! a row with its status. An interrupted run resumes ([`RunOptions::resume`]) without redoing
+//! or losing rows. At the end come `summary.json` ([`report::summary`]) and box plots of the
+//! metrics and of θ̂ with the nominal values, plus one path plot per scenario.
+//!
+//! The metrics ([`Metric`]) are computed by [`crate::metrics`]: the normalised ISE of
+//! `000_74b95e149527c64e.txt (4.1)`, the RMSE to the truth over the estimate's times, the RMSE
+//! to another estimator of the same replicate, and the fraction of time on the true well's side.
+//!
+//! The built-in experiments ([`builtin`], [`BUILTIN`]) reproduce the papers' Monte Carlo
+//! studies; each has a quick version for tests.
+
+pub mod builtin;
+pub mod report;
+pub mod runner;
+pub mod spec;
+
+#[cfg(test)]
+mod tests;
+
+pub use builtin::{builtin, BUILTIN};
+pub use runner::{replicate_seed, run, Progress, Row, RunOptions, RunReport};
+pub use spec::{Estimator, EstimatorSpec, Experiment, ExperimentSpec, Metric, Scenario};

@@ -1,0 +1,672 @@
+//! The experiment specification (TOML) and its expansion into scenarios.
+//!
+//! A spec is parsed with serde (`deny_unknown_fields` everywhere), so an unknown key is an
+//! error that names it; values are then checked against the model (parameter, state and
+//! likelihood names, positive steps, …), each error naming its key (`measurements.every`,
+//! `estimators.jme.estimate`, …).
+//!
+//! The `[grid]` table holds the scenario variables: each entry is a list of values, and the
+//! scenarios are the cartesian product of the lists (in the order of the keys). An entry whose
+//! key contains a dot overrides that spec key (`"simulation.t_end" = [50, 100, 200]`); a key in
+//! an array of tables is addressed by the element's `label` (or `method`), e.g.
+//! `"estimators.euler.options.step"`. An entry without a dot is a variable: every string of the
+//! spec equal to `"{name}"` is replaced by the value (keeping its type) and every other
+//! occurrence of `{name}` inside a string by the value's text, so that
+//! `generate = "mixture:p={p_o},sigma=0.5,sigma_outlier={sigma_o}"` spans a grid of
+//! likelihoods. The `[quick]` table holds dotted-key overrides applied before the grid when the
+//! experiment is run with `--quick` (fewer replicates, shorter horizons, a smaller grid).
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use crate::methods::{Method, MethodOptions};
+use crate::model::library::{self, Preset};
+use crate::model::observation::Noise;
+use crate::model::prior::Prior;
+use crate::model::Sde;
+use crate::simulate::Scheme;
+use crate::{Error, Result};
+
+fn invalid(name: impl Into<String>, reason: impl Into<String>) -> Error {
+    Error::InvalidOption { name: name.into(), reason: reason.into() }
+}
+
+fn one() -> usize {
+    1
+}
+
+/// A Monte Carlo experiment: a model, how to simulate and measure it, the estimators to run on
+/// each replicate, the metrics to record, and the grid of scenarios.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExperimentSpec {
+    /// Name of the experiment (the default output folder is `out/experiments/NAME`).
+    pub name: String,
+    /// What the experiment shows.
+    #[serde(default)]
+    pub description: String,
+    /// The paper's section and figure it reproduces.
+    #[serde(default)]
+    pub source: String,
+    /// Replicates per scenario (≥ 1). Default 1.
+    #[serde(default = "one")]
+    pub replicates: usize,
+    /// Seed of the whole experiment; replicate seeds derive from (seed, scenario, replicate).
+    #[serde(default)]
+    pub seed: u64,
+    /// The model and its parameter overrides.
+    pub model: ModelSpec,
+    /// How the true path is simulated.
+    #[serde(default)]
+    pub simulation: SimulationSpec,
+    /// How the measurements are generated and which likelihood the estimators use.
+    #[serde(default)]
+    pub measurements: MeasurementSpec,
+    /// The estimators run on every replicate.
+    pub estimators: Vec<EstimatorSpec>,
+    /// The metrics of every row (see [`Metric::parse`]). θ̂, status, iterations and
+    /// `solve_seconds` are always recorded.
+    #[serde(default)]
+    pub metrics: Vec<String>,
+    /// Scenario variables: key → list of values (see the module documentation).
+    #[serde(default)]
+    pub grid: toml::Table,
+    /// Dotted-key overrides of the quick version (`--quick`).
+    #[serde(default)]
+    pub quick: toml::Table,
+}
+
+/// The model of an experiment.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelSpec {
+    /// A built-in model (see `onsager models`).
+    pub name: String,
+    /// Parameter values replacing the preset's nominal ones (name → value).
+    #[serde(default)]
+    pub params: BTreeMap<String, f64>,
+}
+
+/// The simulation of the true path (defaults: the model preset's).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimulationSpec {
+    /// Integration scheme (default `ito-taylor-1.5`).
+    pub scheme: Option<Scheme>,
+    /// Integration step (default: the preset's).
+    pub dt: Option<f64>,
+    /// Final time; the path starts at t = 0 (default: the preset's).
+    pub t_end: Option<f64>,
+    /// Law of the initial state, per state name (prior syntax, e.g. `normal:0,0.1`); states not
+    /// listed are drawn from the preset's initial-state prior.
+    #[serde(default)]
+    pub initial: BTreeMap<String, String>,
+}
+
+/// The measurements (defaults: the model preset's).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeasurementSpec {
+    /// Spacing of the measurement times (default: the preset's).
+    pub every: Option<f64>,
+    /// First measurement time (default: the preset's).
+    pub first: Option<f64>,
+    /// Explicit measurement times (instead of `every` and `first`).
+    pub times: Option<Vec<f64>>,
+    /// Likelihood the measurements are drawn from (syntax of `--likelihood`; default: the
+    /// preset's).
+    pub generate: Option<String>,
+    /// Likelihood the estimators use (default: `generate`); an estimator may override it.
+    pub estimate: Option<String>,
+    /// Initial-state prior of the estimators, per state name (default: the preset's).
+    #[serde(default)]
+    pub x0_prior: BTreeMap<String, String>,
+}
+
+/// One estimator of an experiment.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EstimatorSpec {
+    /// The method (any [`Method`]).
+    pub method: Method,
+    /// Its name in the results (default: the method's name); unique within the experiment.
+    pub label: Option<String>,
+    /// Parameters it estimates (jme, mee, pem).
+    #[serde(default)]
+    pub estimate: Vec<String>,
+    /// Likelihood of this estimator (default: `measurements.estimate`), e.g. a Gaussian one for
+    /// the Kalman methods when the others use a Student-t likelihood.
+    pub likelihood: Option<String>,
+    /// The method's options.
+    #[serde(default)]
+    pub options: MethodOptions,
+}
+
+impl EstimatorSpec {
+    /// The label (default: the method's name).
+    pub fn label(&self) -> String {
+        self.label.clone().unwrap_or_else(|| self.method.name().to_string())
+    }
+}
+
+/// A metric recorded for every (replicate, estimator) row.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Metric {
+    /// Normalised integrated square error to the truth over all states,
+    /// `000_74b95e149527c64e.txt (4.1)` (column `ise`).
+    Ise,
+    /// Root-mean-square error to the truth over the estimate's times, all states (`rmse`).
+    Rmse,
+    /// Root-mean-square error to the estimate of another estimator of the same replicate, over
+    /// this estimate's times (`rmse_to_LABEL`).
+    RmseTo(String),
+    /// Fraction of the truth's times at which the estimate of `state` is on the true side of 0
+    /// (the true well of a symmetric double well) (`well_side`).
+    WellSide(Option<String>),
+}
+
+impl Metric {
+    /// Parses `ise`, `rmse`, `rmse-to:LABEL` or `well-side[:STATE]`.
+    pub fn parse(s: &str) -> Result<Metric> {
+        let s = s.trim();
+        match s.split_once(':') {
+            None if s == "ise" => Ok(Metric::Ise),
+            None if s == "rmse" => Ok(Metric::Rmse),
+            None if s == "well-side" => Ok(Metric::WellSide(None)),
+            Some(("rmse-to", label)) if !label.trim().is_empty() => Ok(Metric::RmseTo(label.trim().into())),
+            Some(("well-side", state)) if !state.trim().is_empty() => {
+                Ok(Metric::WellSide(Some(state.trim().into())))
+            }
+            _ => Err(invalid(
+                "metrics",
+                format!("unknown metric `{s}` (known: ise, rmse, rmse-to:LABEL, well-side, well-side:STATE)"),
+            )),
+        }
+    }
+
+    /// The metric's column in `results.csv`.
+    pub fn column(&self) -> String {
+        match self {
+            Metric::Ise => "ise".into(),
+            Metric::Rmse => "rmse".into(),
+            Metric::RmseTo(label) => format!("rmse_to_{label}"),
+            Metric::WellSide(None) => "well_side".into(),
+            Metric::WellSide(Some(s)) => format!("well_side_{s}"),
+        }
+    }
+}
+
+/// One estimator of a scenario, resolved against the model.
+#[derive(Debug, Clone)]
+pub struct Estimator {
+    /// Label in the results.
+    pub label: String,
+    /// The method.
+    pub method: Method,
+    /// The preset the estimator sees: the scenario's model with the estimator's likelihood and
+    /// the estimators' initial-state prior.
+    pub preset: Preset,
+    /// Indices of the estimated parameters.
+    pub estimate: Vec<usize>,
+    /// The method's options.
+    pub options: MethodOptions,
+}
+
+/// One point of the grid, resolved: everything a replicate needs.
+#[derive(Debug, Clone)]
+pub struct Scenario {
+    /// `default` without a grid, else `var=value` pairs joined by `,`.
+    pub name: String,
+    /// The grid values of this scenario (key, value as text).
+    pub vars: Vec<(String, String)>,
+    /// The spec with this scenario's overrides applied.
+    pub spec: ExperimentSpec,
+    /// The model preset with the parameter overrides, horizon, step and generating likelihood.
+    pub truth: Preset,
+    /// Law of the initial state (noisy then clean).
+    pub initial: Vec<Prior>,
+    /// Integration scheme.
+    pub scheme: Scheme,
+    /// Measurement times.
+    pub times: Vec<f64>,
+    /// The estimators.
+    pub estimators: Vec<Estimator>,
+    /// The metrics.
+    pub metrics: Vec<Metric>,
+}
+
+/// An experiment as written: the TOML document, whose typed form ([`ExperimentSpec`]) exists
+/// per scenario once the grid variables are substituted.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Experiment {
+    table: toml::Table,
+    /// The spec of the first scenario of the full version (name, description, source,
+    /// replicates, seed, estimators as written there).
+    pub spec: ExperimentSpec,
+}
+
+impl Experiment {
+    /// Parses a TOML document and checks every scenario of its full and quick versions.
+    ///
+    /// Errors: [`Error::InvalidOption`] naming the key at fault: the TOML parser's message
+    /// (with the line) for a syntax error; `section.key` for an unknown key or an invalid value
+    /// (e.g. `measurements.every`, `estimators.jme.options.step`).
+    pub fn from_toml(text: &str) -> Result<Experiment> {
+        let table: toml::Table =
+            toml::from_str(text).map_err(|e| invalid("spec", e.to_string().trim_end().to_string()))?;
+        let mut experiment = Experiment { table, spec: placeholder() };
+        experiment.spec = experiment.scenarios(false)?.remove(0).spec;
+        experiment.scenarios(true)?;
+        Ok(experiment)
+    }
+
+    /// Replaces the number of replicates per scenario.
+    pub fn with_replicates(mut self, replicates: usize) -> Experiment {
+        self.table
+            .insert("replicates".into(), toml::Value::Integer(replicates.min(i64::MAX as usize) as i64));
+        self.spec.replicates = replicates;
+        self
+    }
+
+    /// Replaces the seed.
+    pub fn with_seed(mut self, seed: u64) -> Experiment {
+        // TOML integers are i64: the seed is stored bit for bit.
+        self.table.insert("seed".into(), toml::Value::Integer(seed as i64));
+        self.spec.seed = seed;
+        self
+    }
+
+    /// The document as TOML text (with any replaced replicates or seed).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(&self.table).unwrap_or_default()
+    }
+
+    /// The scenarios (after the `[quick]` overrides when `quick`), each resolved and checked.
+    /// Errors name the key at fault.
+    pub fn scenarios(&self, quick: bool) -> Result<Vec<Scenario>> {
+        let mut raw = self.table.clone();
+        let overrides = match raw.get("quick") {
+            None => toml::Table::new(),
+            Some(toml::Value::Table(t)) => t.clone(),
+            Some(_) => return Err(invalid("quick", "must be a table of `\"dotted.key\" = value` overrides")),
+        };
+        if quick {
+            for (key, value) in &overrides {
+                if key == "quick" || key.starts_with("quick.") {
+                    return Err(invalid(format!("quick.{key}"), "cannot override the quick table"));
+                }
+                set_path(&mut raw, key, value.clone()).map_err(|r| invalid(format!("quick.{key}"), r))?;
+            }
+        }
+        let grid: Vec<(String, Vec<toml::Value>)> = match raw.remove("grid") {
+            None => Vec::new(),
+            Some(toml::Value::Table(t)) => t
+                .into_iter()
+                .map(|(k, v)| match v {
+                    toml::Value::Array(a) if !a.is_empty() => Ok((k, a)),
+                    _ => Err(invalid(format!("grid.{k}"), "must be a non-empty list of values")),
+                })
+                .collect::<Result<_>>()?,
+            Some(_) => return Err(invalid("grid", "must be a table of `key = [values]`")),
+        };
+        raw.remove("quick");
+        // Every variable must be used somewhere.
+        let text = toml::to_string(&raw).unwrap_or_default();
+        for (k, _) in &grid {
+            if !k.contains('.') && !text.contains(&format!("{{{k}}}")) {
+                return Err(invalid(
+                    format!("grid.{k}"),
+                    format!("the variable `{{{k}}}` appears nowhere in the spec"),
+                ));
+            }
+        }
+        let mut scenarios = Vec::new();
+        let count: usize = grid.iter().map(|(_, v)| v.len()).product();
+        for index in 0..count {
+            let mut rest = index;
+            let mut picks = Vec::with_capacity(grid.len());
+            for (k, values) in grid.iter().rev() {
+                picks.push((k.clone(), values[rest % values.len()].clone()));
+                rest /= values.len();
+            }
+            picks.reverse();
+            let mut table = raw.clone();
+            for (k, v) in &picks {
+                if k.contains('.') {
+                    set_path(&mut table, k, v.clone()).map_err(|r| invalid(format!("grid.{k}"), r))?;
+                } else {
+                    substitute_table(&mut table, k, v);
+                }
+            }
+            let vars: Vec<(String, String)> = picks.iter().map(|(k, v)| (k.clone(), value_text(v))).collect();
+            let name = if vars.is_empty() {
+                "default".to_string()
+            } else {
+                vars.iter().map(|(k, v)| format!("{k}={v}")).collect::<Vec<_>>().join(",")
+            };
+            let in_scenario = |e: Error| match e {
+                Error::InvalidOption { name: key, reason } if !vars.is_empty() => {
+                    invalid(key, format!("{reason} (scenario `{name}`)"))
+                }
+                other => other,
+            };
+            let spec = deserialize(&table).map_err(in_scenario)?;
+            scenarios.push(Scenario::resolve(name.clone(), vars.clone(), spec).map_err(in_scenario)?);
+        }
+        Ok(scenarios)
+    }
+}
+
+fn placeholder() -> ExperimentSpec {
+    ExperimentSpec {
+        name: String::new(),
+        description: String::new(),
+        source: String::new(),
+        replicates: 1,
+        seed: 0,
+        model: ModelSpec::default(),
+        simulation: SimulationSpec::default(),
+        measurements: MeasurementSpec::default(),
+        estimators: Vec::new(),
+        metrics: Vec::new(),
+        grid: toml::Table::new(),
+        quick: toml::Table::new(),
+    }
+}
+
+fn de<T: serde::de::DeserializeOwned>(table: &toml::Table) -> std::result::Result<T, String> {
+    T::deserialize(toml::Value::Table(table.clone())).map_err(|e| e.message().trim_end().to_string())
+}
+
+/// The first key of `table` that `T` rejects on its own (a missing field does not count), with
+/// the message; `None` when each key alone is fine.
+fn blame<T: serde::de::DeserializeOwned>(table: &toml::Table) -> Option<(String, String)> {
+    table.iter().find_map(|(k, v)| {
+        let single: toml::Table = [(k.clone(), v.clone())].into_iter().collect();
+        match de::<T>(&single) {
+            Err(m) if !m.starts_with("missing field") => Some((k.clone(), m)),
+            _ => None,
+        }
+    })
+}
+
+/// The key of a section (`model`, `simulation`, `measurements`, an estimator, its `options`)
+/// that its type rejects.
+fn blame_section(section: &str, value: &toml::Value) -> Option<(String, String)> {
+    let t = value.as_table()?;
+    match section {
+        "model" => blame::<ModelSpec>(t),
+        "simulation" => blame::<SimulationSpec>(t),
+        "measurements" => blame::<MeasurementSpec>(t),
+        "options" => blame::<MethodOptions>(t),
+        _ => blame::<EstimatorSpec>(t),
+    }
+}
+
+/// Deserializes a scenario's table; on error, names the key at fault (`section.key`).
+fn deserialize(table: &toml::Table) -> Result<ExperimentSpec> {
+    let message = match de::<ExperimentSpec>(table) {
+        Ok(spec) => return Ok(spec),
+        Err(m) => m,
+    };
+    let Some((key, top)) = blame::<ExperimentSpec>(table) else { return Err(invalid("spec", message)) };
+    let (name, reason) = match (key.as_str(), &table[&key]) {
+        ("estimators", toml::Value::Array(items)) => items
+            .iter()
+            .enumerate()
+            .find_map(|(i, item)| {
+                let t = item.as_table()?;
+                let label = ["label", "method"]
+                    .iter()
+                    .find_map(|k| t.get(*k).and_then(|v| v.as_str()).map(String::from))
+                    .unwrap_or_else(|| i.to_string());
+                if let Some((k, m)) = blame_section("estimator", item) {
+                    if k == "options" {
+                        if let Some((o, m)) = blame_section("options", &t["options"]) {
+                            return Some((format!("estimators.{label}.options.{o}"), m));
+                        }
+                    }
+                    return Some((format!("estimators.{label}.{k}"), m));
+                }
+                de::<EstimatorSpec>(t).err().map(|m| (format!("estimators.{label}"), m))
+            })
+            .unwrap_or((key.clone(), top)),
+        (section @ ("model" | "simulation" | "measurements"), v) => match blame_section(section, v) {
+            Some((k, m)) => (format!("{section}.{k}"), m),
+            None => (key.clone(), top),
+        },
+        _ => (key.clone(), top),
+    };
+    Err(invalid(name, reason))
+}
+
+/// A value as text (strings without quotes).
+fn value_text(v: &toml::Value) -> String {
+    match v {
+        toml::Value::String(s) => s.clone(),
+        other => other.to_string(),
+    }
+}
+
+fn substitute_table(table: &mut toml::Table, var: &str, value: &toml::Value) {
+    for (_, v) in table.iter_mut() {
+        substitute(v, var, value);
+    }
+}
+
+fn substitute(v: &mut toml::Value, var: &str, value: &toml::Value) {
+    let pattern = format!("{{{var}}}");
+    match v {
+        toml::Value::String(s) if *s == pattern => *v = value.clone(),
+        toml::Value::String(s) => *s = s.replace(&pattern, &value_text(value)),
+        toml::Value::Array(a) => a.iter_mut().for_each(|x| substitute(x, var, value)),
+        toml::Value::Table(t) => substitute_table(t, var, value),
+        _ => {}
+    }
+}
+
+/// Sets `value` at the dotted `path` of `table`, creating tables on the way; an array element
+/// is chosen by its index or by its `label` (else `method`).
+fn set_path(table: &mut toml::Table, path: &str, value: toml::Value) -> std::result::Result<(), String> {
+    let parts: Vec<&str> = path.split('.').collect();
+    if parts.iter().any(|p| p.is_empty()) {
+        return Err(format!("`{path}` is not a dotted key"));
+    }
+    let mut current = table;
+    for (i, part) in parts.iter().enumerate() {
+        let last = i + 1 == parts.len();
+        if last {
+            current.insert(part.to_string(), value);
+            return Ok(());
+        }
+        let entry = current.entry(part.to_string()).or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        current = match entry {
+            toml::Value::Table(t) => t,
+            toml::Value::Array(items) => {
+                let key = parts[i + 1];
+                let pos = key.parse::<usize>().ok().filter(|&k| k < items.len()).or_else(|| {
+                    items.iter().position(|item| {
+                        let t = item.as_table();
+                        let name = t.and_then(|t| t.get("label").or_else(|| t.get("method")));
+                        name.and_then(|n| n.as_str()) == Some(key)
+                    })
+                });
+                let Some(pos) = pos else {
+                    return Err(format!("`{}` has no element `{key}`", parts[..=i].join(".")));
+                };
+                if i + 2 == parts.len() {
+                    items[pos] = value;
+                    return Ok(());
+                }
+                // Skip the element's key.
+                let rest = parts[i + 2..].join(".");
+                return match &mut items[pos] {
+                    toml::Value::Table(t) => set_path(t, &rest, value),
+                    _ => Err(format!("`{}` is not a table", parts[..=i + 1].join("."))),
+                };
+            }
+            _ => return Err(format!("`{}` is not a table", parts[..=i].join("."))),
+        };
+    }
+    Ok(())
+}
+
+fn positive(name: &str, v: f64) -> Result<f64> {
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        Err(invalid(name, format!("must be positive and finite, got {v}")))
+    }
+}
+
+fn parse_noise(spec: &str, p: &Preset, key: &str) -> Result<Noise> {
+    Noise::parse(spec, &p.model.param_names()).map_err(|e| match e {
+        Error::InvalidOption { reason, .. } => invalid(key, reason),
+        other => invalid(key, other.to_string()),
+    })
+}
+
+fn parse_state_priors(map: &BTreeMap<String, String>, p: &Preset, key: &str) -> Result<Vec<Prior>> {
+    let names = p.model.state_names();
+    let mut priors: Vec<Prior> = p.x0_prior.iter().chain(&p.z0_prior).cloned().collect();
+    for (state, text) in map {
+        let i = names.iter().position(|n| n == state).ok_or_else(|| {
+            invalid(format!("{key}.{state}"), format!("unknown state (known: {})", names.join(", ")))
+        })?;
+        priors[i] = Prior::parse(text).map_err(|e| invalid(format!("{key}.{state}"), e.to_string()))?;
+    }
+    Ok(priors)
+}
+
+impl Scenario {
+    fn resolve(name: String, vars: Vec<(String, String)>, spec: ExperimentSpec) -> Result<Scenario> {
+        if spec.replicates == 0 {
+            return Err(invalid("replicates", "must be at least 1"));
+        }
+        let mut p = library::preset(&spec.model.name).map_err(|e| invalid("model.name", e.to_string()))?;
+        for (k, &v) in &spec.model.params {
+            p.set_param(k, v).map_err(|e| invalid(format!("model.params.{k}"), e.to_string()))?;
+        }
+        let sim = &spec.simulation;
+        if let Some(dt) = sim.dt {
+            p.dt = positive("simulation.dt", dt)?;
+        }
+        if let Some(t) = sim.t_end {
+            p.t_end = positive("simulation.t_end", t)?;
+        }
+        let m = &spec.measurements;
+        if let Some(e) = m.every {
+            p.sample_every = positive("measurements.every", e)?;
+        }
+        if let Some(f) = m.first {
+            if !(f.is_finite() && (0.0..=p.t_end).contains(&f)) {
+                return Err(invalid(
+                    "measurements.first",
+                    format!("must lie in [0, t_end = {}], got {f}", p.t_end),
+                ));
+            }
+            p.first_sample = f;
+        }
+        let times = match &m.times {
+            Some(t) => {
+                if m.every.is_some() || m.first.is_some() {
+                    return Err(invalid(
+                        "measurements.times",
+                        "give either `times` or `every`/`first`, not both",
+                    ));
+                }
+                if t.is_empty() || t.iter().any(|&x| !(x.is_finite() && (0.0..=p.t_end).contains(&x))) {
+                    return Err(invalid(
+                        "measurements.times",
+                        format!("must be non-empty and within [0, {}]", p.t_end),
+                    ));
+                }
+                if t.windows(2).any(|w| w[1] <= w[0]) {
+                    return Err(invalid("measurements.times", "must be strictly increasing"));
+                }
+                t.clone()
+            }
+            None => p.measurement_times(),
+        };
+        let initial = parse_state_priors(&sim.initial, &p, "simulation.initial")?;
+        let estimator_x0 = parse_state_priors(&m.x0_prior, &p, "measurements.x0_prior")?;
+        let generate = match &m.generate {
+            Some(s) => parse_noise(s, &p, "measurements.generate")?,
+            None => p.observation.noise.clone(),
+        };
+        let estimate_noise = match &m.estimate {
+            Some(s) => parse_noise(s, &p, "measurements.estimate")?,
+            None => generate.clone(),
+        };
+        let mut truth = p.clone();
+        truth.observation.noise = generate;
+        truth.validate().map_err(|e| invalid("model", e.to_string()))?;
+        if spec.estimators.is_empty() {
+            return Err(invalid("estimators", "at least one estimator is required"));
+        }
+        let mut estimators: Vec<Estimator> = Vec::new();
+        for e in &spec.estimators {
+            let label = e.label();
+            let key = format!("estimators.{label}");
+            if label.is_empty() || label.contains(|c: char| c == ',' || c == '"' || c.is_whitespace()) {
+                return Err(invalid(
+                    format!("{key}.label"),
+                    "must be non-empty, without commas, quotes or spaces",
+                ));
+            }
+            if estimators.iter().any(|o| o.label == label) {
+                return Err(invalid(
+                    format!("{key}.label"),
+                    "is used twice; give each estimator its own label",
+                ));
+            }
+            let mut ep = p.clone();
+            ep.observation.noise = match &e.likelihood {
+                Some(s) => parse_noise(s, &p, &format!("{key}.likelihood"))?,
+                None => estimate_noise.clone(),
+            };
+            let n_noisy = ep.dims().noisy;
+            ep.x0_prior = estimator_x0[..n_noisy].to_vec();
+            ep.z0_prior = estimator_x0[n_noisy..].to_vec();
+            ep.validate().map_err(|err| invalid(key.clone(), err.to_string()))?;
+            let estimate = e
+                .estimate
+                .iter()
+                .map(|n| ep.param_index(n).map_err(|err| invalid(format!("{key}.estimate"), err.to_string())))
+                .collect::<Result<Vec<_>>>()?;
+            if !estimate.is_empty() && !e.method.estimates_parameters() {
+                return Err(invalid(
+                    format!("{key}.estimate"),
+                    format!("`{}` takes the parameters as given", e.method),
+                ));
+            }
+            estimators.push(Estimator {
+                label,
+                method: e.method,
+                preset: ep,
+                estimate,
+                options: e.options.clone(),
+            });
+        }
+        let mut metrics = Vec::new();
+        for s in &spec.metrics {
+            let metric = Metric::parse(s)?;
+            match &metric {
+                Metric::RmseTo(label) if !estimators.iter().any(|e| &e.label == label) => {
+                    return Err(invalid("metrics", format!("`{s}`: no estimator is labelled `{label}`")));
+                }
+                Metric::WellSide(Some(state)) if !p.model.state_names().contains(state) => {
+                    return Err(invalid("metrics", format!("`{s}`: unknown state `{state}`")));
+                }
+                _ => {}
+            }
+            if metrics.contains(&metric) {
+                return Err(invalid("metrics", format!("`{s}` is listed twice")));
+            }
+            metrics.push(metric);
+        }
+        let scheme = sim.scheme.unwrap_or(Scheme::ItoTaylor15);
+        Ok(Scenario { name, vars, truth, initial, scheme, times, estimators, metrics, spec })
+    }
+}
