@@ -46,11 +46,13 @@
 //! - [`methods`]: every estimator by name with one set of options, as the CLI and the
 //!   experiments call them.
 //!
+//! - [`compare`]: several estimators on the same data, measured against each other and the truth.
 //! - [`metrics`]: distances between paths (ISE, RMSE, same-well fraction) for comparisons.
 //!
 //! Misuse is an [`Error`]; numerical outcomes are statuses in reports. Randomness is always
 //! injected (`&mut impl Rng`). Library code never prints.
 pub mod action;
+pub mod compare;
 pub mod data;
 pub mod error;
 pub mod estimate;

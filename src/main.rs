@@ -1,7 +1,8 @@
 //! The `onsager` command-line tool.
 //!
 //! With no subcommand it runs the main job on the built-in default: it simulates the
-//! double-well model and writes its measurements and true path as CSV files under `out/`.
+//! double-well model (fixed seed), writes its measurements and true path under `out/`, and
+//! compares the estimators on them (`onsager compare`: table, `out/compare/compare.png`).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -19,7 +20,7 @@ macro_rules! outln {
 
 mod cli;
 
-use cli::{estimate::EstimateArgs, experiment::ExperimentArgs, simulate::SimulateArgs};
+use cli::{compare::CompareArgs, estimate::EstimateArgs, experiment::ExperimentArgs, simulate::SimulateArgs};
 
 #[derive(Parser)]
 #[command(name = "onsager", version, about = "State-path and parameter estimation in nonlinear SDEs")]
@@ -36,8 +37,29 @@ enum Command {
     Simulate(SimulateArgs),
     /// Estimate the state path (and parameters) of a model from measurements.
     Estimate(EstimateArgs),
+    /// Run several estimators on the same data: one table (RMSE against the truth, the exact KSP
+    /// mean and the exact mean-optimal estimate), the paths and a plot.
+    Compare(CompareArgs),
     /// Run Monte Carlo experiments (built-in reproductions of the papers or TOML specs).
     Experiment(ExperimentArgs),
+}
+
+/// The main job on the built-in default: simulate the double well (fixed seed), then compare
+/// the estimators on its measurements against the true path.
+fn main_job() -> onsager::Result<bool> {
+    let Some(Command::Simulate(mut sim)) = Cli::parse_from(["onsager", "simulate"]).command else {
+        unreachable!("`onsager simulate` parses as the simulate command")
+    };
+    sim.out = PathBuf::from("out/double-well.csv");
+    sim.truth = Some(PathBuf::from("out/double-well-truth.csv"));
+    cli::simulate::run(&sim)?;
+    let Some(Command::Compare(mut cmp)) =
+        Cli::parse_from(["onsager", "compare", "--data", "out/double-well.csv"]).command
+    else {
+        unreachable!("`onsager compare` parses as the compare command")
+    };
+    cmp.truth = sim.truth;
+    cli::compare::run(&cmp)
 }
 
 fn main() -> ExitCode {
@@ -49,16 +71,9 @@ fn main() -> ExitCode {
         }
         Some(Command::Simulate(args)) => cli::simulate::run(&args).map(|()| true),
         Some(Command::Estimate(args)) => cli::estimate::run(&args),
+        Some(Command::Compare(args)) => cli::compare::run(&args),
         Some(Command::Experiment(args)) => cli::experiment::run_command(&args).map(|()| true),
-        None => {
-            // The main job on the built-in default.
-            let Some(Command::Simulate(mut args)) = Cli::parse_from(["onsager", "simulate"]).command else {
-                unreachable!("`onsager simulate` parses as the simulate command")
-            };
-            args.out = PathBuf::from("out/double-well.csv");
-            args.truth = Some(PathBuf::from("out/double-well-truth.csv"));
-            cli::simulate::run(&args).map(|()| true)
-        }
+        None => main_job(),
     };
     match result {
         Ok(true) => ExitCode::SUCCESS,

@@ -28,7 +28,8 @@ use serde::{Deserialize, Serialize};
 use crate::action::exact::check_grid_covers;
 use crate::action::fokker_planck::check_model_fits_grid;
 use crate::action::{
-    ksp_path_estimate, ksp_smoother, mean_optimal, mean_optimal_path_estimate, ExactOptions, Grid, GridSpec,
+    closure_estimate, ksp_path_estimate, ksp_smoother, mean_optimal, mean_optimal_path_estimate, ClosureKind,
+    ClosureOptions, ExactOptions, Grid, GridSpec,
 };
 use crate::estimate::{default_initial_time, EstimationProblem, PathEstimate};
 use crate::kalman::{self, KalmanMethod, KalmanOptions, PemOptions};
@@ -65,13 +66,25 @@ pub enum Method {
     Jme,
     /// Minimum-energy path and parameters (`000 (2.58)–(2.60)`).
     Mee,
+    /// Gaussian Rayleigh–Ritz closure of the mean-optimal estimator (`003 (II.36)–(II.53)`).
+    GaussianClosure,
+    /// Exponential-family closure M = (x, …, x^moments) (1-D; `003 (II.36)–(II.53)`).
+    ExpClosure,
+    /// Closure of the KSP smoother (`003 (II.64)–(II.65)`).
+    KspClosure,
+    /// Double-exponential closure (`003 (II.54)–(II.63)`).
+    DoubleExpClosure,
 }
 
 impl Method {
     /// Every method, in the order of the tables.
-    pub const ALL: [Method; 10] = [
+    pub const ALL: [Method; 14] = [
         Method::Ksp,
         Method::MeanOptimal,
+        Method::GaussianClosure,
+        Method::ExpClosure,
+        Method::KspClosure,
+        Method::DoubleExpClosure,
         Method::Jme,
         Method::Mee,
         Method::Ekf,
@@ -95,6 +108,10 @@ impl Method {
             Method::Particle => "particle",
             Method::Jme => "jme",
             Method::Mee => "mee",
+            Method::GaussianClosure => "gaussian-closure",
+            Method::ExpClosure => "exp-closure",
+            Method::KspClosure => "ksp-closure",
+            Method::DoubleExpClosure => "double-exp-closure",
         }
     }
 
@@ -113,12 +130,26 @@ impl Method {
             Method::Particle => "bootstrap particle filter with a backward-simulation smoother",
             Method::Jme => "joint Onsager-Machlup MAP path and parameters (000 eq. 2.49-2.51)",
             Method::Mee => "minimum-energy path and parameters (000 eq. 2.58-2.60)",
+            Method::GaussianClosure => {
+                "Gaussian Rayleigh-Ritz closure of the mean-optimal estimator (003 II.36-II.53)"
+            }
+            Method::ExpClosure => "exponential-family closure M = (x, ..., x^moments), 1-D (003 II.36-II.53)",
+            Method::KspClosure => "closure of the KSP smoother (003 II.64-II.65)",
+            Method::DoubleExpClosure => "double-exponential closure (003 II.54-II.63)",
         }
     }
 
     /// Whether the method runs on a state-space grid (one or two noisy states).
     pub fn uses_grid(self) -> bool {
         matches!(self, Method::Ksp | Method::MeanOptimal)
+    }
+
+    /// Whether the method is a Rayleigh–Ritz closure.
+    pub fn is_closure(self) -> bool {
+        matches!(
+            self,
+            Method::GaussianClosure | Method::ExpClosure | Method::KspClosure | Method::DoubleExpClosure
+        )
     }
 
     /// Whether the method estimates parameters (`--estimate`); the others take θ as given.
@@ -168,6 +199,8 @@ pub struct MethodOptions {
     /// Parameters whose given values are kept as the initial guess of a joint estimate (otherwise
     /// the regression guess of 000 Sec. 4.1 replaces the preset value).
     pub keep_initial: Vec<String>,
+    /// Degree of the exponential closure's moments (default 4: the quartic family).
+    pub moments: Option<usize>,
     /// Largest number of node states for which the path methods compute the Laplace sd
     /// (default 4000; 0 switches it off).
     pub laplace_max_states: Option<usize>,
@@ -195,11 +228,14 @@ impl MethodOptions {
         if self.step.is_some() && !path {
             return reject("step", "the path-space MAP methods (jme, mee)");
         }
+        if self.moments.is_some() && method != Method::ExpClosure {
+            return reject("moments", "`exp-closure`");
+        }
         if self.laplace_max_states.is_some() && !path {
             return reject("laplace-max-states", "the path-space MAP methods (jme, mee)");
         }
-        if self.dt.is_some() && path {
-            return reject("dt", "the grid, Kalman and particle methods (the path methods take `step`)");
+        if self.dt.is_some() && (path || method.is_closure()) {
+            return reject("dt", "the grid, Kalman and particle methods");
         }
         if let Some(dt) = self.dt {
             if !(dt.is_finite() && dt > 0.0) {
@@ -301,6 +337,11 @@ pub fn run<S: Sde + ?Sized>(
             particle::estimate(problem, &particle_options, &mut rng)?
         }
         Method::Jme | Method::Mee => run_path(method, problem, options, &mut notes)?,
+        Method::GaussianClosure | Method::ExpClosure | Method::KspClosure | Method::DoubleExpClosure => {
+            let kind = ClosureKind::parse(method.name(), options.moments)?;
+            let closure_options = ClosureOptions::new().with_t0(default_initial_time(problem.data));
+            closure_estimate(problem, &kind, &closure_options)?
+        }
     };
     Ok(MethodRun { estimate, notes })
 }

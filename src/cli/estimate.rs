@@ -24,7 +24,7 @@ pub fn parse_method(s: &str) -> std::result::Result<Method, String> {
 pub fn methods_help() -> String {
     let mut h = String::from("The estimator:");
     for m in Method::ALL {
-        h.push_str(&format!("\n  {:<14} {}", m.name(), m.description()));
+        h.push_str(&format!("\n  {:<19} {}", m.name(), m.description()));
     }
     h
 }
@@ -59,6 +59,9 @@ pub struct EstimateArgs {
     /// Step of the path-space MAP transcription (default: measurement spacing / 20).
     #[arg(long)]
     pub step: Option<f64>,
+    /// Degree of the exponential closure's moments, M = (x, …, x^D) (default 4).
+    #[arg(long)]
+    pub moments: Option<usize>,
     /// Seed of the methods that draw random numbers.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -80,6 +83,7 @@ impl EstimateArgs {
         o.transcription = self.transcription.clone();
         o.step = self.step;
         o.seed = self.seed;
+        o.moments = self.moments;
         o.keep_initial = self
             .model
             .params

@@ -1,5 +1,6 @@
 //! The subcommands of the `onsager` binary. Output goes to stdout here, never in the library.
 
+pub mod compare;
 pub mod estimate;
 pub mod experiment;
 pub mod simulate;

@@ -174,6 +174,12 @@ pub struct Preset {
 }
 
 impl Preset {
+    /// For a bistable model, the barrier between the wells of its first state (0 for the double
+    /// well, whose drift 4x − 4x³ has stable points ±1); `None` otherwise.
+    pub fn well_barrier(&self) -> Option<f64> {
+        (self.name == "double-well").then_some(0.0)
+    }
+
     /// The model's dimensions.
     pub fn dims(&self) -> Dims {
         self.model.dims()
