@@ -477,7 +477,9 @@ fn upper_csc(dim: usize, entries: &[(usize, usize)]) -> (Vec<usize>, Vec<usize>)
 
 /// Solves `K x = b` given a solver `solve` of the factorised `K` and the product `matvec`, with
 /// iterative refinement: stops when the backward error ‖r‖ / (‖b‖ + ‖K‖‖x‖) is below 1e-15,
-/// stagnates (does not halve), or after `max_steps` refinement steps; keeps the best iterate.
+/// or both it and the relative residual ‖r‖ / ‖b‖ are below 1e-10 (IPOPT's default
+/// `residual_ratio_max`), when it stagnates (does not halve), or after `max_steps` refinement
+/// steps; keeps the best iterate.
 /// Returns ‖b − K x‖∞ / ‖b‖∞. `r` and `prev` are workspaces of the same length.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn refine(
@@ -518,7 +520,14 @@ pub(crate) fn refine(
         }
         best = backward;
         last_residual = if b_norm > 0.0 { r_norm / b_norm } else { r_norm };
-        if !backward.is_finite() || backward <= 1e-15 || step == max_steps {
+        // IPOPT's refinement tolerance on the backward error (residual_ratio_max = 1e-10),
+        // also asked of the relative residual, which the interior-point method checks when
+        // pivots were regularised
+        if !backward.is_finite()
+            || backward <= 1e-15
+            || (backward <= 1e-10 && last_residual <= 1e-10)
+            || step == max_steps
+        {
             break;
         }
         solve(r);
