@@ -119,6 +119,27 @@ fn main() -> onsager::Result<()> {
         ..LinePlot::default()
     };
     many.write(&out.join("many"))?;
-    println!("wrote {}/{{paths,boxes,theta,many}}.{{svg,png}}", out.display());
+    // Many groups: estimator × scenario, labels set vertically.
+    let crowded = BoxPlot {
+        title: "Duffing with outliers: ISE per estimator and outlier probability p_o".into(),
+        y_label: "ISE".into(),
+        groups: ["0.05", "0.1", "0.2", "0.3", "0.4"]
+            .iter()
+            .flat_map(|po| ["JME", "MEE", "UKS", "PEM"].map(|e| format!("{e}, p_o={po}")))
+            .enumerate()
+            .map(|(k, label)| BoxGroup {
+                label,
+                values: (0..30)
+                    .map(|_| (1.0 + 0.05 * k as f64) * (0.3 * noise.sample(&mut rng)).exp())
+                    .collect(),
+            })
+            .collect(),
+        reference_lines: vec![],
+        log_y: false,
+        width: 700,
+        height: 450,
+    };
+    crowded.write(&out.join("crowded"))?;
+    println!("wrote {}/{{paths,boxes,theta,many,crowded}}.{{svg,png}}", out.display());
     Ok(())
 }

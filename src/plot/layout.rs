@@ -86,16 +86,28 @@ fn py(r: &Rect, ax: &Axis, v: f64) -> f64 {
     clamp_coord(r.bottom() - ax.frac(v) * r.h)
 }
 
+/// `size`, or smaller (down to 60 %) so that `text` fits in `width`.
+fn fit_size(text: &str, size: f64, width: f64) -> f64 {
+    let w = text_width(text, size);
+    if w <= width || w <= 0.0 {
+        size
+    } else {
+        (size * width / w).max(0.6 * size)
+    }
+}
+
 /// Title at the top of `area`; returns the y where the content may start.
 fn draw_title(scene: &mut Scene, area: &Rect, title: &str) -> f64 {
     if title.trim().is_empty() {
         return area.y + 12.0;
     }
+    // A long title is set smaller rather than cut at the canvas edges.
+    let size = fit_size(title, TITLE_FONT, area.w - 20.0);
     scene.text(
         area.x + area.w / 2.0,
         area.y + 10.0 + CAP_HEIGHT * TITLE_FONT,
         title,
-        TITLE_FONT,
+        size,
         Anchor::Middle,
         Color::TEXT,
     );
@@ -488,18 +500,33 @@ pub(crate) fn layout_box_plot(scene: &mut Scene, area: Rect, p: &BoxPlot) -> Res
     let max_label = labels.iter().map(|l| text_width(l, TICK_FONT)).fold(0.0, f64::max);
     let n = p.groups.len().max(1);
     let right = area.right() - 18.0;
-    let bottom_for = |rotated: bool| {
-        let labels_h = if rotated { max_label * 0.5 + TICK_FONT } else { TICK_FONT };
+    // Label angle: horizontal when the labels fit their slots, −30° when the slanted labels
+    // (TICK_FONT / sin 30° apart horizontally) do not overlap, else vertical.
+    let bottom_for = |angle: f64| {
+        let a = angle.abs().to_radians();
+        let labels_h = max_label * a.sin() + TICK_FONT * a.cos();
         area.bottom() - (TICK_LEN + 6.0 + labels_h + 10.0)
     };
     // Decide the label rotation with the unrotated layout, then lay out for good.
-    let provisional = Axis::new(y0, y1, log, 0.05, ((bottom_for(false) - top) / 45.0).max(2.0) as usize);
+    let provisional = Axis::new(y0, y1, log, 0.05, ((bottom_for(0.0) - top) / 45.0).max(2.0) as usize);
     let slot = (right - area.x - left_margin(&provisional, &p.y_label)) / n as f64;
-    let rotated = max_label > 0.92 * slot;
-    let bottom = bottom_for(rotated);
+    let angle = if max_label <= 0.92 * slot {
+        0.0
+    } else if slot >= 2.0 * TICK_FONT + 2.0 {
+        -30.0
+    } else {
+        -90.0
+    };
+    let bottom = bottom_for(angle);
     let plot_h = (bottom - top).max(10.0);
     let y_axis = Axis::new(y0, y1, log, 0.05, (plot_h / 45.0).round().max(2.0) as usize);
-    let left = area.x + left_margin(&y_axis, &p.y_label);
+    // A slanted first label reaches left of its box by its width × cos 30°: keep it on the canvas.
+    let first_reach = if angle == -30.0 {
+        labels.first().map_or(0.0, |l| text_width(l, TICK_FONT) * 30f64.to_radians().cos() + 6.0)
+    } else {
+        0.0
+    };
+    let left = area.x + left_margin(&y_axis, &p.y_label).max(first_reach - slot / 2.0);
     let plot = Rect { x: left, y: top, w: (right - left).max(10.0), h: plot_h };
     let slot = plot.w / n as f64;
 
@@ -509,14 +536,24 @@ pub(crate) fn layout_box_plot(scene: &mut Scene, area: Rect, p: &BoxPlot) -> Res
         let cx = plot.x + slot * (k as f64 + 0.5);
         scene.line(vec![(cx, plot.bottom()), (cx, plot.bottom() + TICK_LEN)], Color::AXIS, 1.0, None);
         let ty = plot.bottom() + TICK_LEN + 4.0 + CAP_HEIGHT * TICK_FONT;
-        if rotated {
+        if angle == -90.0 {
+            scene.prims.push(Prim::Text {
+                x: cx + CAP_HEIGHT * TICK_FONT / 2.0,
+                y: plot.bottom() + TICK_LEN + 4.0,
+                text: label.clone(),
+                size: TICK_FONT,
+                anchor: Anchor::End,
+                angle,
+                color: Color::TEXT,
+            });
+        } else if angle != 0.0 {
             scene.prims.push(Prim::Text {
                 x: cx + 4.0,
                 y: ty,
                 text: label.clone(),
                 size: TICK_FONT,
                 anchor: Anchor::End,
-                angle: -30.0,
+                angle,
                 color: Color::TEXT,
             });
         } else {
@@ -657,7 +694,8 @@ pub(crate) fn grid<F: Figure>(title: &str, panels: &[F], columns: usize) -> Resu
     }
     let mut scene = Scene::new(w, h);
     if title_h > 0.0 {
-        scene.text(w / 2.0, 12.0 + CAP_HEIGHT * TITLE_FONT, title, TITLE_FONT, Anchor::Middle, Color::TEXT);
+        let size = fit_size(title, TITLE_FONT, w - 20.0);
+        scene.text(w / 2.0, 12.0 + CAP_HEIGHT * TITLE_FONT, title, size, Anchor::Middle, Color::TEXT);
     }
     if panels.is_empty() {
         let r = Rect { x: 0.0, y: title_h, w, h: h - title_h };

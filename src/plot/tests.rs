@@ -1,3 +1,4 @@
+use super::font::text_width;
 use super::*;
 
 /// Balanced tags (an XML well-formedness check sufficient for our writer: text is escaped, so
@@ -228,6 +229,18 @@ fn box_plot_stats_labels_and_degenerate_groups() {
     let svg = render_svg(&long.scene().unwrap());
     assert_well_formed(&svg);
     assert!(svg.contains("rotate(-30"));
+    let crowded = BoxPlot {
+        groups: (0..60)
+            .map(|i| BoxGroup { label: format!("scenario {i}"), values: vec![i as f64] })
+            .collect(),
+        ..BoxPlot::default()
+    };
+    let scene = crowded.scene().unwrap();
+    let svg = render_svg(&scene);
+    assert_well_formed(&svg);
+    assert!(svg.contains("rotate(-90"));
+    // The vertical labels fit under the plot, inside the canvas.
+    assert!(scene.clips[0].bottom() + text_width("scenario 59", 12.0) < scene.height);
 }
 
 #[test]
