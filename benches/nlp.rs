@@ -20,7 +20,7 @@ use std::hint::black_box;
 use std::time::{Duration, Instant};
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use onsager::nlp::{solve, NlpOptions, NlpProblem, Status};
+use onsager::nlp::{solve, LinearSolver, NlpOptions, NlpProblem, Status};
 
 // The problem (shared with the unit tests of `onsager::nlp`).
 include!("../src/nlp/banded_double_well.rs");
@@ -45,12 +45,15 @@ fn bench_double_well(c: &mut Criterion) {
             total
         })
     });
-    group.bench_function("solve", |b| {
-        b.iter(|| {
-            let mut problem = DoubleWell::new(50_000);
-            black_box(solve(&mut problem, NlpOptions::default()).expect("valid problem"))
-        })
-    });
+    for (name, solver) in [("solve", LinearSolver::Auto), ("solve_faer", LinearSolver::Faer)] {
+        group.bench_function(name, |b| {
+            b.iter(|| {
+                let mut problem = DoubleWell::new(50_000);
+                let options = NlpOptions::default().with_linear_solver(solver);
+                black_box(solve(&mut problem, options).expect("valid problem"))
+            })
+        });
+    }
     group.finish();
 }
 

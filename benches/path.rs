@@ -1,14 +1,20 @@
-//! Benchmark of the path-space MAP estimators (`onsager::path`): Van der Pol JME with a
-//! Student-t likelihood, Hermite–Simpson with step 0.005 on [0, 16] (3200 pieces, 25,602
-//! unknowns; 001_8aefdf0570c96f51.txt Sec. 9), data simulated with seed 1. The issue's target is
-//! a median solve ≤ 35 ms on 2 cores.
+//! Benchmarks of the path-space MAP estimators (`onsager::path`), issue 4's performance targets.
 //!
-//! `path_van_der_pol/jme_hermite_simpson` reports the whole `estimate_path` call without the
-//! Laplace sd (program construction, NLP solve, merit parts).
+//! `path_van_der_pol/*`: Van der Pol JME with a Student-t likelihood, Hermite–Simpson with step
+//! 0.005 on [0, 16] (3200 pieces, 25,602 unknowns; 001_8aefdf0570c96f51.txt Sec. 9), data
+//! simulated with seed 1, spline guess; the whole `estimate_path` call without the Laplace sd
+//! (program construction, NLP solve, merit parts). `jme_hermite_simpson` uses the default KKT
+//! solver (the variable-band LDLᵀ, `onsager::nlp::BandLdlt`), `jme_hermite_simpson_faer` faer's
+//! sparse LDLᵀ, in the same run. Target: median ≤ 35 ms on 2 cores.
 //!
-//! Measured on the development machine (2 shared cores) on 2026-11-21 with the CLI's
-//! `solve_seconds` (seed 1 data, spline guess): 0.59 s for JME (9 iterations: 0.22 s
-//! derivative evaluation, 0.18 s KKT factorisations) and 0.40 s for MEE (9 iterations).
+//! `path_duffing_joint_36k/jme_hermite_simpson`: Duffing joint JME (000_74b95e149527c64e.txt
+//! Sec. 4.1.1, θ = (a, b, d, σ_y) estimated), Hermite–Simpson with 36 pieces per measurement
+//! interval (36,000 pieces, 216,006 unknowns), seed-1 data as in `examples/duffing_large.rs`.
+//! Target: ≤ 0.5 s and ≤ 300 MB.
+//!
+//! Measured on the development machine (2 shared cores, load average 4–6 from other jobs, so
+//! wall times are inflated and noisy) on 2026-11-21; machine-independent counts with them:
+//! NUMBERS_PLACEHOLDER
 
 use std::hint::black_box;
 use std::time::Duration;
@@ -19,7 +25,8 @@ use rand::SeedableRng;
 use onsager::estimate::EstimationProblem;
 use onsager::model::library::preset;
 use onsager::model::observation::{Noise, Param};
-use onsager::path::{estimate_path, spline_guess, Merit, PathOptions, Transcription};
+use onsager::nlp::{LinearSolver, NlpOptions};
+use onsager::path::{estimate_path, regression_theta_guess, spline_guess, Merit, PathOptions, Transcription};
 use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
 
 fn van_der_pol(c: &mut Criterion) {
@@ -45,10 +52,56 @@ fn van_der_pol(c: &mut Criterion) {
     let guess = spline_guess(&p.model, &p.theta, &observation.states, &data, &times).unwrap();
     let mut group = c.benchmark_group("path_van_der_pol");
     group.sample_size(10).measurement_time(Duration::from_secs(60));
+    for (name, solver) in
+        [("jme_hermite_simpson", LinearSolver::Auto), ("jme_hermite_simpson_faer", LinearSolver::Faer)]
+    {
+        group.bench_function(name, |b| {
+            b.iter(|| {
+                let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson)
+                    .with_step(0.005)
+                    .with_laplace(false)
+                    .with_initial_path(guess.clone())
+                    .with_nlp(NlpOptions::default().with_linear_solver(solver));
+                black_box(estimate_path(&problem, options).unwrap())
+            })
+        });
+    }
+    group.finish();
+}
+
+fn duffing_joint_36k(c: &mut Criterion) {
+    let p = preset("duffing").unwrap();
+    let estimate: Vec<usize> = ["a", "b", "d", "sigma_y"].iter().map(|n| p.param_index(n).unwrap()).collect();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+    let x0 = [p.x0_prior[0].sample(&mut rng).unwrap()];
+    let z0 = [p.z0_prior[0].sample(&mut rng).unwrap()];
+    let truth =
+        simulate(&p.model, &p.theta, &x0, &z0, &SimulateOptions::new(0.0, p.t_end, p.dt), &mut rng).unwrap();
+    let data = sample_measurements(&p.observation, &p.theta, &truth, 1, p.sample_every, &mut rng).unwrap();
+    let start =
+        regression_theta_guess(&p.model, &p.observation, &p.theta, &p.theta_prior, &estimate, &data).unwrap();
+    let problem = EstimationProblem {
+        sde: &p.model,
+        observation: &p.observation,
+        theta: &start.theta,
+        theta_prior: &p.theta_prior,
+        estimate: &estimate,
+        x0_prior: &p.x0_prior,
+        z0_prior: &p.z0_prior,
+        data: &data,
+    };
+    let t0 = onsager::estimate::default_initial_time(&data);
+    let step = p.sample_every / 36.0;
+    let nodes = ((data.times.last().unwrap() - t0) / step).round() as usize;
+    let times: Vec<f64> = (0..=nodes).map(|k| t0 + k as f64 * step).collect();
+    let guess = spline_guess(&p.model, &start.theta, &p.observation.states, &data, &times).unwrap();
+    let mut group = c.benchmark_group("path_duffing_joint_36k");
+    group.sample_size(10).measurement_time(Duration::from_secs(60));
     group.bench_function("jme_hermite_simpson", |b| {
         b.iter(|| {
             let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson)
-                .with_step(0.005)
+                .with_t0(t0)
+                .with_step(step)
                 .with_laplace(false)
                 .with_initial_path(guess.clone());
             black_box(estimate_path(&problem, options).unwrap())
@@ -57,5 +110,5 @@ fn van_der_pol(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, van_der_pol);
+criterion_group!(benches, van_der_pol, duffing_joint_36k);
 criterion_main!(benches);

@@ -197,7 +197,13 @@ fn rcm_order(s: &KktStructure<'_>, dense_var: &[bool], dense_row: &[bool]) -> Ve
     // Breadth-first search from `root`, marking visited vertices with `mark`; appends the
     // visit order to `out` (neighbours in increasing degree: Cuthill–McKee) and returns the
     // position in `out` where the last level starts and the number of levels.
-    let bfs = |root: usize, level: &mut [usize], out: &mut Vec<usize>, next: &mut Vec<usize>, mark: usize| {
+    // Sorting by degree matters only for the final order, not for the search of the root.
+    let bfs = |root: usize,
+               level: &mut [usize],
+               out: &mut Vec<usize>,
+               next: &mut Vec<usize>,
+               mark: usize,
+               sorted: bool| {
         let begin = out.len();
         level[root] = mark;
         out.push(root);
@@ -225,7 +231,9 @@ fn rcm_order(s: &KktStructure<'_>, dense_var: &[bool], dense_row: &[bool]) -> Ve
                     }
                 }
             }
-            next.sort_unstable_by_key(|&u| (degree[u], u));
+            if sorted {
+                next.sort_unstable_by_key(|&u| (degree[u], u));
+            }
             out.extend_from_slice(next);
         }
         (last_level_start, depth)
@@ -245,7 +253,7 @@ fn rcm_order(s: &KktStructure<'_>, dense_var: &[bool], dense_row: &[bool]) -> Ve
             // distinct from usize::MAX (unvisited) and from 0 (ordered)
             let mark = usize::MAX - stamp;
             scratch.clear();
-            let (last, depth) = bfs(root, &mut level, &mut scratch, &mut next, mark);
+            let (last, depth) = bfs(root, &mut level, &mut scratch, &mut next, mark, false);
             let candidate = scratch[last..].iter().copied().min_by_key(|&u| (degree[u], u)).unwrap_or(root);
             for &u in &scratch {
                 level[u] = usize::MAX;
@@ -257,7 +265,7 @@ fn rcm_order(s: &KktStructure<'_>, dense_var: &[bool], dense_row: &[bool]) -> Ve
             root = candidate;
         }
         let begin = order.len();
-        bfs(root, &mut level, &mut order, &mut next, 0);
+        bfs(root, &mut level, &mut order, &mut next, 0, true);
         order[begin..].reverse();
     }
     order

@@ -293,16 +293,36 @@ impl FaerLdlt {
 /// fill in completely.
 pub(crate) fn dense_variables_and_rows(s: &KktStructure<'_>) -> (Vec<bool>, Vec<bool>) {
     let (n, m) = (s.n, s.m);
-    let mut row_vars: Vec<Vec<usize>> = vec![Vec::new(); m];
-    for &(r, c) in s.jacobian {
-        row_vars[r].push(c);
+    // the variables of each row (compressed rows by counting, then sorted and deduplicated
+    // within each row)
+    let mut ptr = vec![0usize; m + 1];
+    for &(r, _) in s.jacobian {
+        ptr[r + 1] += 1;
     }
-    for v in &mut row_vars {
+    for r in 0..m {
+        ptr[r + 1] += ptr[r];
+    }
+    let mut vars = vec![0usize; s.jacobian.len()];
+    let mut fill = ptr[..m].to_vec();
+    for &(r, c) in s.jacobian {
+        vars[fill[r]] = c;
+        fill[r] += 1;
+    }
+    let mut len = vec![0usize; m];
+    for r in 0..m {
+        let v = &mut vars[ptr[r]..ptr[r + 1]];
         v.sort_unstable();
-        v.dedup();
+        let mut k = 0;
+        for i in 0..v.len() {
+            if i == 0 || v[i] != v[k - 1] {
+                v[k] = v[i];
+                k += 1;
+            }
+        }
+        len[r] = k;
     }
     let dense_limit = 32.max((10.0 * (n as f64).sqrt()) as usize);
-    let dense_row: Vec<bool> = row_vars.iter().map(|v| v.len() > dense_limit).collect();
+    let dense_row: Vec<bool> = len.iter().map(|&l| l > dense_limit).collect();
     let mut degree = vec![0usize; n];
     for &(i, j) in s.hessian {
         if i != j {
@@ -310,9 +330,9 @@ pub(crate) fn dense_variables_and_rows(s: &KktStructure<'_>) -> (Vec<bool>, Vec<
             degree[j] += 1;
         }
     }
-    for v in row_vars.iter().filter(|v| v.len() <= dense_limit) {
-        for &c in v {
-            degree[c] += v.len() - 1;
+    for r in (0..m).filter(|&r| !dense_row[r]) {
+        for &c in &vars[ptr[r]..ptr[r] + len[r]] {
+            degree[c] += len[r] - 1;
         }
     }
     (degree.iter().map(|&d| d > dense_limit).collect(), dense_row)

@@ -995,7 +995,10 @@ fn report_display_is_a_table() {
 
 /// A random KKT pattern: a banded Hessian (bandwidth 3, plus a few long-range entries) and
 /// constraint rows on nearby variables, with one dense variable (column of every row).
-fn random_kkt(rng: &mut impl rand::RngExt, n: usize, m: usize) -> (Vec<(usize, usize)>, Vec<(usize, usize)>) {
+/// Lists of `(row, column)` pairs.
+type Pattern = Vec<(usize, usize)>;
+
+fn random_kkt(rng: &mut impl rand::RngExt, n: usize, m: usize) -> (Pattern, Pattern) {
     let mut hess = Vec::new();
     for i in 0..n {
         for j in i.saturating_sub(3)..=i {

@@ -11,7 +11,7 @@
 //! inverse). The factorisation is checked to have inertia (n, m, 0): H positive definite on the
 //! null space of A, i.e. a strict local maximum.
 
-use crate::nlp::{FaerLdlt, KktSolver, KktStructure, KktValues, NlpProblem};
+use crate::nlp::{AutoLdlt, KktSolver, KktStructure, KktValues, NlpProblem};
 
 /// Posterior variances of the variables `wanted` at the point `w` with constraint multipliers
 /// `lambda` (the convention of [`crate::nlp`]: ∇f + Jᵀλ = 0). `None` when the KKT matrix
@@ -29,7 +29,7 @@ pub(super) fn laplace_variances<P: NlpProblem>(
     let mut jv = vec![0.0; js.len()];
     nlp.hessian_values(w, 1.0, lambda, &mut hv);
     nlp.jacobian_values(w, &mut jv);
-    let mut solver = FaerLdlt::new();
+    let mut solver = AutoLdlt::new();
     solver.analyse(&KktStructure { n, m, hessian: &hs, jacobian: &js }).ok()?;
     let zeros = vec![0.0; n];
     let info = solver.factorize(&KktValues {
