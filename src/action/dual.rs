@@ -216,6 +216,29 @@ fn residual(lambda: &[f64], z: &[f64], data: &DualData, active: &[usize]) -> f64
     active.iter().map(|&m| (lambda[m] - (data.r[m] - z[m]) / data.variance[m]).abs()).fold(0.0, f64::max)
 }
 
+/// Solves K s = g by Cholesky; when K = ∇²F + R is not positive definite (a Rayleigh–Ritz F
+/// need not be convex, `003_d2fc48a470e528fc.txt` Sec. II.1 after (II.16)) the diagonal is
+/// shifted Levenberg–Marquardt style, τ = 10⁻⁸·max K_ii growing tenfold, so the step stays an
+/// ascent direction with curvature information; the gradient itself as a last resort.
+fn regularized_solve(k: &DMatrix<f64>, g: &DVector<f64>) -> DVector<f64> {
+    if let Some(ch) = k.clone().cholesky() {
+        return ch.solve(g);
+    }
+    let scale = k.diagonal().iter().fold(0.0f64, |m, v| m.max(v.abs())).max(f64::MIN_POSITIVE);
+    let mut tau = 1e-8 * scale;
+    for _ in 0..20 {
+        let mut shifted = k.clone();
+        for i in 0..k.nrows() {
+            shifted[(i, i)] += tau;
+        }
+        if let Some(ch) = shifted.cholesky() {
+            return ch.solve(g);
+        }
+        tau *= 10.0;
+    }
+    g.clone()
+}
+
 /// Maximises the dual Φ(λ) (see the [module documentation](self)) by Newton's method with the
 /// Hessian −(∇²F + R) and a backtracking (Armijo) line search, from `start` (default λ = 0).
 /// Components of missing data stay at their starting values.
@@ -282,10 +305,7 @@ pub fn maximize_dual<A: EffectiveAction + ?Sized>(
             k[(i, i)] += data.variance[mi];
         }
         hessian = Some(h);
-        let step = match k.clone().cholesky() {
-            Some(ch) => ch.solve(&g),
-            None => g.clone(),
-        };
+        let step = regularized_solve(&k, &g);
         let slope = g.dot(&step);
         let phi0 = phi(&lambda, data, &active, cur.value);
         let mut t = 1.0;

@@ -23,6 +23,7 @@ pub use sweep::ClosureAction;
 
 use std::time::Instant;
 
+use nalgebra::DMatrix;
 use onsager_closures::{Exponential, LegendreOptions, TrialFamily};
 use serde_json::json;
 
@@ -108,14 +109,14 @@ pub struct ClosureOptions {
     /// Step of the output grid. Default: the mean measurement spacing / 10 (the horizon / 10
     /// with a single measurement).
     pub output_step: Option<f64>,
-    /// Relative tolerance of the Runge–Kutta integration. Default 1e-8.
+    /// Relative tolerance of the Runge–Kutta integration. Default 1e-6.
     pub rtol: f64,
-    /// Absolute tolerance of the Runge–Kutta integration. Default 1e-10.
+    /// Absolute tolerance of the Runge–Kutta integration. Default 1e-9.
     pub atol: f64,
     /// Support [a, b] of the exponential family (its quadrature grid). Default: the range of
     /// the data and of the x0 prior (mean ± 5 sd), widened by half its width plus 1 on each side.
     pub domain: Option<(f64, f64)>,
-    /// Panels × 8 Gauss–Legendre points of the exponential family's grid. Default 32.
+    /// Panels × 8 Gauss–Legendre points of the exponential family's grid. Default 24.
     pub panels: usize,
     /// Further output times (finite, ≥ `t0`). Default none.
     pub extra_times: Vec<f64>,
@@ -131,10 +132,10 @@ impl Default for ClosureOptions {
         ClosureOptions {
             t0: 0.0,
             output_step: None,
-            rtol: 1e-8,
-            atol: 1e-10,
+            rtol: 1e-6,
+            atol: 1e-9,
             domain: None,
-            panels: 32,
+            panels: 24,
             extra_times: Vec::new(),
             dispersion: true,
             dual: DualOptions::default(),
@@ -286,6 +287,7 @@ struct Solved {
 fn solve<D: ClosureDrift>(
     mut action: ClosureAction<D>,
     data: &DualData,
+    measured_states: &[usize],
     options: &ClosureOptions,
 ) -> Result<Solved> {
     // Start from λ_k = R⁻¹(r_k − ⟨x⟩_prior-propagated): the condition (I.60) at the closure's
@@ -309,13 +311,28 @@ fn solve<D: ClosureDrift>(
     }
     let ok = dual.status.is_success();
     let mut history = action.history(&dual.lambda, ok && options.dispersion)?;
-    let sd = match (&history.cross, &dual.hessian) {
-        (Some(_), _) => {
-            let h = action.hessian(&dual.lambda)?;
+    let sd = match &history.cross {
+        Some(cross) => {
+            // ∇²F from the same tangents: Cov(Z_k, Z_j) is the cross-covariance at t_k.
+            let s = data.output_dim;
+            let m = data.r.len();
+            let times = action.measurement_times().to_vec();
+            let mut h = DMatrix::zeros(m, m);
+            for (k, &tk) in times.iter().enumerate() {
+                let e = history.times.iter().position(|&t| t == tk).ok_or_else(|| {
+                    invalid("closure", "a measurement time is missing from the output times")
+                })?;
+                for b in 0..s {
+                    for j in 0..m {
+                        h[(k * s + b, j)] = cross[e][(measured_states[b], j)];
+                    }
+                }
+            }
+            let h = (&h + h.transpose()) * 0.5;
             let var = super::dispersion::posterior_variance(&history, &h, data)?;
             var.iter().map(|v| v.iter().map(|x| x.max(0.0).sqrt()).collect()).collect()
         }
-        _ => history.variance.iter().map(|v| v.iter().map(|x| x.sqrt()).collect()).collect(),
+        None => history.variance.iter().map(|v| v.iter().map(|x| x.sqrt()).collect()).collect(),
     };
     history.cross = None;
     Ok(Solved { history, sd, dual, sweeps: action.sweeps() })
@@ -474,10 +491,11 @@ pub fn closure_estimate<S: Sde + ?Sized>(
     let start = Instant::now();
     common_checks(problem, options)?;
     let data = gaussian_dual_data(problem)?;
+    let states = &problem.observation.states;
     let solved = match kind {
-        ClosureKind::Gaussian => solve(gaussian_closure_action(problem, options)?, &data, options)?,
+        ClosureKind::Gaussian => solve(gaussian_closure_action(problem, options)?, &data, states, options)?,
         ClosureKind::Exponential { degree } => {
-            solve(exponential_closure_action(problem, *degree, options)?, &data, options)?
+            solve(exponential_closure_action(problem, *degree, options)?, &data, states, options)?
         }
         ClosureKind::Ksp | ClosureKind::DoubleExponential => {
             return Err(invalid("method", format!("{} is not implemented", kind.method_name())))

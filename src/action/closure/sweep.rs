@@ -55,8 +55,8 @@ struct Step {
 struct Forward {
     /// Steps of each interval between consecutive events.
     steps: Vec<Vec<Step>>,
-    /// λ at every event (after the jump at a measurement event).
-    lambda: Vec<Vec<f64>>,
+    /// λ at every event before the jump (= after it at other events).
+    lambda_minus: Vec<Vec<f64>>,
     /// μ(t_k−) and μ(t_k+), per measurement.
     mu_minus: Vec<Vec<f64>>,
     mu_plus: Vec<Vec<f64>>,
@@ -70,6 +70,18 @@ struct Forward {
 /// The step sizes of a sweep, to replay it exactly (finite differences of a fixed
 /// discretisation).
 type Plan = Vec<Vec<f64>>;
+
+/// The stage Jacobians ∂W/∂λ of every accepted step (6 R × R blocks), per interval, with the
+/// step sizes: what the adjoint needs of a stored sweep.
+type Jacobians = Vec<Vec<(f64, Vec<f64>)>>;
+
+/// A reference sweep whose part before an event is reused (the multiplier perturbed there does
+/// not change it, by causality): the forward sweep and its stage Jacobians.
+struct Prefix<'r> {
+    fw: &'r Forward,
+    jac: &'r Jacobians,
+    event: usize,
+}
 
 /// The closure effective action of one problem: the drift, the initial natural parameters, the
 /// event times (t_0, output times, measurement times) and the measured moments.
@@ -88,6 +100,7 @@ pub struct ClosureAction<D: ClosureDrift> {
     atol: f64,
     cache: Option<(Vec<f64>, Forward, Vec<Vec<f64>>)>,
     sweeps: usize,
+    steps: usize,
 }
 
 impl<D: ClosureDrift> std::fmt::Debug for ClosureAction<D> {
@@ -167,6 +180,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             atol,
             cache: None,
             sweeps: 0,
+            steps: 0,
         })
     }
 
@@ -178,6 +192,11 @@ impl<D: ClosureDrift> ClosureAction<D> {
     /// Forward sweeps run so far.
     pub fn sweeps(&self) -> usize {
         self.sweeps
+    }
+
+    /// Runge–Kutta steps taken by all sweeps so far.
+    pub fn steps(&self) -> usize {
+        self.steps
     }
 
     /// The output (event) times of [`EffectiveAction::history`].
@@ -285,28 +304,44 @@ impl<D: ClosureDrift> ClosureAction<D> {
         events: &Events,
         lambda: &[f64],
         plan: Option<&Plan>,
+        prefix: Option<&Prefix<'_>>,
     ) -> std::result::Result<Forward, SweepFailure> {
         let s = self.measured.len();
         let ne = events.times.len();
-        let mut y = self.lambda0.clone();
         let span = events.times[ne - 1] - events.times[0];
         let mut h = if span > 0.0 { 1e-3 * span } else { 1.0 };
         let mut out = Forward {
             steps: Vec::with_capacity(ne.saturating_sub(1)),
-            lambda: Vec::with_capacity(ne),
+            lambda_minus: Vec::with_capacity(ne),
             mu_minus: Vec::new(),
             mu_plus: Vec::new(),
             mu: Vec::with_capacity(ne),
             cov: Vec::with_capacity(ne),
             f: 0.0,
         };
-        for e in 0..ne {
-            if e > 0 {
+        let (e0, mut y) = match prefix {
+            Some(p) => {
+                let e0 = p.event;
+                let nm = events.meas[..e0].iter().flatten().count();
+                out.steps.extend((0..e0).map(|_| Vec::new()));
+                out.lambda_minus.extend_from_slice(&p.fw.lambda_minus[..e0]);
+                out.mu.extend_from_slice(&p.fw.mu[..e0]);
+                out.cov.extend_from_slice(&p.fw.cov[..e0]);
+                out.mu_minus.extend_from_slice(&p.fw.mu_minus[..nm]);
+                out.mu_plus.extend_from_slice(&p.fw.mu_plus[..nm]);
+                out.f = f64::NAN;
+                (e0, p.fw.lambda_minus[e0].clone())
+            }
+            None => (0, self.lambda0.clone()),
+        };
+        for e in e0..ne {
+            if e > e0 {
                 let mut steps = Vec::new();
                 let p = plan.map(|p| p[e - 1].as_slice());
                 self.integrate(events.times[e - 1], events.times[e], &mut y, &mut h, p, &mut steps)?;
                 out.steps.push(steps);
             }
+            out.lambda_minus.push(y.clone());
             let mut m = self.drift.moments(&y).map_err(|_| SweepFailure)?;
             if let Some(k) = events.meas[e] {
                 let before = m;
@@ -318,26 +353,32 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 out.mu_minus.push(before.mean);
                 out.mu_plus.push(m.mean.clone());
             }
-            out.lambda.push(y.clone());
             out.mu.push(m.mean);
             out.cov.push(m.covariance);
         }
-        if !out.f.is_finite() {
+        if prefix.is_none() && !out.f.is_finite() {
             return Err(SweepFailure);
         }
         Ok(out)
     }
 
     /// The discrete adjoint: γ at every event (after the jump at measurement events, i.e.
-    /// γ(t_k+)).
-    fn backward(&self, events: &Events, fw: &Forward) -> std::result::Result<Vec<Vec<f64>>, SweepFailure> {
+    /// γ(t_k+)), and the stage Jacobians of the steps it computed them for. With a prefix, the
+    /// intervals before its event use the reference's Jacobians.
+    fn backward(
+        &self,
+        events: &Events,
+        fw: &Forward,
+        prefix: Option<&Prefix<'_>>,
+    ) -> std::result::Result<(Vec<Vec<f64>>, Jacobians), SweepFailure> {
         let r = self.drift.n_params();
         let ne = events.times.len();
         let mut gamma = vec![0.0; r];
         let mut out = vec![Vec::new(); ne];
         let mut w = vec![0.0; r];
-        let mut jac = vec![0.0; 6 * r * r];
+        let mut jacs: Jacobians = vec![Vec::new(); ne.saturating_sub(1)];
         let mut kbar = vec![0.0; 6 * r];
+        let mut ybar = vec![0.0; r];
         for e in (0..ne).rev() {
             out[e] = gamma.clone();
             if let Some(k) = events.meas[e] {
@@ -348,31 +389,43 @@ impl<D: ClosureDrift> ClosureAction<D> {
             if e == 0 {
                 break;
             }
-            for step in fw.steps[e - 1].iter().rev() {
-                let h = step.h;
-                for i in 0..6 {
-                    self.drift
-                        .w_jacobian(
-                            step.t + C[i] * h,
-                            &step.stages[i * r..(i + 1) * r],
-                            &mut w,
-                            &mut jac[i * r * r..(i + 1) * r * r],
-                        )
-                        .map_err(|_| SweepFailure)?;
-                }
+            let reuse = prefix.filter(|p| e <= p.event);
+            let n_steps = match reuse {
+                Some(p) => p.jac[e - 1].len(),
+                None => fw.steps[e - 1].len(),
+            };
+            for js in (0..n_steps).rev() {
+                let (h, jac) = match reuse {
+                    Some(p) => (p.jac[e - 1][js].0, p.jac[e - 1][js].1.clone()),
+                    None => {
+                        let step = &fw.steps[e - 1][js];
+                        let mut jac = vec![0.0; 6 * r * r];
+                        for i in 0..6 {
+                            self.drift
+                                .w_jacobian(
+                                    step.t + C[i] * step.h,
+                                    &step.stages[i * r..(i + 1) * r],
+                                    &mut w,
+                                    &mut jac[i * r * r..(i + 1) * r * r],
+                                )
+                                .map_err(|_| SweepFailure)?;
+                        }
+                        (step.h, jac)
+                    }
+                };
                 for i in 0..6 {
                     for a in 0..r {
                         kbar[i * r + a] = h * B[i] * gamma[a];
                     }
                 }
-                let mut before = gamma.clone();
                 for i in (0..6).rev() {
                     let ji = &jac[i * r * r..(i + 1) * r * r];
                     // Ȳ_i = J_iᵀ k̄_i.
-                    let ybar: Vec<f64> =
-                        (0..r).map(|b| (0..r).map(|a| ji[a * r + b] * kbar[i * r + a]).sum()).collect();
+                    for (b, yb) in ybar.iter_mut().enumerate() {
+                        *yb = (0..r).map(|a| ji[a * r + b] * kbar[i * r + a]).sum();
+                    }
                     for a in 0..r {
-                        before[a] += ybar[a];
+                        gamma[a] += ybar[a];
                     }
                     for j in 0..i {
                         let c = h * A[i][j];
@@ -383,13 +436,18 @@ impl<D: ClosureDrift> ClosureAction<D> {
                         }
                     }
                 }
-                gamma = before;
+                if reuse.is_none() {
+                    jacs[e - 1].push((h, jac));
+                }
+            }
+            if reuse.is_none() {
+                jacs[e - 1].reverse();
             }
         }
         if out.iter().flatten().any(|v| !v.is_finite()) {
             return Err(SweepFailure);
         }
-        Ok(out)
+        Ok((out, jacs))
     }
 
     fn plan_of(fw: &Forward) -> Plan {
@@ -408,41 +466,67 @@ impl<D: ClosureDrift> ClosureAction<D> {
         z
     }
 
-    /// F and z at λ on `events`, optionally replaying `plan`.
+    /// F and z at λ on `events`, optionally replaying `plan` and reusing a prefix.
     fn value(
         &mut self,
         events: &Events,
         lambda: &[f64],
         plan: Option<&Plan>,
-    ) -> std::result::Result<(Forward, Vec<Vec<f64>>), SweepFailure> {
+        prefix: Option<&Prefix<'_>>,
+    ) -> std::result::Result<(Forward, Vec<Vec<f64>>, Jacobians), SweepFailure> {
         self.sweeps += 1;
-        let fw = self.forward(events, lambda, plan)?;
-        let g = self.backward(events, &fw)?;
-        Ok((fw, g))
+        let fw = self.forward(events, lambda, plan, prefix)?;
+        self.steps += fw.steps.iter().map(Vec::len).sum::<usize>();
+        let (g, jac) = self.backward(events, &fw, prefix)?;
+        Ok((fw, g, jac))
     }
 
-    /// The history on the output events at λ with a given plan: per event the full m(t)
-    /// (moments) and the plan used.
-    fn moment_history(
+    /// m(t) = μ + γ of all moments at every event.
+    fn moments_at_events(fw: &Forward, gamma: &[Vec<f64>]) -> Vec<Vec<f64>> {
+        fw.mu.iter().zip(gamma).map(|(mu, ga)| mu.iter().zip(ga).map(|(a, b)| a + b).collect()).collect()
+    }
+
+    /// ∂m(t)/∂λ_j at every event for every multiplier j by one-sided differences of the
+    /// sweep with the reference's steps replayed and its part before t_j reused (causality):
+    /// `out[j][event][moment]`.
+    fn tangents(
         &mut self,
+        events: &Events,
         lambda: &[f64],
-        plan: Option<&Plan>,
-    ) -> std::result::Result<(Vec<Vec<f64>>, Plan, Forward), SweepFailure> {
-        let events = self.out_events.clone();
-        let (fw, g) = self.value(&events, lambda, plan)?;
-        let m =
-            fw.mu.iter().zip(&g).map(|(mu, ga)| mu.iter().zip(ga).map(|(a, b)| a + b).collect()).collect();
-        Ok((m, Self::plan_of(&fw), fw))
+    ) -> std::result::Result<(Vec<Vec<f64>>, Vec<Vec<Vec<f64>>>), SweepFailure> {
+        let (fw, g, jac) = self.value(events, lambda, None, None)?;
+        let plan = Self::plan_of(&fw);
+        let base = Self::moments_at_events(&fw, &g);
+        let s = self.measured.len();
+        let event_of: Vec<usize> = events.meas.iter().enumerate().filter_map(|(e, m)| m.map(|_| e)).collect();
+        let mut out = Vec::with_capacity(lambda.len());
+        let mut l = lambda.to_vec();
+        for j in 0..lambda.len() {
+            let step = 1e-6 * (1.0 + lambda[j].abs());
+            l[j] = lambda[j] + step;
+            let prefix = Prefix { fw: &fw, jac: &jac, event: event_of[j / s] };
+            let (fp, gp, _) = self.value(events, &l, Some(&plan), Some(&prefix))?;
+            l[j] = lambda[j];
+            let mp = Self::moments_at_events(&fp, &gp);
+            out.push(
+                mp.iter()
+                    .zip(&base)
+                    .map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y) / step).collect())
+                    .collect(),
+            );
+        }
+        Ok((base, out))
     }
 
-    /// The history m(t) = μ(λ(t)) + γ(t) of all moments at the output times, with μ(t) and
-    /// γ(t) separately (`003_d2fc48a470e528fc.txt (II.48)`): (times, m, μ, γ). Errors when the
-    /// sweep fails at λ.
+    /// The history m(t) = μ(λ(t)) + γ(t) of all moments at the output times, with μ(t)
+    /// separately (`003_d2fc48a470e528fc.txt (II.48)`): (times, m, μ). Errors when the sweep
+    /// fails at λ.
     #[allow(clippy::type_complexity)]
     pub fn moment_paths(&mut self, lambda: &[f64]) -> Result<(Vec<f64>, Vec<Vec<f64>>, Vec<Vec<f64>>)> {
         self.check(lambda)?;
-        let (m, _, fw) = self.moment_history(lambda, None).map_err(|_| self.failed())?;
-        Ok((self.out_events.times.clone(), m, fw.mu))
+        let events = self.out_events.clone();
+        let (fw, g, _) = self.value(&events, lambda, None, None).map_err(|_| self.failed())?;
+        Ok((events.times, Self::moments_at_events(&fw, &g), fw.mu))
     }
 
     fn failed(&self) -> Error {
@@ -472,8 +556,8 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
             }
         }
         let events = self.fit_events.clone();
-        match self.value(&events, lambda, None) {
-            Ok((fw, g)) => {
+        match self.value(&events, lambda, None, None) {
+            Ok((fw, g, _)) => {
                 let z = self.z_of(&events, &fw, &g);
                 let value = fw.f;
                 self.cache = Some((lambda.to_vec(), fw, g));
@@ -483,39 +567,28 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
         }
     }
 
-    /// Central differences of the adjoint gradient with the step sizes of the sweep at λ
-    /// replayed (a fixed discretisation, so the differences are accurate to ~10⁻¹⁰).
+    /// ∇²F = ∂z/∂λ by one-sided differences (step 10⁻⁶(1 + |λ_j|)) of the adjoint gradient with
+    /// the steps of the sweep at λ replayed (a fixed discretisation, so the differences are
+    /// accurate to ~10⁻⁶ relative) and, by causality, the sweep before t_j reused; symmetrised.
     fn hessian(&mut self, lambda: &[f64]) -> Result<DMatrix<f64>> {
         self.check(lambda)?;
         let events = self.fit_events.clone();
-        let (fw, _) = self.value(&events, lambda, None).map_err(|_| self.failed())?;
-        let plan = Self::plan_of(&fw);
+        let (_, tangents) = self.tangents(&events, lambda).map_err(|_| self.failed())?;
         let m = lambda.len();
-        let mut h = DMatrix::zeros(m, m);
-        let mut l = lambda.to_vec();
-        for j in 0..m {
-            let step = 1e-5 * (1.0 + lambda[j].abs());
-            let mut zs = Vec::with_capacity(2);
-            for sign in [1.0, -1.0] {
-                l[j] = lambda[j] + sign * step;
-                let (fw, g) = self.value(&events, &l, Some(&plan)).map_err(|_| self.failed())?;
-                zs.push(self.z_of(&events, &fw, &g));
-            }
-            l[j] = lambda[j];
-            for i in 0..m {
-                h[(i, j)] = (zs[0][i] - zs[1][i]) / (2.0 * step);
-            }
-        }
+        let event_of: Vec<usize> =
+            events.meas.iter().enumerate().filter_map(|(e, mm)| mm.map(|_| e)).collect();
+        let s = self.measured.len();
+        let h = DMatrix::from_fn(m, m, |i, j| tangents[j][event_of[i / s]][self.measured[i % s]]);
         Ok((&h + h.transpose()) * 0.5)
     }
 
     /// m(t) of every state at the output times (`(II.48)`); the variance is m_{x²} − m_x² when
-    /// the family has the square moments; `cross` by central differences of the history
-    /// with the discretisation replayed.
+    /// the family has the square moments; `cross` (Cov(x_i(τ), Z_j) = ∂m_{x_i}(τ)/∂λ_j) by
+    /// the differences of [`EffectiveAction::hessian`].
     fn history(&mut self, lambda: &[f64], cross: bool) -> Result<History> {
         self.check(lambda)?;
         let n = self.drift.state_dim();
-        let (m, plan, _) = self.moment_history(lambda, None).map_err(|_| self.failed())?;
+        let events = self.out_events.clone();
         let lin: Vec<usize> = (0..n)
             .map(|i| {
                 self.drift.linear_index(i).ok_or_else(|| Error::InvalidOption {
@@ -524,6 +597,16 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
                 })
             })
             .collect::<Result<_>>()?;
+        let (m, cr) = if cross {
+            let (m, t) = self.tangents(&events, lambda).map_err(|_| self.failed())?;
+            let nm = lambda.len();
+            let cr =
+                (0..m.len()).map(|e| DMatrix::from_fn(n, nm, |i, j| t[j][e][lin[i]])).collect::<Vec<_>>();
+            (m, Some(cr))
+        } else {
+            let (fw, g, _) = self.value(&events, lambda, None, None).map_err(|_| self.failed())?;
+            (Self::moments_at_events(&fw, &g), None)
+        };
         let sq: Vec<Option<usize>> = (0..n).map(|i| self.drift.square_index(i)).collect();
         let mean: Vec<Vec<f64>> = m.iter().map(|mt| lin.iter().map(|&a| mt[a]).collect()).collect();
         let variance = m
@@ -534,30 +617,6 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
                     .collect()
             })
             .collect();
-        let cross = if cross {
-            let ne = m.len();
-            let nm = lambda.len();
-            let mut cr = vec![DMatrix::zeros(n, nm); ne];
-            let mut l = lambda.to_vec();
-            for j in 0..nm {
-                let step = 1e-5 * (1.0 + lambda[j].abs());
-                let mut hs = Vec::with_capacity(2);
-                for sign in [1.0, -1.0] {
-                    l[j] = lambda[j] + sign * step;
-                    let (mj, _, _) = self.moment_history(&l, Some(&plan)).map_err(|_| self.failed())?;
-                    hs.push(mj);
-                }
-                l[j] = lambda[j];
-                for e in 0..ne {
-                    for (i, &a) in lin.iter().enumerate() {
-                        cr[e][(i, j)] = (hs[0][e][a] - hs[1][e][a]) / (2.0 * step);
-                    }
-                }
-            }
-            Some(cr)
-        } else {
-            None
-        };
-        Ok(History { times: self.out_events.times.clone(), mean, variance, cross })
+        Ok(History { times: events.times, mean, variance, cross: cr })
     }
 }
