@@ -4,17 +4,21 @@
 //! ½ h Σ w_k² + ½ Σ_{k ∈ obs} (y_k − x_k)² / r, started with every state in the left well.
 //!
 //! `nlp_double_well/time_per_iteration` reports the wall-clock time of one interior-point
-//! iteration (total solve time divided by the iteration count); `nlp_double_well/solve` the
-//! whole solve (20 iterations, including the one symbolic analysis).
+//! iteration (total solve time divided by the iteration count) with the default KKT solver;
+//! `nlp_double_well/solve` and `nlp_double_well/solve_faer` the whole solve (20 iterations,
+//! including the one analysis) with the default solver (here the variable-band
+//! `onsager::nlp::BandLdlt`) and with faer's sparse LDLᵀ, in the same run.
 //!
 //! Peak memory: 51 640 kB (about 52 MB) maximum resident set size for one solve of this
-//! problem, measured with `/usr/bin/time -v` on the release test binary running only
+//! problem with faer, measured with `/usr/bin/time -v` on the release test binary running only
 //! `nlp::tests::large_banded_double_well` (the same problem; the test binary running a trivial
 //! test peaks at 3.4 MB). The KKT matrix has 300 001 stored entries and its factor 350 000.
 //!
-//! Measured on the development machine (2 shared cores, load average about 4) on 2026-11-21:
-//! 44 ms per iteration (criterion's estimate, 95 % interval 42–47 ms) and 1.3 s per solve
-//! (20 iterations, 23 extra inertia-correction factorisations).
+//! Measured on the development machine (2 shared cores, load average about 5 from other jobs)
+//! on 2026-11-21: 47 ms per iteration (criterion's estimate, 95 % interval 44–49 ms); 1.02 s
+//! per solve with the band solver and 1.04 s with faer in the same run (20 iterations, 23 extra
+//! inertia-correction factorisations with either): on this problem the choice of KKT solver
+//! makes no measurable difference.
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};

@@ -7,13 +7,15 @@
 //! time per phase, so that the solve can be profiled (`valgrind --tool=callgrind`) or timed
 //! outside criterion.
 //!
-//! Run with `cargo run --release --example van_der_pol_jme [REPEATS] [jme|mee]`.
+//! Run with `cargo run --release --example van_der_pol_jme [REPEATS] [jme|mee] [auto|band|faer]`
+//! (the last argument chooses the KKT solver, default auto).
 
 use rand::SeedableRng;
 
 use onsager::estimate::EstimationProblem;
 use onsager::model::library::preset;
 use onsager::model::observation::{Noise, Param};
+use onsager::nlp::{LinearSolver, NlpOptions};
 use onsager::path::{estimate_path, spline_guess, Merit, PathOptions, Transcription};
 use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
 
@@ -22,6 +24,11 @@ fn main() -> onsager::Result<()> {
     let merit = match std::env::args().nth(2).as_deref() {
         Some("mee") => Merit::Energy,
         _ => Merit::OnsagerMachlup,
+    };
+    let solver = match std::env::args().nth(3).as_deref() {
+        Some("band") => LinearSolver::Band,
+        Some("faer") => LinearSolver::Faer,
+        _ => LinearSolver::Auto,
     };
     let p = preset("van-der-pol")?;
     let mut rng = rand::rngs::StdRng::seed_from_u64(1);
@@ -50,7 +57,8 @@ fn main() -> onsager::Result<()> {
         let options = PathOptions::new(merit, Transcription::HermiteSimpson)
             .with_step(0.005)
             .with_laplace(false)
-            .with_initial_path(guess.clone());
+            .with_initial_path(guess.clone())
+            .with_nlp(NlpOptions::default().with_linear_solver(solver));
         let sol = estimate_path(&problem, options)?;
         let r = &sol.report;
         println!(
@@ -67,10 +75,8 @@ fn main() -> onsager::Result<()> {
         );
         if run + 1 == repeats {
             println!(
-                "unknowns {}, kkt nnz {}, factor nnz {}",
-                sol.estimate.path.values.len(),
-                r.kkt_nnz,
-                r.factor_nnz
+                "unknowns {}, kkt solver {}, kkt nnz {}, factor nnz {}",
+                sol.estimate.details["unknowns"], r.linear_solver, r.kkt_nnz, r.factor_nnz
             );
         }
     }
