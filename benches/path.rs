@@ -23,7 +23,10 @@
 //! - `path_duffing_joint_36k`: 6.5 s (criterion median, 95 % interval 6.0–7.2 s), 5 iterations,
 //!   5 numeric factorisations (plus one), evaluation about 70 % of it; peak resident memory
 //!   255 MB (`/usr/bin/time -v` on `examples/duffing_large.rs`), 318 MB with faer, whose solve
-//!   took 9.1 s against 6.4 s for the band solver in the same session.
+//!   took 9.1 s against 6.4 s for the band solver in the same session. Before the band solver
+//!   and the allocation-free derivatives `examples/duffing_large.rs` took 7.8 s to solve and
+//!   362 MB, against 4.0–4.7 s and 254 MB after, run alternately in the same session (5
+//!   iterations both).
 //!
 //! Both targets are missed; docs/map.md ("Performance") lists what remains.
 
