@@ -233,9 +233,20 @@ fn rmse(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
 
 #[test]
 fn quartic_closure_is_closer_to_the_exact_estimate_than_the_gaussian_closure() {
-    // Double well, measurements every 1.0 with R = 0.04, one seed with a transition (the example
-    // closure_double_well runs 10); reference: the exact grid mean-optimal estimate.
-    let (obs, data) = double_well_problem_data(2, 12.0);
+    // Double well, measurements every 1.0 on [1, 10] with R = 0.04, seed 3 of the example
+    // `closure_double_well` (a path that changes wells; the example runs 10 seeds and prints the
+    // table); reference: the exact grid mean-optimal estimate. Example output for this seed:
+    // RMSE Gaussian 0.497, quartic 0.0044.
+    let p = onsager::model::library::preset("double-well").unwrap();
+    let obs = gaussian_obs(0, 0.2);
+    let mut rng = StdRng::seed_from_u64(3);
+    let x0v = p.x0_prior[0].sample(&mut rng).unwrap();
+    let path = simulate(&DoubleWell, &[0.5], &[x0v], &[], &SimulateOptions::new(0.0, 10.0, 0.005), &mut rng)
+        .unwrap();
+    let x = path.column("x").unwrap();
+    assert!(x.iter().any(|&v| v > 0.8) && x.iter().any(|&v| v < -0.8), "the path changes wells");
+    let times: Vec<f64> = (1..=10).map(|k| k as f64).collect();
+    let data = sample_measurements_at(&obs, &[0.5], &path, 1, &times, &mut rng).unwrap();
     let priors = [Prior::flat()];
     let x0 = [Prior::gaussian(-1.0, 0.2)];
     let problem = EstimationProblem {
@@ -250,13 +261,14 @@ fn quartic_closure_is_closer_to_the_exact_estimate_than_the_gaussian_closure() {
     };
     let exact = mean_optimal(
         &problem,
-        &ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 400)).with_dt(0.005).with_output_step(0.1),
+        &ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 600)).with_dt(0.005).with_output_step(0.1),
     )
     .unwrap();
     let options = ClosureOptions::new().with_output_step(0.1).with_dispersion(false);
     let g = closure_estimate(&problem, &ClosureKind::Gaussian, &options).unwrap();
     let q = closure_estimate(&problem, &ClosureKind::Exponential { degree: 4 }, &options).unwrap();
+    assert_eq!(q.status, Status::Converged);
     assert_eq!(g.path.times.len(), exact.history.times.len());
     let (eg, eq) = (rmse(&g.path.values, &exact.history.mean), rmse(&q.path.values, &exact.history.mean));
-    assert!(eq < eg, "RMSE quartic {eq} vs Gaussian {eg}");
+    assert!(eq < 0.02 && eq < 0.2 * eg, "RMSE quartic {eq} vs Gaussian {eg}");
 }

@@ -1,0 +1,86 @@
+//! Gaussian and quartic exponential closures against the exact mean-optimal estimate on the
+//! double well (`003_d2fc48a470e528fc.txt` Part II; issue 7).
+//!
+//! Model: the `double-well` preset (dX = (4X − 4X³) dt + √(2D) dW, D = 0.5, x0 ~ N(−1, 0.2²)),
+//! measurements y_k ~ N(x(t_k), 0.2²) (R = 0.04) at t = 1, 2, …, 10 (horizon 10). Ten seeds are taken, in
+//! order, among those whose simulated path changes wells (visits x > 0.8 and x < −0.8). For each,
+//! the table gives the RMSE over the output grid (step 0.1) of the Gaussian-closure and of the
+//! quartic-closure (M = (x, x², x³, x⁴)) mean-optimal estimates against the exact grid
+//! mean-optimal estimate (`action::mean_optimal`, 600 cells on [−3, 3], dt = 0.005), and the
+//! solve times.
+//!
+//! Run: `cargo run --release --example closure_double_well`
+
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+
+use onsager::action::{closure_estimate, mean_optimal, ClosureKind, ClosureOptions, ExactOptions, GridSpec};
+use onsager::data::Dataset;
+use onsager::model::library::preset;
+use onsager::simulate::{sample_measurements_at, simulate, SimulateOptions};
+
+/// The first `n` seeds whose double-well path changes wells on [0, 10], with their data.
+fn seeds_with_transitions(n: usize) -> Vec<(u64, Dataset)> {
+    let p = preset("double-well").expect("built-in");
+    let mut out = Vec::new();
+    for seed in 0.. {
+        let mut rng = StdRng::seed_from_u64(seed);
+        let x0 = p.x0_prior[0].sample(&mut rng).expect("proper prior");
+        let path =
+            simulate(&p.model, &p.theta, &[x0], &[], &SimulateOptions::new(0.0, T_END, 0.005), &mut rng)
+                .expect("valid settings");
+        let x = path.column("x").expect("state x");
+        if x.iter().any(|&v| v > 0.8) && x.iter().any(|&v| v < -0.8) {
+            let mut obs = p.observation.clone();
+            obs.noise = onsager::model::Noise::Gaussian { sigma: onsager::model::Param::Fixed(0.2) };
+            let times: Vec<f64> = (1..=T_END as usize).map(|k| k as f64).collect();
+            let data = sample_measurements_at(&obs, &p.theta, &path, 1, &times, &mut rng).expect("valid");
+            out.push((seed, data));
+            if out.len() == n {
+                break;
+            }
+        }
+    }
+    out
+}
+
+/// The horizon: measurements at 1, 2, …, `T_END`.
+const T_END: f64 = 10.0;
+
+fn rmse(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
+    (a.iter().zip(b).map(|(x, y)| (x[0] - y[0]).powi(2)).sum::<f64>() / a.len() as f64).sqrt()
+}
+
+fn main() -> onsager::Result<()> {
+    let mut p = preset("double-well")?;
+    p.observation.noise = onsager::model::Noise::Gaussian { sigma: onsager::model::Param::Fixed(0.2) };
+    let exact_options =
+        ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 600)).with_dt(0.005).with_output_step(0.1);
+    let options = ClosureOptions::new().with_output_step(0.1).with_dispersion(false);
+    println!(
+        "{:>5} {:>14} {:>14} {:>8} {:>11} {:>11} {:>11}",
+        "seed", "RMSE gaussian", "RMSE quartic", "closer", "t exact/s", "t gauss/s", "t quart/s"
+    );
+    let mut wins = 0;
+    let seeds = seeds_with_transitions(10);
+    for (seed, data) in &seeds {
+        let problem = p.problem(data, &[]);
+        let exact = mean_optimal(&problem, &exact_options)?;
+        let g = closure_estimate(&problem, &ClosureKind::Gaussian, &options)?;
+        let q = closure_estimate(&problem, &ClosureKind::Exponential { degree: 4 }, &options)?;
+        let (eg, eq) = (rmse(&g.path.values, &exact.history.mean), rmse(&q.path.values, &exact.history.mean));
+        let closer = eq < eg;
+        wins += usize::from(closer);
+        println!(
+            "{seed:>5} {eg:>14.5} {eq:>14.5} {:>8} {:>11.3} {:>11.3} {:>11.3}   ({}, {})",
+            if closer { "quartic" } else { "gaussian" },
+            exact.solve_seconds,
+            g.solve_seconds,
+            q.solve_seconds,
+            g.status,
+            q.status
+        );
+    }
+    println!("quartic closer on {wins} of {} seeds", seeds.len());
+    Ok(())
+}
