@@ -47,6 +47,7 @@
 //!   experiments call them.
 //!
 //! - [`compare`]: several estimators on the same data, measured against each other and the truth.
+//! - [`plot`]: SVG/PNG line plots with bands, box plots and panel grids (no system fonts).
 //! - [`metrics`]: distances between paths (ISE, RMSE, same-well fraction) for comparisons.
 //!
 //! Misuse is an [`Error`]; numerical outcomes are statuses in reports. Randomness is always

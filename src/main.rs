@@ -63,7 +63,15 @@ fn main_job() -> onsager::Result<bool> {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    // Usage errors exit with 1 like every other error (clap's own code, 2, means "did not
+    // converge" here); --help and --version exit with 0.
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            let _ = e.print();
+            return if e.use_stderr() { ExitCode::FAILURE } else { ExitCode::SUCCESS };
+        }
+    };
     let result = match cli.command {
         Some(Command::Models) => {
             cli::print_models();

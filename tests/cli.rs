@@ -77,6 +77,8 @@ fn bad_arguments_are_clear_errors_not_panics() {
         (&["simulate", "--model", "duffing", "--param", "a"], "expected NAME=VALUE"),
         (&["simulate", "--model", "duffing", "--dt", "-1"], "dt"),
         (&["simulate", "--model", "ou", "--likelihood", "cauchy:scale=1"], "cauchy"),
+        // A usage error (clap's) exits with 1 too.
+        (&["estimate", "--data", "x.csv", "--method", "kalman"], "unknown method `kalman`"),
     ];
     for (args, needle) in cases {
         let out = onsager().args(*args).arg("--out").arg(dir.join("x.csv")).output().unwrap();
