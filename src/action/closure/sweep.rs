@@ -75,6 +75,9 @@ type Plan = Vec<Vec<f64>>;
 /// step sizes: what the adjoint needs of a stored sweep.
 type Jacobians = Vec<Vec<(f64, Vec<f64>)>>;
 
+/// m(t) at every event and its derivatives ∂m/∂λ_j (`[j][event][moment]`).
+type Tangents = Vec<Vec<Vec<f64>>>;
+
 /// A reference sweep whose part before an event is reused (the multiplier perturbed there does
 /// not change it, by causality): the forward sweep and its stage Jacobians.
 struct Prefix<'r> {
@@ -133,6 +136,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
     ///
     /// Errors ([`Error::InvalidOption`]): lengths, non-finite λ_0, a measurement before t_0,
     /// non-positive tolerances.
+    #[allow(clippy::too_many_arguments)]
     pub fn try_new(
         drift: D,
         t0: f64,
@@ -382,8 +386,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
         for e in (0..ne).rev() {
             out[e] = gamma.clone();
             if let Some(k) = events.meas[e] {
-                for a in 0..r {
-                    gamma[a] += fw.mu_plus[k][a] - fw.mu_minus[k][a];
+                for ((g, p), m) in gamma.iter_mut().zip(&fw.mu_plus[k]).zip(&fw.mu_minus[k]) {
+                    *g += p - m;
                 }
             }
             if e == 0 {
@@ -493,7 +497,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         &mut self,
         events: &Events,
         lambda: &[f64],
-    ) -> std::result::Result<(Vec<Vec<f64>>, Vec<Vec<Vec<f64>>>), SweepFailure> {
+    ) -> std::result::Result<(Vec<Vec<f64>>, Tangents), SweepFailure> {
         let (fw, g, jac) = self.value(events, lambda, None, None)?;
         let plan = Self::plan_of(&fw);
         let base = Self::moments_at_events(&fw, &g);
