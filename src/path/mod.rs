@@ -461,6 +461,7 @@ pub fn estimate_path<S: Sde + ?Sized, O: Observation + ?Sized>(
         json!({"objective": e.objective, "gradient": e.gradient, "constraints": e.constraints,
                "jacobian": e.jacobian, "hessian": e.hessian}),
     );
+    details.insert("linear_solver".into(), json!(report.linear_solver));
     details.insert("kkt_nnz".into(), json!(report.kkt_nnz));
     details.insert("factor_nnz".into(), json!(report.factor_nnz));
     let estimate = PathEstimate {
