@@ -4,4 +4,5 @@ mod action;
 mod baselines;
 mod cli;
 mod closure;
+mod experiment;
 mod path;

@@ -289,12 +289,6 @@ fn read_done(path: &Path, header: &[String]) -> Result<Vec<Row>> {
     Ok(rows.rows)
 }
 
-/// The spec as recorded in `run.json`, to refuse resuming with another spec.
-fn fingerprint(experiment: &Experiment, quick: bool) -> String {
-    let text = experiment.clone().with_replicates(0).to_toml();
-    serde_json::json!({ "spec": text, "quick": quick }).to_string()
-}
-
 /// Runs the experiment `spec` with `options`: every (scenario, replicate, estimator) row is
 /// appended to `out/results.csv` when its estimator finishes (flushed), `progress` is called
 /// after each row, and at the end `summary.json` and the plots are written.
@@ -327,7 +321,7 @@ pub fn run(
     std::fs::create_dir_all(out).map_err(|source| Error::Io { path: out.clone(), source })?;
     let results = out.join("results.csv");
     let run_json = out.join("run.json");
-    let print = fingerprint(&experiment, options.quick);
+    let print = experiment.resume_key(options.quick);
     let io = |path: &Path| {
         let path = path.to_path_buf();
         move |source| Error::Io { path: path.clone(), source }
@@ -512,7 +506,9 @@ pub fn run(
     let mut summary = None;
     if complete {
         let text = std::fs::read_to_string(&results).map_err(io(&results))?;
-        let table = report::parse_results(&text, &results)?;
+        let mut table = report::parse_results(&text, &results)?;
+        // A resumed run may ask for fewer replicates than were computed: summarise its own.
+        table.rows.retain(|r| r.replicate < replicates && scenarios.iter().any(|s| s.name == r.scenario));
         let path = out.join("summary.json");
         let json = report::summary(&spec, &scenarios, &table, options.quick);
         let pretty = serde_json::to_string_pretty(&json).expect("a JSON value serialises");

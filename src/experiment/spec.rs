@@ -241,6 +241,10 @@ pub struct Scenario {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Experiment {
     table: toml::Table,
+    /// A seed replacing the document's (any u64; TOML integers stop at i64::MAX).
+    seed: Option<u64>,
+    /// A number of replicates replacing the document's and the quick version's.
+    replicates: Option<usize>,
     /// The spec of the first scenario of the full version (name, description, source,
     /// replicates, seed, estimators as written there).
     pub spec: ExperimentSpec,
@@ -255,31 +259,46 @@ impl Experiment {
     pub fn from_toml(text: &str) -> Result<Experiment> {
         let table: toml::Table =
             toml::from_str(text).map_err(|e| invalid("spec", e.to_string().trim_end().to_string()))?;
-        let mut experiment = Experiment { table, spec: placeholder() };
+        let mut experiment = Experiment { table, seed: None, replicates: None, spec: placeholder() };
         experiment.spec = experiment.scenarios(false)?.remove(0).spec;
         experiment.scenarios(true)?;
         Ok(experiment)
     }
 
-    /// Replaces the number of replicates per scenario.
+    /// Replaces the number of replicates per scenario (of the full and the quick version).
     pub fn with_replicates(mut self, replicates: usize) -> Experiment {
-        self.table
-            .insert("replicates".into(), toml::Value::Integer(replicates.min(i64::MAX as usize) as i64));
+        self.replicates = Some(replicates);
         self.spec.replicates = replicates;
         self
     }
 
     /// Replaces the seed.
     pub fn with_seed(mut self, seed: u64) -> Experiment {
-        // TOML integers are i64: the seed is stored bit for bit.
-        self.table.insert("seed".into(), toml::Value::Integer(seed as i64));
+        self.seed = Some(seed);
         self.spec.seed = seed;
         self
     }
 
-    /// The document as TOML text (with any replaced replicates or seed).
+    /// The seed: the replaced one, else the document's.
+    pub fn seed(&self) -> u64 {
+        self.seed.unwrap_or(self.spec.seed)
+    }
+
+    /// The document as TOML text (without the replaced seed or number of replicates).
     pub fn to_toml(&self) -> String {
         toml::to_string(&self.table).unwrap_or_default()
+    }
+
+    /// What a resumed run must share with the run it continues: the document without its
+    /// number of replicates (which may grow), the seed and the version.
+    pub(crate) fn resume_key(&self, quick: bool) -> String {
+        let mut table = self.table.clone();
+        table.remove("replicates");
+        if let Some(toml::Value::Table(q)) = table.get_mut("quick") {
+            q.remove("replicates");
+        }
+        let text = toml::to_string(&table).unwrap_or_default();
+        serde_json::json!({ "spec": text, "seed": self.seed(), "quick": quick }).to_string()
     }
 
     /// The scenarios (after the `[quick]` overrides when `quick`), each resolved and checked.
@@ -351,7 +370,13 @@ impl Experiment {
                 }
                 other => other,
             };
-            let spec = deserialize(&table).map_err(in_scenario)?;
+            let mut spec = deserialize(&table).map_err(in_scenario)?;
+            if let Some(seed) = self.seed {
+                spec.seed = seed;
+            }
+            if let Some(r) = self.replicates {
+                spec.replicates = r;
+            }
             scenarios.push(Scenario::resolve(name.clone(), vars.clone(), spec).map_err(in_scenario)?);
         }
         Ok(scenarios)
