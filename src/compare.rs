@@ -62,18 +62,14 @@ pub struct Comparison {
     pub estimates: Vec<Option<PathEstimate>>,
 }
 
-/// The methods compared by default: the exact grid methods and the closures where the model
-/// is small enough (one state for the exponential closure, at most two for the grid), then
-/// JME, MEE and the UKS.
+/// The methods compared by default: the exact grid methods where the model has at most two
+/// states, then JME, MEE and the UKS. The closures (`gaussian-closure`, `exp-closure`) are
+/// not among them yet: their dual Newton iterations take minutes on a 40-measurement record
+/// (see `docs/closures.md`); ask for them explicitly.
 pub fn default_methods<S: Sde + ?Sized>(problem: &EstimationProblem<'_, S, StateMeasurement>) -> Vec<Method> {
-    let states = problem.sde.dims().states();
     let mut m = Vec::new();
-    if states <= 2 {
+    if problem.sde.dims().states() <= 2 {
         m.extend([Method::Ksp, Method::MeanOptimal]);
-    }
-    m.push(Method::GaussianClosure);
-    if states == 1 {
-        m.push(Method::ExpClosure);
     }
     m.extend([Method::Jme, Method::Mee, Method::Uks]);
     m

@@ -113,3 +113,45 @@ fn measurements_closer_than_the_time_tolerance_do_not_panic_the_grid_methods() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `onsager compare` on the built-in double-well data (issue 7): the table with every default
+/// method and the four files.
+#[test]
+fn compare_prints_the_table_and_writes_the_four_files() {
+    let dir = scratch("compare");
+    let (data, truth, out_dir) = (dir.join("dw.csv"), dir.join("dw-truth.csv"), dir.join("cmp"));
+    let sim = onsager().args(["simulate", "--out"]).arg(&data).arg("--truth").arg(&truth).output().unwrap();
+    assert!(sim.status.success(), "stderr: {}", String::from_utf8_lossy(&sim.stderr));
+    let out = onsager()
+        .args(["compare", "--data"])
+        .arg(&data)
+        .arg("--truth")
+        .arg(&truth)
+        .arg("--out-dir")
+        .arg(&out_dir)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.code() != Some(1), "stderr: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        stdout.contains("rmse_truth") && stdout.contains("rmse_ksp") && stdout.contains("same_well"),
+        "{stdout}"
+    );
+    for method in ["ksp", "mean-optimal", "jme", "mee", "uks"] {
+        assert!(stdout.lines().any(|l| l.starts_with(method)), "no row for {method}:\n{stdout}");
+    }
+    for file in ["paths.csv", "summary.json", "compare.svg", "compare.png"] {
+        let len = std::fs::metadata(out_dir.join(file)).map(|m| m.len()).unwrap_or(0);
+        assert!(len > 100, "{file}: {len} bytes");
+    }
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).unwrap()).unwrap();
+    let rows = summary["methods"].as_array().unwrap();
+    let ksp = rows.iter().find(|r| r["method"] == "ksp").unwrap();
+    assert!(ksp["rmse_truth"].as_f64().unwrap() < 0.5 && ksp["same_well_fraction"].as_f64().unwrap() > 0.9);
+    // An unknown method is a clear error.
+    let bad = onsager().args(["compare", "--methods", "ksp,kalman", "--data"]).arg(&data).output().unwrap();
+    assert_eq!(bad.status.code(), Some(1), "a usage error exits with 1 (2 means not converged)");
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("kalman"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
