@@ -232,7 +232,7 @@ impl MethodOptions {
             return reject("moments", "`exp-closure`");
         }
         if self.laplace_max_states.is_some() && !path {
-            return reject("laplace-max-states", "the path-space MAP methods (jme, mee)");
+            return reject("laplace_max_states", "the path-space MAP methods (jme, mee)");
         }
         if self.dt.is_some() && (path || method.is_closure()) {
             return reject("dt", "the grid, Kalman and particle methods");
