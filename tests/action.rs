@@ -20,14 +20,14 @@ use onsager::model::{Param, Sde};
 use onsager::simulate::{sample_measurements, sample_measurements_at, simulate, SimulateOptions};
 use onsager::Error;
 
-const OU_THETA: [f64; 2] = [1.0, 0.5];
+pub(crate) const OU_THETA: [f64; 2] = [1.0, 0.5];
 
-fn gaussian_obs(state: usize, sd: f64) -> StateMeasurement {
+pub(crate) fn gaussian_obs(state: usize, sd: f64) -> StateMeasurement {
     StateMeasurement::new(vec![state], vec!["y".into()], Noise::Gaussian { sigma: Param::Fixed(sd) })
 }
 
 /// OU (θ = 1, σ = 0.5), x0 ~ N(0, 0.5²), y ~ N(x, 0.2²) every 0.5 on [0, 5] (seeded).
-fn ou_data() -> (StateMeasurement, Dataset) {
+pub(crate) fn ou_data() -> (StateMeasurement, Dataset) {
     let obs = gaussian_obs(0, 0.2);
     let mut rng = StdRng::seed_from_u64(6);
     let path =

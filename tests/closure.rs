@@ -15,27 +15,13 @@ use onsager::data::Dataset;
 use onsager::estimate::{EstimationProblem, Status};
 use onsager::kalman::linear::{kalman_rts, LinearGaussianModel};
 use onsager::model::library::{DoubleWell, Ou};
-use onsager::model::observation::{Noise, StateMeasurement};
+use onsager::model::observation::StateMeasurement;
 use onsager::model::prior::Prior;
-use onsager::model::{Param, Sde};
-use onsager::simulate::{sample_measurements, sample_measurements_at, simulate, SimulateOptions};
+use onsager::model::Sde;
+use onsager::simulate::{sample_measurements_at, simulate, SimulateOptions};
 use onsager::Error;
 
-const OU_THETA: [f64; 2] = [1.0, 0.5];
-
-fn gaussian_obs(state: usize, sd: f64) -> StateMeasurement {
-    StateMeasurement::new(vec![state], vec!["y".into()], Noise::Gaussian { sigma: Param::Fixed(sd) })
-}
-
-/// OU (θ = 1, σ = 0.5), x0 ~ N(0, 0.5²), y ~ N(x, 0.2²) every 0.5 on [0, 5] (seeded).
-fn ou_data() -> (StateMeasurement, Dataset) {
-    let obs = gaussian_obs(0, 0.2);
-    let mut rng = StdRng::seed_from_u64(6);
-    let path =
-        simulate(&Ou, &OU_THETA, &[0.3], &[], &SimulateOptions::new(0.0, 5.0, 0.01), &mut rng).unwrap();
-    let data = sample_measurements(&obs, &OU_THETA, &path, 1, 0.5, &mut rng).unwrap();
-    (obs, data)
-}
+use crate::action::{gaussian_obs, ou_data, OU_THETA};
 
 #[test]
 fn gaussian_closure_of_ou_is_the_rts_smoother() {

@@ -29,7 +29,7 @@
 // Loops over matrix positions index several arrays (pattern, values, permutation) at once.
 #![allow(clippy::needless_range_loop)]
 
-use super::kkt::{FactorInfo, Inertia, KktSolver, KktStructure, KktValues};
+use super::kkt::{scatter_values, FactorInfo, Inertia, KktSolver, KktStructure, KktValues};
 use crate::{Error, Result};
 
 /// Largest mean envelope width (stored entries per row) accepted by [`BandLdlt::analyse`] in
@@ -336,19 +336,7 @@ impl KktSolver for BandLdlt {
         if self.row_ptr.len() != dim + 1 {
             return None; // `analyse` was not called
         }
-        self.values.fill(0.0);
-        for (k, &s) in self.hess_map.iter().enumerate() {
-            self.values[s] += v.hessian[k];
-        }
-        for (k, &s) in self.jac_map.iter().enumerate() {
-            self.values[s] += v.jacobian[k];
-        }
-        for i in 0..n {
-            self.values[self.diag_map[i]] += v.primal_diagonal[i] + v.delta_w;
-        }
-        for r in 0..m {
-            self.values[self.diag_map[n + r]] -= v.delta_c;
-        }
+        scatter_values(&mut self.values, &self.hess_map, &self.jac_map, &self.diag_map, n, m, v);
         let mut max_abs = 0.0f64;
         let mut row_sums = std::mem::take(&mut self.work_r);
         row_sums.fill(0.0);

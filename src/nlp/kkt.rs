@@ -620,19 +620,7 @@ impl KktSolver for FaerLdlt {
 
     fn factorize(&mut self, v: &KktValues<'_>) -> Option<FactorInfo> {
         let (n, m) = (self.n, self.m);
-        self.values.fill(0.0);
-        for (k, &s) in self.hess_map.iter().enumerate() {
-            self.values[s] += v.hessian[k];
-        }
-        for (k, &s) in self.jac_map.iter().enumerate() {
-            self.values[s] += v.jacobian[k];
-        }
-        for i in 0..n {
-            self.values[self.diag_map[i]] += v.primal_diagonal[i] + v.delta_w;
-        }
-        for r in 0..m {
-            self.values[self.diag_map[n + r]] -= v.delta_c;
-        }
+        scatter_values(&mut self.values, &self.hess_map, &self.jac_map, &self.diag_map, n, m, v);
         let mut max_abs = 0.0f64;
         for &a in &self.values {
             if !a.is_finite() {
@@ -741,5 +729,32 @@ impl KktSolver for FaerLdlt {
         self.work_r = r;
         self.work_prev = prev;
         self.last_residual
+    }
+}
+
+/// Writes the KKT matrix values of `v` into `values` (the lower triangle in the solver's storage)
+/// through the position maps of the Hessian entries, the Jacobian entries and the diagonal
+/// (n primal then m dual), adding the primal diagonal Σ + δ_w and the dual regularisation −δ_c.
+pub(crate) fn scatter_values(
+    values: &mut [f64],
+    hess_map: &[usize],
+    jac_map: &[usize],
+    diag_map: &[usize],
+    n: usize,
+    m: usize,
+    v: &KktValues<'_>,
+) {
+    values.fill(0.0);
+    for (k, &s) in hess_map.iter().enumerate() {
+        values[s] += v.hessian[k];
+    }
+    for (k, &s) in jac_map.iter().enumerate() {
+        values[s] += v.jacobian[k];
+    }
+    for i in 0..n {
+        values[diag_map[i]] += v.primal_diagonal[i] + v.delta_w;
+    }
+    for r in 0..m {
+        values[diag_map[n + r]] -= v.delta_c;
     }
 }
