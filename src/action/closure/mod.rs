@@ -16,6 +16,7 @@
 //! See `docs/closures.md`.
 
 pub mod drift;
+pub mod om;
 pub mod sweep;
 
 pub use drift::{ClosureDrift, ExponentialDrift, FamilyMoments, GaussianDrift, Unrealizable};
