@@ -76,6 +76,24 @@ fn double_well_problem_data(seed: u64, t_end: f64) -> (StateMeasurement, Dataset
     (obs, data)
 }
 
+/// ∇²F of the tangent sweeps against central differences of the adjoint gradient z(λ).
+fn check_hessian<A: EffectiveAction>(action: &mut A, lambda: &[f64]) {
+    let h = action.hessian(lambda).unwrap();
+    let m = lambda.len();
+    for j in 0..m {
+        let step = 1e-4;
+        let mut l = lambda.to_vec();
+        l[j] += step;
+        let zp = action.evaluate(&l).unwrap().z;
+        l[j] -= 2.0 * step;
+        let zm = action.evaluate(&l).unwrap().z;
+        for i in 0..m {
+            let fd = (zp[i] - zm[i]) / (2.0 * step);
+            assert_relative_eq!(h[(i, j)], fd, max_relative = 1e-6, epsilon = 1e-8);
+        }
+    }
+}
+
 #[test]
 fn quartic_closure_gradient_is_the_adjoint_and_the_history_is_continuous() {
     let (obs, data) = double_well_problem_data(3, 4.0);
@@ -112,6 +130,8 @@ fn quartic_closure_gradient_is_the_adjoint_and_the_history_is_continuous() {
         let fd = (fp - fm) / (2.0 * h);
         assert_relative_eq!(v.z[k], fd, max_relative = 1e-7, epsilon = 1e-9);
     }
+    // ∇²F by the tangent sweeps (second-order adjoint) = differences of the gradient.
+    check_hessian(&mut action, &lambda);
     // (II.44): m(t) is continuous across the jumps while μ(t) jumps; one-sided limits by linear
     // extrapolation from t_k ± ε, t_k ± 2ε (error O(ε² m'') ≈ 1e-8).
     let (times, m, mu) = action.moment_paths(&lambda).unwrap();
@@ -156,6 +176,7 @@ fn gaussian_closure_gradient_is_the_adjoint() {
         let fm = action.evaluate(&l).unwrap().value;
         assert_relative_eq!(v.z[k], (fp - fm) / (2.0 * h), max_relative = 1e-7, epsilon = 1e-9);
     }
+    check_hessian(&mut action, &lambda);
     // The dual solution satisfies (I.60) with this action.
     let dd = gaussian_dual_data(&problem).unwrap();
     let sol = maximize_dual(&mut action, &dd, &DualOptions::default(), None).unwrap();

@@ -17,7 +17,7 @@
 //!   (`(II.43)`) in closed form.
 
 use nalgebra::{DMatrix, DVector};
-use num_dual::Dual64;
+use num_dual::{Dual64, HyperDual64};
 use onsager_closures::{cholesky, cholesky_inverse, Exponential, Gaussian, TrialFamily};
 
 use crate::model::{Scalar, Sde};
@@ -58,6 +58,19 @@ pub trait ClosureDrift {
         lambda: &[f64],
         w: &mut [f64],
         jac: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable>;
+
+    /// W(λ, t) into `w`, ∂W/∂λ into `jac` (as [`ClosureDrift::w_jacobian`]) and the Hessian of
+    /// the contraction κᵀW, ∂²(Σ_a κ_a W_a)/∂λ_i∂λ_j, into `hess` (row-major R × R, symmetric):
+    /// what the tangent of the adjoint sweep needs (second-order adjoint).
+    fn w_second(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        kappa: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+        hess: &mut [f64],
     ) -> std::result::Result<(), Unrealizable>;
 
     /// F(λ), μ(λ), C(λ).
@@ -217,6 +230,40 @@ impl<S: Sde + ?Sized> ClosureDrift for GaussianDrift<'_, S> {
         Ok(())
     }
 
+    /// One hyper-dual pass per pair a ≤ b through the moving nodes.
+    fn w_second(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        kappa: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+        hess: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        let r = lambda.len();
+        let mut ld: Vec<HyperDual64> = lambda.iter().map(|&v| HyperDual64::from(v)).collect();
+        let mut out = vec![HyperDual64::from(0.0); r];
+        for a in 0..r {
+            for b in a..r {
+                ld[a].eps1 = 1.0;
+                ld[b].eps2 = 1.0;
+                self.w_generic(t, &ld, &mut out)?;
+                ld[a].eps1 = 0.0;
+                ld[b].eps2 = 0.0;
+                if b == a {
+                    for c in 0..r {
+                        jac[c * r + a] = out[c].eps1;
+                        w[c] = out[c].re;
+                    }
+                }
+                let h: f64 = (0..r).map(|c| kappa[c] * out[c].eps1eps2).sum();
+                hess[a * r + b] = h;
+                hess[b * r + a] = h;
+            }
+        }
+        Ok(())
+    }
+
     fn moments(&self, lambda: &[f64]) -> std::result::Result<FamilyMoments, Unrealizable> {
         let c = self.family.cumulants(lambda).map_err(unrealizable)?;
         Ok(FamilyMoments { log_partition: c.log_partition, mean: c.mean, covariance: c.covariance })
@@ -363,6 +410,52 @@ impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
     }
 }
 
+/// What W and ∂W/∂λ of an exponential closure are made of (see [`ExponentialDrift`]).
+struct FirstOrder {
+    p: Vec<f64>,
+    mu: DVector<f64>,
+    c: DMatrix<f64>,
+    g: Vec<f64>,
+    v: Vec<f64>,
+    w: Vec<f64>,
+    jac: DMatrix<f64>,
+}
+
+impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
+    /// W = C⁻¹V and ∂W/∂λ = C⁻¹Σπ_k(g_k − (d_k·W)d_k)d_kᵀ.
+    fn first_order(&self, t: f64, lambda: &[f64]) -> std::result::Result<FirstOrder, Unrealizable> {
+        let r = self.family.n_moments();
+        let (p, mu, c, g) = self.pass(t, lambda)?;
+        let table = self.family.moment_table();
+        let mut v = DMatrix::zeros(r, 1);
+        for (gk, &pk) in g.chunks_exact(r).zip(&p) {
+            for a in 0..r {
+                v[(a, 0)] += pk * gk[a];
+            }
+        }
+        let wv = solve_spd(&c, &v)?;
+        let mut b = DMatrix::zeros(r, r);
+        let mut d = vec![0.0; r];
+        for (k, &pk) in p.iter().enumerate() {
+            if pk == 0.0 {
+                continue;
+            }
+            for a in 0..r {
+                d[a] = table[k * r + a] - mu[a];
+            }
+            let u: f64 = (0..r).map(|a| d[a] * wv[(a, 0)]).sum();
+            for a in 0..r {
+                let ga = pk * (g[k * r + a] - u * d[a]);
+                for j in 0..r {
+                    b[(a, j)] += ga * d[j];
+                }
+            }
+        }
+        let jac = solve_spd(&c, &b)?;
+        Ok(FirstOrder { v: v.iter().copied().collect(), w: wv.iter().copied().collect(), p, mu, c, g, jac })
+    }
+}
+
 fn solve_spd(c: &DMatrix<f64>, rhs: &DMatrix<f64>) -> std::result::Result<DMatrix<f64>, Unrealizable> {
     // Jacobi scaling keeps the moment covariance (entries of very different sizes) well posed.
     let r = c.nrows();
@@ -407,37 +500,72 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
         jac: &mut [f64],
     ) -> std::result::Result<(), Unrealizable> {
         let r = self.family.n_moments();
-        let (p, mu, c, g) = self.pass(t, lambda)?;
-        let table = self.family.moment_table();
-        let mut v = DMatrix::zeros(r, 1);
-        for (gk, &pk) in g.chunks_exact(r).zip(&p) {
-            for a in 0..r {
-                v[(a, 0)] += pk * gk[a];
+        let fo = self.first_order(t, lambda)?;
+        for a in 0..r {
+            w[a] = fo.w[a];
+            for j in 0..r {
+                jac[a * r + j] = fo.jac[(a, j)];
             }
         }
-        let wv = solve_spd(&c, &v)?;
-        let mut b = DMatrix::zeros(r, r);
+        Ok(())
+    }
+
+    /// In closed form on the fixed nodes: with u = C⁻¹κ, d_k = M(x_k) − μ and
+    /// ψ_k = uᵀg_k − (uᵀd_k)(Wᵀd_k) (so that ∂(κᵀW)/∂λ_j = ⟨ψ d_j⟩ and ⟨ψ⟩ = 0),
+    ///
+    /// $$ \nabla^2(\kappa^\top W) = \langle \psi\, d d^\top\rangle - TJ - (TJ)^\top
+    ///    + \kappa V^\top + V \kappa^\top, \qquad T = \langle (u^\top d)\, d d^\top\rangle, $$
+    ///
+    /// J = ∂W/∂λ, from ∂⟨h⟩/∂λ_j = ⟨∂_j h⟩ + ⟨h d_j⟩ and ∂d/∂λ_j = −C_{·j}.
+    fn w_second(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        kappa: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+        hess: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        let r = self.family.n_moments();
+        let fo = self.first_order(t, lambda)?;
+        let table = self.family.moment_table();
+        let u = solve_spd(&fo.c, &DMatrix::from_column_slice(r, 1, kappa))?;
+        let mut psi_dd = DMatrix::<f64>::zeros(r, r);
+        let mut tm = DMatrix::<f64>::zeros(r, r);
         let mut d = vec![0.0; r];
-        for (k, &pk) in p.iter().enumerate() {
+        for (k, &pk) in fo.p.iter().enumerate() {
             if pk == 0.0 {
                 continue;
             }
             for a in 0..r {
-                d[a] = table[k * r + a] - mu[a];
+                d[a] = table[k * r + a] - fo.mu[a];
             }
-            let u: f64 = (0..r).map(|a| d[a] * wv[(a, 0)]).sum();
+            let ud: f64 = (0..r).map(|a| u[(a, 0)] * d[a]).sum();
+            let wd: f64 = (0..r).map(|a| fo.w[a] * d[a]).sum();
+            let ug: f64 = (0..r).map(|a| u[(a, 0)] * fo.g[k * r + a]).sum();
+            let psi = pk * (ug - ud * wd);
+            let tu = pk * ud;
             for a in 0..r {
-                let ga = pk * (g[k * r + a] - u * d[a]);
-                for j in 0..r {
-                    b[(a, j)] += ga * d[j];
+                for b in a..r {
+                    let dd = d[a] * d[b];
+                    psi_dd[(a, b)] += psi * dd;
+                    tm[(a, b)] += tu * dd;
                 }
             }
         }
-        let jw = solve_spd(&c, &b)?;
         for a in 0..r {
-            w[a] = wv[(a, 0)];
+            for b in 0..a {
+                psi_dd[(a, b)] = psi_dd[(b, a)];
+                tm[(a, b)] = tm[(b, a)];
+            }
+        }
+        let tj = &tm * &fo.jac;
+        for a in 0..r {
+            w[a] = fo.w[a];
             for j in 0..r {
-                jac[a * r + j] = jw[(a, j)];
+                jac[a * r + j] = fo.jac[(a, j)];
+                hess[a * r + j] =
+                    psi_dd[(a, j)] - tj[(a, j)] - tj[(j, a)] + kappa[a] * fo.v[j] + fo.v[a] * kappa[j];
             }
         }
         Ok(())
@@ -526,5 +654,46 @@ mod tests {
         }
         assert_eq!(dr.linear_index(0), Some(0));
         assert_eq!(dr.square_index(0), Some(1));
+    }
+
+    /// ∇²(κᵀW) of `w_second` against central differences of κᵀ(∂W/∂λ) from `w_jacobian`,
+    /// and its W, ∂W/∂λ against `w_jacobian`.
+    fn check_second<Dr: ClosureDrift>(dr: &Dr, lambda: &[f64], kappa: &[f64], tol: f64) {
+        let r = lambda.len();
+        let (mut w, mut jac, mut hess) = (vec![0.0; r], vec![0.0; r * r], vec![0.0; r * r]);
+        dr.w_second(0.3, lambda, kappa, &mut w, &mut jac, &mut hess).unwrap();
+        let (mut w1, mut jac1) = (vec![0.0; r], vec![0.0; r * r]);
+        dr.w_jacobian(0.3, lambda, &mut w1, &mut jac1).unwrap();
+        for a in 0..r {
+            assert_relative_eq!(w[a], w1[a], epsilon = 1e-12, max_relative = 1e-12);
+        }
+        for k in 0..r * r {
+            assert_relative_eq!(jac[k], jac1[k], epsilon = 1e-10, max_relative = 1e-10);
+        }
+        let (mut jp, mut jm) = (vec![0.0; r * r], vec![0.0; r * r]);
+        for j in 0..r {
+            let h = 1e-6 * (1.0 + lambda[j].abs());
+            let mut l = lambda.to_vec();
+            l[j] += h;
+            dr.w_jacobian(0.3, &l, &mut w1, &mut jp).unwrap();
+            l[j] -= 2.0 * h;
+            dr.w_jacobian(0.3, &l, &mut w1, &mut jm).unwrap();
+            for i in 0..r {
+                // ∂/∂λ_j of Σ_a κ_a ∂W_a/∂λ_i.
+                let fd: f64 = (0..r).map(|a| kappa[a] * (jp[a * r + i] - jm[a * r + i]) / (2.0 * h)).sum();
+                assert_relative_eq!(hess[i * r + j], fd, epsilon = tol, max_relative = tol);
+                assert_relative_eq!(hess[i * r + j], hess[j * r + i], epsilon = 1e-12, max_relative = 1e-10);
+            }
+        }
+    }
+
+    #[test]
+    fn second_order_drift_derivatives_match_finite_differences() {
+        let g = GaussianDrift::try_new(&DoubleWell, &[0.5]).unwrap();
+        let (m, v) = (0.4, 0.3);
+        check_second(&g, &[m / v, -0.5 / v], &[0.7, -1.3], 1e-6);
+        let family = Exponential::quartic(-3.0, 3.0).unwrap();
+        let e = ExponentialDrift::try_new(&DoubleWell, &[0.5], family).unwrap();
+        check_second(&e, &[0.3, 1.0, -0.2, -0.8], &[0.5, -0.25, 0.1, 0.8], 1e-5);
     }
 }

@@ -15,6 +15,10 @@
 //! Wanner, *Solving ODEs I*, 2nd ed., Sec. II.5, Table 5.2); the backward sweep is the exact
 //! discrete adjoint of the accepted Runge–Kutta steps (the stages are stored), so the gradient
 //! is that of the computed F to round-off and the continuous (II.47) to the ODE tolerance.
+//! ∇²F (and the cross-covariances of the dispersion) are the exact derivatives of the computed
+//! gradient: a tangent-linear forward sweep for all multipliers at once and the tangent of the
+//! discrete adjoint, which needs the Hessians of the stage-adjoint contractions k̄ᵀW
+//! ([`ClosureDrift::w_second`]).
 //! A step whose stage leaves the family's moment space (W not defined) is rejected and
 //! retried smaller; a sweep that cannot proceed returns a non-finite F, which the dual solver
 //! treats by backtracking (never a NaN path in a result).
@@ -60,6 +64,8 @@ struct Forward {
     /// μ(t_k−) and μ(t_k+), per measurement.
     mu_minus: Vec<Vec<f64>>,
     mu_plus: Vec<Vec<f64>>,
+    /// C(t_k−), per measurement.
+    cov_minus: Vec<Vec<f64>>,
     /// μ (after the jump) and C at every event.
     mu: Vec<Vec<f64>>,
     cov: Vec<Vec<f64>>,
@@ -67,24 +73,21 @@ struct Forward {
     f: f64,
 }
 
-/// The step sizes of a sweep, to replay it exactly (finite differences of a fixed
-/// discretisation).
-type Plan = Vec<Vec<f64>>;
+/// The stage derivatives of one accepted step that the tangent sweeps need: its size, the
+/// stage Jacobians J_i = ∂W/∂λ(Y_i) and the Hessians H_i = ∇²(k̄_iᵀW)(Y_i) of the stage
+/// adjoints' contractions (6 R × R blocks each, row-major).
+#[derive(Debug, Clone)]
+struct StepDerivs {
+    h: f64,
+    jac: Vec<f64>,
+    hess: Vec<f64>,
+}
 
-/// The stage Jacobians ∂W/∂λ of every accepted step (6 R × R blocks), per interval, with the
-/// step sizes: what the adjoint needs of a stored sweep.
-type Jacobians = Vec<Vec<(f64, Vec<f64>)>>;
+/// γ at every event and the stage derivatives of every step (`[interval][step]`).
+type Adjoint = (Vec<Vec<f64>>, Vec<Vec<StepDerivs>>);
 
 /// m(t) at every event and its derivatives ∂m/∂λ_j (`[j][event][moment]`).
 type Tangents = Vec<Vec<Vec<f64>>>;
-
-/// A reference sweep whose part before an event is reused (the multiplier perturbed there does
-/// not change it, by causality): the forward sweep and its stage Jacobians.
-struct Prefix<'r> {
-    fw: &'r Forward,
-    jac: &'r Jacobians,
-    event: usize,
-}
 
 /// The closure effective action of one problem: the drift, the initial natural parameters, the
 /// event times (t_0, output times, measurement times) and the measured moments.
@@ -248,26 +251,15 @@ impl<D: ClosureDrift> ClosureAction<D> {
         Some((y_new, err, stages))
     }
 
-    /// Integrates from `t` to `t_end` (adaptive, or replaying `plan`), pushing the steps.
+    /// Integrates from `t` to `t_end` with error control, pushing the accepted steps.
     fn integrate(
         &self,
         t: f64,
         t_end: f64,
         y: &mut Vec<f64>,
         h_guess: &mut f64,
-        plan: Option<&[f64]>,
         steps: &mut Vec<Step>,
     ) -> std::result::Result<(), SweepFailure> {
-        if let Some(plan) = plan {
-            let mut tc = t;
-            for &h in plan {
-                let (y_new, _, stages) = self.rk_step(tc, y, h).ok_or(SweepFailure)?;
-                steps.push(Step { t: tc, h, stages });
-                *y = y_new;
-                tc += h;
-            }
-            return Ok(());
-        }
         let span = t_end - t;
         if span <= 0.0 {
             return Ok(());
@@ -303,13 +295,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         Ok(())
     }
 
-    fn forward(
-        &self,
-        events: &Events,
-        lambda: &[f64],
-        plan: Option<&Plan>,
-        prefix: Option<&Prefix<'_>>,
-    ) -> std::result::Result<Forward, SweepFailure> {
+    fn forward(&self, events: &Events, lambda: &[f64]) -> std::result::Result<Forward, SweepFailure> {
         let s = self.measured.len();
         let ne = events.times.len();
         let span = events.times[ne - 1] - events.times[0];
@@ -319,30 +305,16 @@ impl<D: ClosureDrift> ClosureAction<D> {
             lambda_minus: Vec::with_capacity(ne),
             mu_minus: Vec::new(),
             mu_plus: Vec::new(),
+            cov_minus: Vec::new(),
             mu: Vec::with_capacity(ne),
             cov: Vec::with_capacity(ne),
             f: 0.0,
         };
-        let (e0, mut y) = match prefix {
-            Some(p) => {
-                let e0 = p.event;
-                let nm = events.meas[..e0].iter().flatten().count();
-                out.steps.extend((0..e0).map(|_| Vec::new()));
-                out.lambda_minus.extend_from_slice(&p.fw.lambda_minus[..e0]);
-                out.mu.extend_from_slice(&p.fw.mu[..e0]);
-                out.cov.extend_from_slice(&p.fw.cov[..e0]);
-                out.mu_minus.extend_from_slice(&p.fw.mu_minus[..nm]);
-                out.mu_plus.extend_from_slice(&p.fw.mu_plus[..nm]);
-                out.f = f64::NAN;
-                (e0, p.fw.lambda_minus[e0].clone())
-            }
-            None => (0, self.lambda0.clone()),
-        };
-        for e in e0..ne {
-            if e > e0 {
+        let mut y = self.lambda0.clone();
+        for e in 0..ne {
+            if e > 0 {
                 let mut steps = Vec::new();
-                let p = plan.map(|p| p[e - 1].as_slice());
-                self.integrate(events.times[e - 1], events.times[e], &mut y, &mut h, p, &mut steps)?;
+                self.integrate(events.times[e - 1], events.times[e], &mut y, &mut h, &mut steps)?;
                 out.steps.push(steps);
             }
             out.lambda_minus.push(y.clone());
@@ -355,34 +327,38 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 m = self.drift.moments(&y).map_err(|_| SweepFailure)?;
                 out.f += m.log_partition - before.log_partition;
                 out.mu_minus.push(before.mean);
+                out.cov_minus.push(before.covariance);
                 out.mu_plus.push(m.mean.clone());
             }
             out.mu.push(m.mean);
             out.cov.push(m.covariance);
         }
-        if prefix.is_none() && !out.f.is_finite() {
+        if !out.f.is_finite() {
             return Err(SweepFailure);
         }
         Ok(out)
     }
 
     /// The discrete adjoint: γ at every event (after the jump at measurement events, i.e.
-    /// γ(t_k+)), and the stage Jacobians of the steps it computed them for. With a prefix, the
-    /// intervals before its event use the reference's Jacobians.
+    /// γ(t_k+)); with `second`, also the stage derivatives of every step for the tangents
+    /// (`[interval][step]`).
     fn backward(
         &self,
         events: &Events,
         fw: &Forward,
-        prefix: Option<&Prefix<'_>>,
-    ) -> std::result::Result<(Vec<Vec<f64>>, Jacobians), SweepFailure> {
+        second: bool,
+    ) -> std::result::Result<Adjoint, SweepFailure> {
         let r = self.drift.n_params();
+        let rr = r * r;
         let ne = events.times.len();
         let mut gamma = vec![0.0; r];
         let mut out = vec![Vec::new(); ne];
         let mut w = vec![0.0; r];
-        let mut jacs: Jacobians = vec![Vec::new(); ne.saturating_sub(1)];
+        let mut derivs: Vec<Vec<StepDerivs>> = vec![Vec::new(); ne.saturating_sub(1)];
         let mut kbar = vec![0.0; 6 * r];
         let mut ybar = vec![0.0; r];
+        let mut jac = vec![0.0; 6 * rr];
+        let mut hess = vec![0.0; if second { 6 * rr } else { 0 }];
         for e in (0..ne).rev() {
             out[e] = gamma.clone();
             if let Some(k) = events.meas[e] {
@@ -393,37 +369,23 @@ impl<D: ClosureDrift> ClosureAction<D> {
             if e == 0 {
                 break;
             }
-            let reuse = prefix.filter(|p| e <= p.event);
-            let n_steps = match reuse {
-                Some(p) => p.jac[e - 1].len(),
-                None => fw.steps[e - 1].len(),
-            };
-            for js in (0..n_steps).rev() {
-                let (h, jac) = match reuse {
-                    Some(p) => (p.jac[e - 1][js].0, p.jac[e - 1][js].1.clone()),
-                    None => {
-                        let step = &fw.steps[e - 1][js];
-                        let mut jac = vec![0.0; 6 * r * r];
-                        for i in 0..6 {
-                            self.drift
-                                .w_jacobian(
-                                    step.t + C[i] * step.h,
-                                    &step.stages[i * r..(i + 1) * r],
-                                    &mut w,
-                                    &mut jac[i * r * r..(i + 1) * r * r],
-                                )
-                                .map_err(|_| SweepFailure)?;
-                        }
-                        (step.h, jac)
-                    }
-                };
+            for step in fw.steps[e - 1].iter().rev() {
+                let h = step.h;
                 for i in 0..6 {
                     for a in 0..r {
                         kbar[i * r + a] = h * B[i] * gamma[a];
                     }
                 }
                 for i in (0..6).rev() {
-                    let ji = &jac[i * r * r..(i + 1) * r * r];
+                    let (ti, yi) = (step.t + C[i] * h, &step.stages[i * r..(i + 1) * r]);
+                    let ji = &mut jac[i * rr..(i + 1) * rr];
+                    if second {
+                        let ki = &kbar[i * r..(i + 1) * r];
+                        let hi = &mut hess[i * rr..(i + 1) * rr];
+                        self.drift.w_second(ti, yi, ki, &mut w, ji, hi).map_err(|_| SweepFailure)?;
+                    } else {
+                        self.drift.w_jacobian(ti, yi, &mut w, ji).map_err(|_| SweepFailure)?;
+                    }
                     // Ȳ_i = J_iᵀ k̄_i.
                     for (b, yb) in ybar.iter_mut().enumerate() {
                         *yb = (0..r).map(|a| ji[a * r + b] * kbar[i * r + a]).sum();
@@ -440,22 +402,16 @@ impl<D: ClosureDrift> ClosureAction<D> {
                         }
                     }
                 }
-                if reuse.is_none() {
-                    jacs[e - 1].push((h, jac));
+                if second {
+                    derivs[e - 1].push(StepDerivs { h, jac: jac.clone(), hess: hess.clone() });
                 }
             }
-            if reuse.is_none() {
-                jacs[e - 1].reverse();
-            }
+            derivs[e - 1].reverse();
         }
         if out.iter().flatten().any(|v| !v.is_finite()) {
             return Err(SweepFailure);
         }
-        Ok((out, jacs))
-    }
-
-    fn plan_of(fw: &Forward) -> Plan {
-        fw.steps.iter().map(|s| s.iter().map(|st| st.h).collect()).collect()
+        Ok((out, derivs))
     }
 
     fn z_of(&self, events: &Events, fw: &Forward, gamma: &[Vec<f64>]) -> Vec<f64> {
@@ -470,19 +426,19 @@ impl<D: ClosureDrift> ClosureAction<D> {
         z
     }
 
-    /// F and z at λ on `events`, optionally replaying `plan` and reusing a prefix.
+    /// F and z at λ on `events`; with `second`, the stage derivatives for the tangents.
+    #[allow(clippy::type_complexity)]
     fn value(
         &mut self,
         events: &Events,
         lambda: &[f64],
-        plan: Option<&Plan>,
-        prefix: Option<&Prefix<'_>>,
-    ) -> std::result::Result<(Forward, Vec<Vec<f64>>, Jacobians), SweepFailure> {
+        second: bool,
+    ) -> std::result::Result<(Forward, Vec<Vec<f64>>, Vec<Vec<StepDerivs>>), SweepFailure> {
         self.sweeps += 1;
-        let fw = self.forward(events, lambda, plan, prefix)?;
+        let fw = self.forward(events, lambda)?;
         self.steps += fw.steps.iter().map(Vec::len).sum::<usize>();
-        let (g, jac) = self.backward(events, &fw, prefix)?;
-        Ok((fw, g, jac))
+        let (g, derivs) = self.backward(events, &fw, second)?;
+        Ok((fw, g, derivs))
     }
 
     /// m(t) = μ + γ of all moments at every event.
@@ -490,36 +446,165 @@ impl<D: ClosureDrift> ClosureAction<D> {
         fw.mu.iter().zip(gamma).map(|(mu, ga)| mu.iter().zip(ga).map(|(a, b)| a + b).collect()).collect()
     }
 
-    /// ∂m(t)/∂λ_j at every event for every multiplier j by one-sided differences of the
-    /// sweep with the reference's steps replayed and its part before t_j reused (causality):
-    /// `out[j][event][moment]`.
+    /// ∂m(t)/∂λ_j at every event for every multiplier j, exactly (to round-off) for the computed
+    /// sweep: the tangent-linear forward sweep δλ and the tangent of the discrete adjoint
+    /// (second-order adjoint, "forward over reverse") for all multipliers at once,
+    /// `out[j][event][moment]`. With δY_i, δK_i = J_iδY_i the stage tangents of a step
+    /// (Y_i = y + hΣ_j a_ij K_j) and δk̄_i = hb_iδγ + Σ_{l>i} h a_li δȲ_l the tangents of its stage
+    /// adjoints, δȲ_i = J_iᵀδk̄_i + H_iδY_i with H_i = ∇²(k̄_iᵀW)(Y_i); across a measurement
+    /// δγ(t_k−) = δγ(t_k+) + C(t_k+)δλ(t_k+) − C(t_k−)δλ(t_k−) (the tangent of (II.50)), and
+    /// δm = Cδλ + δγ (of (II.48)). Cost: one sweep with second-order stage derivatives and
+    /// O(R² n) work per stage for n multipliers.
     fn tangents(
         &mut self,
         events: &Events,
         lambda: &[f64],
     ) -> std::result::Result<(Vec<Vec<f64>>, Tangents), SweepFailure> {
-        let (fw, g, jac) = self.value(events, lambda, None, None)?;
-        let plan = Self::plan_of(&fw);
+        let (fw, g, derivs) = self.value(events, lambda, true)?;
         let base = Self::moments_at_events(&fw, &g);
+        let r = self.drift.n_params();
+        let rr = r * r;
+        let nm = lambda.len();
         let s = self.measured.len();
-        let event_of: Vec<usize> = events.meas.iter().enumerate().filter_map(|(e, m)| m.map(|_| e)).collect();
-        let mut out = Vec::with_capacity(lambda.len());
-        let mut l = lambda.to_vec();
-        for j in 0..lambda.len() {
-            let step = 1e-6 * (1.0 + lambda[j].abs());
-            l[j] = lambda[j] + step;
-            let prefix = Prefix { fw: &fw, jac: &jac, event: event_of[j / s] };
-            let (fp, gp, _) = self.value(events, &l, Some(&plan), Some(&prefix))?;
-            l[j] = lambda[j];
-            let mp = Self::moments_at_events(&fp, &gp);
-            out.push(
-                mp.iter()
-                    .zip(&base)
-                    .map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y) / step).collect())
-                    .collect(),
-            );
+        let ne = events.times.len();
+        // Forward tangent δλ (R × nm, row-major) after each event; before each measurement's jump.
+        let mut dl = vec![0.0; r * nm];
+        let mut dl_after = Vec::with_capacity(ne);
+        let mut dl_before = Vec::new();
+        // Active columns (multipliers at or before the event) after each event.
+        let mut active = vec![0usize; ne];
+        let mut ncol = 0;
+        let mut dys = Vec::new();
+        for e in 0..ne {
+            if e > 0 {
+                for d in &derivs[e - 1] {
+                    Self::tangent_step(d, r, nm, ncol, &mut dl, &mut dys);
+                }
+            }
+            if let Some(k) = events.meas[e] {
+                dl_before.push(dl.clone());
+                for (b, &a) in self.measured.iter().enumerate() {
+                    dl[a * nm + k * s + b] += 1.0;
+                }
+                ncol = (k + 1) * s;
+            }
+            active[e] = ncol;
+            dl_after.push(dl.clone());
+        }
+        // Backward tangent δγ (R × nm).
+        let mut out = vec![vec![vec![0.0; r]; ne]; nm];
+        let mut dg = vec![0.0; r * nm];
+        let mut dk = vec![0.0; 6 * r * nm];
+        let mut dyb = vec![0.0; r * nm];
+        for e in (0..ne).rev() {
+            let c = &fw.cov[e];
+            for (j, oj) in out.iter_mut().enumerate() {
+                for a in 0..r {
+                    oj[e][a] =
+                        dg[a * nm + j] + (0..r).map(|b| c[a * r + b] * dl_after[e][b * nm + j]).sum::<f64>();
+                }
+            }
+            if let Some(k) = events.meas[e] {
+                let cm = &fw.cov_minus[k];
+                for a in 0..r {
+                    for j in 0..nm {
+                        dg[a * nm + j] += (0..r)
+                            .map(|b| {
+                                c[a * r + b] * dl_after[e][b * nm + j]
+                                    - cm[a * r + b] * dl_before[k][b * nm + j]
+                            })
+                            .sum::<f64>();
+                    }
+                }
+            }
+            if e == 0 {
+                break;
+            }
+            // Recompute the stage tangents of the interval (e − 1, e) from δλ after event e − 1.
+            let ncol = active[e - 1];
+            let mut y = dl_after[e - 1].clone();
+            let mut stage_tangents = Vec::with_capacity(derivs[e - 1].len());
+            for d in &derivs[e - 1] {
+                Self::tangent_step(d, r, nm, ncol, &mut y, &mut dys);
+                stage_tangents.push(dys.clone());
+            }
+            for (d, dy) in derivs[e - 1].iter().zip(&stage_tangents).rev() {
+                let h = d.h;
+                for i in 0..6 {
+                    for q in 0..r * nm {
+                        dk[i * r * nm + q] = h * B[i] * dg[q];
+                    }
+                }
+                for i in (0..6).rev() {
+                    let ji = &d.jac[i * rr..(i + 1) * rr];
+                    let hi = &d.hess[i * rr..(i + 1) * rr];
+                    let dki = &dk[i * r * nm..(i + 1) * r * nm];
+                    let dyi = &dy[i * r * nm..(i + 1) * r * nm];
+                    // δȲ_i = J_iᵀ δk̄_i + H_i δY_i (δY_i vanishes outside the active columns).
+                    for b in 0..r {
+                        for j in 0..nm {
+                            let mut v = 0.0;
+                            for a in 0..r {
+                                v += ji[a * r + b] * dki[a * nm + j];
+                            }
+                            if j < ncol {
+                                for a in 0..r {
+                                    v += hi[b * r + a] * dyi[a * nm + j];
+                                }
+                            }
+                            dyb[b * nm + j] = v;
+                        }
+                    }
+                    for q in 0..r * nm {
+                        dg[q] += dyb[q];
+                    }
+                    for jj in 0..i {
+                        let cc = h * A[i][jj];
+                        if cc != 0.0 {
+                            for q in 0..r * nm {
+                                dk[jj * r * nm + q] += cc * dyb[q];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        if out.iter().flatten().flatten().any(|v| !v.is_finite()) {
+            return Err(SweepFailure);
         }
         Ok((base, out))
+    }
+
+    /// One step of the tangent-linear Runge–Kutta sweep on the first `ncol` columns of
+    /// δy (R × nm): the stage tangents δY_i into `dys` (6 R × nm blocks), δy advanced in place.
+    fn tangent_step(d: &StepDerivs, r: usize, nm: usize, ncol: usize, dy: &mut [f64], dys: &mut Vec<f64>) {
+        let rn = r * nm;
+        let rr = r * r;
+        dys.clear();
+        dys.resize(6 * rn, 0.0);
+        let mut dks = vec![0.0; 6 * rn];
+        for i in 0..6 {
+            for a in 0..r {
+                for j in 0..ncol {
+                    let mut v = dy[a * nm + j];
+                    for (l, dkl) in dks.chunks_exact(rn).enumerate().take(i) {
+                        v += d.h * A[i][l] * dkl[a * nm + j];
+                    }
+                    dys[i * rn + a * nm + j] = v;
+                }
+            }
+            let ji = &d.jac[i * rr..(i + 1) * rr];
+            for a in 0..r {
+                for j in 0..ncol {
+                    dks[i * rn + a * nm + j] = (0..r).map(|b| ji[a * r + b] * dys[i * rn + b * nm + j]).sum();
+                }
+            }
+        }
+        for a in 0..r {
+            for j in 0..ncol {
+                dy[a * nm + j] += d.h * (0..6).map(|i| B[i] * dks[i * rn + a * nm + j]).sum::<f64>();
+            }
+        }
     }
 
     /// The history m(t) = μ(λ(t)) + γ(t) of all moments at the output times, with μ(t)
@@ -529,7 +614,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
     pub fn moment_paths(&mut self, lambda: &[f64]) -> Result<(Vec<f64>, Vec<Vec<f64>>, Vec<Vec<f64>>)> {
         self.check(lambda)?;
         let events = self.out_events.clone();
-        let (fw, g, _) = self.value(&events, lambda, None, None).map_err(|_| self.failed())?;
+        let (fw, g, _) = self.value(&events, lambda, false).map_err(|_| self.failed())?;
         Ok((events.times, Self::moments_at_events(&fw, &g), fw.mu))
     }
 
@@ -560,7 +645,7 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
             }
         }
         let events = self.fit_events.clone();
-        match self.value(&events, lambda, None, None) {
+        match self.value(&events, lambda, false) {
             Ok((fw, g, _)) => {
                 let z = self.z_of(&events, &fw, &g);
                 let value = fw.f;
@@ -571,9 +656,8 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
         }
     }
 
-    /// ∇²F = ∂z/∂λ by one-sided differences (step 10⁻⁶(1 + |λ_j|)) of the adjoint gradient with
-    /// the steps of the sweep at λ replayed (a fixed discretisation, so the differences are
-    /// accurate to ~10⁻⁶ relative) and, by causality, the sweep before t_j reused; symmetrised.
+    /// ∇²F = ∂z/∂λ of the computed F, exactly to round-off, by the tangent sweeps (forward
+    /// tangent and second-order adjoint) for all multipliers at once; symmetrised.
     fn hessian(&mut self, lambda: &[f64]) -> Result<DMatrix<f64>> {
         self.check(lambda)?;
         let events = self.fit_events.clone();
@@ -588,7 +672,7 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
 
     /// m(t) of every state at the output times (`(II.48)`); the variance is m_{x²} − m_x² when
     /// the family has the square moments; `cross` (Cov(x_i(τ), Z_j) = ∂m_{x_i}(τ)/∂λ_j) by
-    /// the differences of [`EffectiveAction::hessian`].
+    /// the tangent sweeps of [`EffectiveAction::hessian`].
     fn history(&mut self, lambda: &[f64], cross: bool) -> Result<History> {
         self.check(lambda)?;
         let n = self.drift.state_dim();
@@ -608,7 +692,7 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
                 (0..m.len()).map(|e| DMatrix::from_fn(n, nm, |i, j| t[j][e][lin[i]])).collect::<Vec<_>>();
             (m, Some(cr))
         } else {
-            let (fw, g, _) = self.value(&events, lambda, None, None).map_err(|_| self.failed())?;
+            let (fw, g, _) = self.value(&events, lambda, false).map_err(|_| self.failed())?;
             (Self::moments_at_events(&fw, &g), None)
         };
         let sq: Vec<Option<usize>> = (0..n).map(|i| self.drift.square_index(i)).collect();
