@@ -16,7 +16,6 @@
 //!   ∂π_k/∂λ = π_k(M_k − μ) gives ∂V/∂λ = Cov(L*M, M) and ∂C/∂λ = the third cumulant
 //!   (`(II.43)`) in closed form.
 
-use nalgebra::{DMatrix, DVector};
 use num_dual::{Dual64, HyperDual64};
 use onsager_closures::{cholesky, cholesky_inverse, Exponential, Gaussian, TrialFamily};
 
@@ -360,113 +359,165 @@ impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
     pub fn diffusion(&self) -> &[f64] {
         &self.diffusion
     }
+}
 
-    /// π, μ, C (as matrices) and the generator averages g_k at every node (node-major).
-    #[allow(clippy::type_complexity)]
-    fn pass(
-        &self,
-        t: f64,
-        lambda: &[f64],
-    ) -> std::result::Result<(Vec<f64>, DVector<f64>, DMatrix<f64>, Vec<f64>), Unrealizable> {
+/// The Jacobi-scaled Cholesky factor of a moment covariance C (entries of very different
+/// sizes): C = S⁻¹LLᵀS⁻¹ with S = diag(1/√C_aa).
+struct SpdFactor {
+    r: usize,
+    scale: Vec<f64>,
+    l: Vec<f64>,
+}
+
+impl SpdFactor {
+    fn new(c: &[f64], r: usize) -> std::result::Result<Self, Unrealizable> {
+        let scale: Vec<f64> = (0..r).map(|a| 1.0 / c[a * r + a].max(f64::MIN_POSITIVE).sqrt()).collect();
+        let mut l = vec![0.0; r * r];
+        for i in 0..r {
+            for j in 0..=i {
+                let mut v = c[i * r + j] * scale[i] * scale[j];
+                for k in 0..j {
+                    v -= l[i * r + k] * l[j * r + k];
+                }
+                if i == j {
+                    if v.is_nan() || v <= 0.0 {
+                        return Err(Unrealizable("the moment covariance C is not positive definite".into()));
+                    }
+                    l[i * r + i] = v.sqrt();
+                } else {
+                    l[i * r + j] = v / l[j * r + j];
+                }
+            }
+        }
+        Ok(SpdFactor { r, scale, l })
+    }
+
+    /// x = C⁻¹b in place.
+    fn solve(&self, x: &mut [f64]) {
+        let (r, l) = (self.r, &self.l);
+        for (xa, sa) in x.iter_mut().zip(&self.scale) {
+            *xa *= sa;
+        }
+        for i in 0..r {
+            let mut v = x[i];
+            for k in 0..i {
+                v -= l[i * r + k] * x[k];
+            }
+            x[i] = v / l[i * r + i];
+        }
+        for i in (0..r).rev() {
+            let mut v = x[i];
+            for k in i + 1..r {
+                v -= l[k * r + i] * x[k];
+            }
+            x[i] = v / l[i * r + i];
+        }
+        for (xa, sa) in x.iter_mut().zip(&self.scale) {
+            *xa *= sa;
+        }
+    }
+}
+
+/// What W and ∂W/∂λ of an exponential closure are made of (see [`ExponentialDrift`]), flat:
+/// node probabilities π, centred moments d_k = M(x_k) − μ (node-major), generator averages g_k
+/// (node-major), V, the factor of C, W.
+struct FirstOrder {
+    p: Vec<f64>,
+    d: Vec<f64>,
+    g: Vec<f64>,
+    v: Vec<f64>,
+    c: SpdFactor,
+    w: Vec<f64>,
+}
+
+impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
+    /// π, d, g, V, C and W = C⁻¹V at (t, λ).
+    fn zeroth(&self, t: f64, lambda: &[f64]) -> std::result::Result<FirstOrder, Unrealizable> {
         let n = self.family.dim();
         let r = self.family.n_moments();
         let (p, _) = self.family.node_probabilities(lambda).map_err(unrealizable)?;
         let table = self.family.moment_table();
-        let mut mu = DVector::zeros(r);
+        let mut mu = vec![0.0; r];
         for (row, &pk) in table.chunks_exact(r).zip(&p) {
             for a in 0..r {
                 mu[a] += pk * row[a];
             }
         }
-        let mut c = DMatrix::zeros(r, r);
-        let mut g = vec![0.0; p.len() * r];
+        let nodes = p.len();
+        let mut d = vec![0.0; nodes * r];
+        let mut g = vec![0.0; nodes * r];
+        let mut c = vec![0.0; r * r];
+        let mut v = vec![0.0; r];
         let mut f = vec![0.0; n];
-        for (k, (x, _)) in self.family.grid().iter().enumerate() {
-            let row = &table[k * r..(k + 1) * r];
+        let points = self.family.grid().points();
+        for k in 0..nodes {
             let pk = p[k];
-            for a in 0..r {
-                for b in a..r {
-                    c[(a, b)] += pk * (row[a] - mu[a]) * (row[b] - mu[b]);
-                }
-            }
             if pk == 0.0 {
                 continue;
             }
-            self.sde.state_drift(t, x, &self.theta, &mut f);
+            let dk = &mut d[k * r..(k + 1) * r];
+            for a in 0..r {
+                dk[a] = table[k * r + a] - mu[a];
+            }
+            for a in 0..r {
+                let pa = pk * dk[a];
+                for b in a..r {
+                    c[a * r + b] += pa * dk[b];
+                }
+            }
+            self.sde.state_drift(t, &points[k * n..(k + 1) * n], &self.theta, &mut f);
             let jk = &self.jac[k * r * n..(k + 1) * r * n];
             for a in 0..r {
-                g[k * r + a] = (0..n).map(|i| jk[a * n + i] * f[i]).sum::<f64>() + self.second[k * r + a];
+                let mut ga = self.second[k * r + a];
+                for i in 0..n {
+                    ga += jk[a * n + i] * f[i];
+                }
+                g[k * r + a] = ga;
+                v[a] += pk * ga;
             }
         }
         for a in 0..r {
             for b in 0..a {
-                c[(a, b)] = c[(b, a)];
+                c[a * r + b] = c[b * r + a];
             }
         }
-        if g.iter().any(|v| !v.is_finite()) {
+        if !v.iter().all(|x| x.is_finite()) {
             return Err(Unrealizable("the drift is not finite on the family's grid".into()));
         }
-        Ok((p, mu, c, g))
+        let c = SpdFactor::new(&c, r)?;
+        let mut w = v.clone();
+        c.solve(&mut w);
+        Ok(FirstOrder { p, d, g, v, c, w })
     }
-}
 
-/// What W and ∂W/∂λ of an exponential closure are made of (see [`ExponentialDrift`]).
-struct FirstOrder {
-    p: Vec<f64>,
-    mu: DVector<f64>,
-    c: DMatrix<f64>,
-    g: Vec<f64>,
-    v: Vec<f64>,
-    w: Vec<f64>,
-    jac: DMatrix<f64>,
-}
-
-impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
-    /// W = C⁻¹V and ∂W/∂λ = C⁻¹Σπ_k(g_k − (d_k·W)d_k)d_kᵀ.
-    fn first_order(&self, t: f64, lambda: &[f64]) -> std::result::Result<FirstOrder, Unrealizable> {
-        let r = self.family.n_moments();
-        let (p, mu, c, g) = self.pass(t, lambda)?;
-        let table = self.family.moment_table();
-        let mut v = DMatrix::zeros(r, 1);
-        for (gk, &pk) in g.chunks_exact(r).zip(&p) {
-            for a in 0..r {
-                v[(a, 0)] += pk * gk[a];
-            }
-        }
-        let wv = solve_spd(&c, &v)?;
-        let mut b = DMatrix::zeros(r, r);
-        let mut d = vec![0.0; r];
-        for (k, &pk) in p.iter().enumerate() {
+    /// ∂W/∂λ = C⁻¹Σπ_k(g_k − (d_k·W)d_k)d_kᵀ into `jac` (row-major).
+    fn jacobian_of(&self, z: &FirstOrder, jac: &mut [f64]) {
+        let r = z.w.len();
+        jac.iter_mut().for_each(|v| *v = 0.0);
+        for (k, &pk) in z.p.iter().enumerate() {
             if pk == 0.0 {
                 continue;
             }
+            let dk = &z.d[k * r..(k + 1) * r];
+            let u: f64 = (0..r).map(|a| dk[a] * z.w[a]).sum();
             for a in 0..r {
-                d[a] = table[k * r + a] - mu[a];
-            }
-            let u: f64 = (0..r).map(|a| d[a] * wv[(a, 0)]).sum();
-            for a in 0..r {
-                let ga = pk * (g[k * r + a] - u * d[a]);
+                let ga = pk * (z.g[k * r + a] - u * dk[a]);
                 for j in 0..r {
-                    b[(a, j)] += ga * d[j];
+                    jac[a * r + j] += ga * dk[j];
                 }
             }
         }
-        let jac = solve_spd(&c, &b)?;
-        Ok(FirstOrder { v: v.iter().copied().collect(), w: wv.iter().copied().collect(), p, mu, c, g, jac })
+        let mut col = vec![0.0; r];
+        for j in 0..r {
+            for a in 0..r {
+                col[a] = jac[a * r + j];
+            }
+            z.c.solve(&mut col);
+            for a in 0..r {
+                jac[a * r + j] = col[a];
+            }
+        }
     }
-}
-
-fn solve_spd(c: &DMatrix<f64>, rhs: &DMatrix<f64>) -> std::result::Result<DMatrix<f64>, Unrealizable> {
-    // Jacobi scaling keeps the moment covariance (entries of very different sizes) well posed.
-    let r = c.nrows();
-    let s = DVector::from_fn(r, |a, _| 1.0 / c[(a, a)].max(f64::MIN_POSITIVE).sqrt());
-    let cs = DMatrix::from_fn(r, r, |a, b| c[(a, b)] * s[a] * s[b]);
-    let ch = cs
-        .cholesky()
-        .ok_or_else(|| Unrealizable("the moment covariance C is not positive definite".into()))?;
-    let scaled = DMatrix::from_fn(rhs.nrows(), rhs.ncols(), |a, j| rhs[(a, j)] * s[a]);
-    let y = ch.solve(&scaled);
-    Ok(DMatrix::from_fn(y.nrows(), y.ncols(), |a, j| y[(a, j)] * s[a]))
 }
 
 impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
@@ -479,16 +530,8 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
     }
 
     fn w(&self, t: f64, lambda: &[f64], out: &mut [f64]) -> std::result::Result<(), Unrealizable> {
-        let r = self.family.n_moments();
-        let (p, _, c, g) = self.pass(t, lambda)?;
-        let mut v = DMatrix::zeros(r, 1);
-        for (gk, &pk) in g.chunks_exact(r).zip(&p) {
-            for a in 0..r {
-                v[(a, 0)] += pk * gk[a];
-            }
-        }
-        let w = solve_spd(&c, &v)?;
-        out.iter_mut().zip(w.iter()).for_each(|(o, v)| *o = *v);
+        let z = self.zeroth(t, lambda)?;
+        out.copy_from_slice(&z.w);
         Ok(())
     }
 
@@ -499,14 +542,9 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
         w: &mut [f64],
         jac: &mut [f64],
     ) -> std::result::Result<(), Unrealizable> {
-        let r = self.family.n_moments();
-        let fo = self.first_order(t, lambda)?;
-        for a in 0..r {
-            w[a] = fo.w[a];
-            for j in 0..r {
-                jac[a * r + j] = fo.jac[(a, j)];
-            }
-        }
+        let z = self.zeroth(t, lambda)?;
+        self.jacobian_of(&z, jac);
+        w.copy_from_slice(&z.w);
         Ok(())
     }
 
@@ -527,47 +565,52 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
         hess: &mut [f64],
     ) -> std::result::Result<(), Unrealizable> {
         let r = self.family.n_moments();
-        let fo = self.first_order(t, lambda)?;
-        let table = self.family.moment_table();
-        let u = solve_spd(&fo.c, &DMatrix::from_column_slice(r, 1, kappa))?;
-        let mut psi_dd = DMatrix::<f64>::zeros(r, r);
-        let mut tm = DMatrix::<f64>::zeros(r, r);
-        let mut d = vec![0.0; r];
-        for (k, &pk) in fo.p.iter().enumerate() {
+        let z = self.zeroth(t, lambda)?;
+        self.jacobian_of(&z, jac);
+        let mut u = kappa.to_vec();
+        z.c.solve(&mut u);
+        // hess accumulates ⟨ψ d dᵀ⟩ (upper triangle); tm = T.
+        let mut tm = vec![0.0; r * r];
+        hess.iter_mut().for_each(|v| *v = 0.0);
+        for (k, &pk) in z.p.iter().enumerate() {
             if pk == 0.0 {
                 continue;
             }
+            let dk = &z.d[k * r..(k + 1) * r];
+            let (mut ud, mut wd, mut ug) = (0.0, 0.0, 0.0);
             for a in 0..r {
-                d[a] = table[k * r + a] - fo.mu[a];
+                ud += u[a] * dk[a];
+                wd += z.w[a] * dk[a];
+                ug += u[a] * z.g[k * r + a];
             }
-            let ud: f64 = (0..r).map(|a| u[(a, 0)] * d[a]).sum();
-            let wd: f64 = (0..r).map(|a| fo.w[a] * d[a]).sum();
-            let ug: f64 = (0..r).map(|a| u[(a, 0)] * fo.g[k * r + a]).sum();
             let psi = pk * (ug - ud * wd);
             let tu = pk * ud;
             for a in 0..r {
+                let (pa, ta) = (psi * dk[a], tu * dk[a]);
                 for b in a..r {
-                    let dd = d[a] * d[b];
-                    psi_dd[(a, b)] += psi * dd;
-                    tm[(a, b)] += tu * dd;
+                    hess[a * r + b] += pa * dk[b];
+                    tm[a * r + b] += ta * dk[b];
                 }
             }
         }
         for a in 0..r {
             for b in 0..a {
-                psi_dd[(a, b)] = psi_dd[(b, a)];
-                tm[(a, b)] = tm[(b, a)];
+                hess[a * r + b] = hess[b * r + a];
+                tm[a * r + b] = tm[b * r + a];
             }
         }
-        let tj = &tm * &fo.jac;
+        let mut tj = vec![0.0; r * r];
         for a in 0..r {
-            w[a] = fo.w[a];
             for j in 0..r {
-                jac[a * r + j] = fo.jac[(a, j)];
-                hess[a * r + j] =
-                    psi_dd[(a, j)] - tj[(a, j)] - tj[(j, a)] + kappa[a] * fo.v[j] + fo.v[a] * kappa[j];
+                tj[a * r + j] = (0..r).map(|b| tm[a * r + b] * jac[b * r + j]).sum();
             }
         }
+        for a in 0..r {
+            for j in 0..r {
+                hess[a * r + j] += -tj[a * r + j] - tj[j * r + a] + kappa[a] * z.v[j] + z.v[a] * kappa[j];
+            }
+        }
+        w.copy_from_slice(&z.w);
         Ok(())
     }
 

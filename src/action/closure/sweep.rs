@@ -219,14 +219,18 @@ impl<D: ClosureDrift> ClosureAction<D> {
         Ok(())
     }
 
-    /// One Dormand–Prince step from (t, y) of size h: the new state, the error norm and the
-    /// stage arguments; `None` when a stage is not realizable.
-    fn rk_step(&self, t: f64, y: &[f64], h: f64) -> Option<(Vec<f64>, f64, Vec<f64>)> {
+    /// One Dormand–Prince step from (t, y) of size h, given k_1 = W(t, y): the new state, the
+    /// error norm, the stage arguments and W at the new state (the seventh stage, first-same-as-
+    /// last); `None` when a stage is not realizable.
+    #[allow(clippy::type_complexity)]
+    fn rk_step(&self, t: f64, y: &[f64], h: f64, k1: &[f64]) -> Option<(Vec<f64>, f64, Vec<f64>, Vec<f64>)> {
         let r = y.len();
         let mut k = vec![0.0; 7 * r];
+        k[..r].copy_from_slice(k1);
         let mut stages = vec![0.0; 6 * r];
+        stages[..r].copy_from_slice(y);
         let mut arg = vec![0.0; r];
-        for i in 0..7 {
+        for i in 1..7 {
             for a in 0..r {
                 arg[a] = y[a] + h * (0..i).map(|j| A[i][j] * k[j * r + a]).sum::<f64>();
             }
@@ -248,7 +252,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         if !err.is_finite() || y_new.iter().any(|v| !v.is_finite()) {
             return None;
         }
-        Some((y_new, err, stages))
+        Some((y_new, err, stages, k[6 * r..].to_vec()))
     }
 
     /// Integrates from `t` to `t_end` with error control, pushing the accepted steps.
@@ -267,19 +271,22 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let mut tc = t;
         let mut h = h_guess.min(span);
         let mut rejections = 0usize;
+        let mut k1 = vec![0.0; y.len()];
+        self.drift.w(tc, y, &mut k1).map_err(|_| SweepFailure)?;
         while tc < t_end {
             let last = tc + h >= t_end - 1e-12 * span.max(1.0);
             let hh = if last { t_end - tc } else { h };
-            match self.rk_step(tc, y, hh) {
-                Some((y_new, err, stages)) if err <= 1.0 => {
+            match self.rk_step(tc, y, hh, &k1) {
+                Some((y_new, err, stages, k7)) if err <= 1.0 => {
                     steps.push(Step { t: tc, h: hh, stages });
                     *y = y_new;
+                    k1 = k7;
                     tc = if last { t_end } else { tc + hh };
                     let fac = if err == 0.0 { 5.0 } else { (0.9 * err.powf(-0.2)).clamp(0.2, 5.0) };
                     h = hh * fac;
                     *h_guess = h;
                 }
-                Some((_, err, _)) => {
+                Some((_, err, _, _)) => {
                     h = hh * (0.9 * err.powf(-0.2)).clamp(0.1, 0.9);
                     rejections += 1;
                 }
