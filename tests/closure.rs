@@ -65,6 +65,38 @@ fn gaussian_closure_of_ou_is_the_rts_smoother() {
     assert!(max_err < 1e-7, "max |closure − RTS| = {max_err}");
 }
 
+#[test]
+fn filter_start_satisfies_the_filter_condition() {
+    // Each multiplier of the closure's assumed-density filter solves μ_x(t_k+) = r_k − Rλ_k with
+    // the earlier multipliers fixed.
+    let (obs, data) = double_well_problem_data(3, 6.0);
+    let priors = [Prior::flat()];
+    let x0 = [Prior::gaussian(-1.0, 0.3)];
+    let problem = EstimationProblem {
+        sde: &DoubleWell,
+        observation: &obs,
+        theta: &[0.5],
+        theta_prior: &priors,
+        estimate: &[],
+        x0_prior: &x0,
+        z0_prior: &[],
+        data: &data,
+    };
+    let dd = gaussian_dual_data(&problem).unwrap();
+    let options = ClosureOptions::new();
+    let mut gaussian = gaussian_closure_action(&problem, &options).unwrap();
+    let mut quartic = exponential_closure_action(&problem, 4, &options).unwrap();
+    let starts = [gaussian.filter_start(&dd).unwrap(), quartic.filter_start(&dd).unwrap()];
+    let paths = [gaussian.moment_paths(&starts[0]).unwrap(), quartic.moment_paths(&starts[1]).unwrap()];
+    for (lambda, (times, _, mu)) in starts.iter().zip(&paths) {
+        for (k, &t) in data.times.iter().enumerate() {
+            let e = times.iter().position(|&s| s == t).unwrap();
+            // To the ODE tolerance (moment_paths integrates with the output times as events too).
+            assert_relative_eq!(mu[e][0], dd.r[k] - dd.variance[k] * lambda[k], epsilon = 1e-6);
+        }
+    }
+}
+
 fn double_well_problem_data(seed: u64, t_end: f64) -> (StateMeasurement, Dataset) {
     let obs = gaussian_obs(0, 0.2);
     let mut rng = StdRng::seed_from_u64(seed);

@@ -282,6 +282,8 @@ fn default_domain(values: &[f64], mean: f64, var: f64) -> (f64, f64) {
 struct Solved {
     history: crate::action::dual::History,
     sd: Vec<Vec<f64>>,
+    /// What the sd columns are.
+    sd_kind: &'static str,
     dual: DualSolution,
     sweeps: usize,
 }
@@ -292,16 +294,29 @@ fn solve<D: ClosureDrift>(
     measured_states: &[usize],
     options: &ClosureOptions,
 ) -> Result<Solved> {
-    // Start from λ_k = R⁻¹(r_k − ⟨x⟩_prior-propagated): the condition (I.60) at the closure's
-    // prior prediction (λ = 0).
-    let zero = vec![0.0; data.r.len()];
-    let prior = action.evaluate(&zero)?;
-    let start: Vec<f64> = if prior.z.iter().all(|v| v.is_finite()) {
-        (0..zero.len())
-            .map(|m| if data.r[m].is_nan() { 0.0 } else { 0.5 * (data.r[m] - prior.z[m]) / data.variance[m] })
-            .collect()
-    } else {
-        zero
+    // Start from the closure's assumed-density filter (each λ_k from the filter condition with
+    // the earlier multipliers fixed): on long bistable records the closure's prior prediction
+    // (λ = 0) is far from the data, and a non-convex Rayleigh–Ritz F lets Newton's method wander
+    // from there. Fallback: λ_k = ½R⁻¹(r_k − z_k(0)).
+    let start: Vec<f64> = match action.filter_start(data) {
+        Some(l) => l,
+        None => {
+            let zero = vec![0.0; data.r.len()];
+            let prior = action.evaluate(&zero)?;
+            if prior.z.iter().all(|v| v.is_finite()) {
+                (0..zero.len())
+                    .map(|m| {
+                        if data.r[m].is_nan() {
+                            0.0
+                        } else {
+                            0.5 * (data.r[m] - prior.z[m]) / data.variance[m]
+                        }
+                    })
+                    .collect()
+            } else {
+                zero
+            }
+        }
     };
     let mut dual = maximize_dual(&mut action, data, &options.dual, Some(&start))?;
     if !dual.status.is_success() {
@@ -313,6 +328,7 @@ fn solve<D: ClosureDrift>(
     }
     let ok = dual.status.is_success();
     let mut history = action.history(&dual.lambda, ok && options.dispersion)?;
+    let mut sd_note = None;
     let sd = match &history.cross {
         Some(cross) => {
             // ∇²F from the same tangents: Cov(Z_k, Z_j) is the cross-covariance at t_k.
@@ -331,13 +347,25 @@ fn solve<D: ClosureDrift>(
                 }
             }
             let h = (&h + h.transpose()) * 0.5;
-            let var = super::dispersion::posterior_variance(&history, &h, data)?;
-            var.iter().map(|v| v.iter().map(|x| x.max(0.0).sqrt()).collect()).collect()
+            match super::dispersion::posterior_variance(&history, &h, data) {
+                Ok(var) => var.iter().map(|v| v.iter().map(|x| x.max(0.0).sqrt()).collect()).collect(),
+                Err(_) => {
+                    // At a stationary point where ∇²F + R is not positive definite the ensemble
+                    // dispersion is undefined: report the closure's own variance.
+                    sd_note = Some("closure variance (∇²F + R is not positive definite at the solution)");
+                    history.variance.iter().map(|v| v.iter().map(|x| x.sqrt()).collect()).collect()
+                }
+            }
         }
         None => history.variance.iter().map(|v| v.iter().map(|x| x.sqrt()).collect()).collect(),
     };
     history.cross = None;
-    Ok(Solved { history, sd, dual, sweeps: action.sweeps() })
+    let sd_kind = match (sd_note, ok && options.dispersion) {
+        (Some(note), _) => note,
+        (None, true) => "ensemble dispersion",
+        (None, false) => "closure variance",
+    };
+    Ok(Solved { history, sd, sd_kind, dual, sweeps: action.sweeps() })
 }
 
 /// The closure's [`ClosureAction`] for a problem, built as [`closure_estimate`] builds it (for
@@ -523,5 +551,6 @@ pub fn closure_estimate<S: Sde + ?Sized>(
     est.details.insert("f_value".into(), json!(finite(&[dual.f_value])[0]));
     est.details.insert("phi".into(), json!(finite(&[dual.phi])[0]));
     est.details.insert("sweeps".into(), json!(solved.sweeps));
+    est.details.insert("sd".into(), json!(solved.sd_kind));
     Ok(est)
 }

@@ -25,7 +25,7 @@
 
 use nalgebra::DMatrix;
 
-use crate::action::dual::{ActionValue, EffectiveAction, History};
+use crate::action::dual::{ActionValue, DualData, EffectiveAction, History};
 use crate::{Error, Result};
 
 use super::drift::ClosureDrift;
@@ -82,6 +82,9 @@ struct StepDerivs {
     jac: Vec<f64>,
     hess: Vec<f64>,
 }
+
+/// How the forward sweep picks the multiplier of measurement k from λ(t_k−).
+type Choose<'c> = dyn FnMut(usize, &[f64]) -> std::result::Result<Vec<f64>, SweepFailure> + 'c;
 
 /// γ at every event and the stage derivatives of every step (`[interval][step]`).
 type Adjoint = (Vec<Vec<f64>>, Vec<Vec<StepDerivs>>);
@@ -304,6 +307,15 @@ impl<D: ClosureDrift> ClosureAction<D> {
 
     fn forward(&self, events: &Events, lambda: &[f64]) -> std::result::Result<Forward, SweepFailure> {
         let s = self.measured.len();
+        self.forward_with(events, &mut |k, _| Ok(lambda[k * s..(k + 1) * s].to_vec()))
+    }
+
+    /// The forward sweep with the multiplier of measurement k chosen by `choose(k, λ(t_k−))`.
+    fn forward_with(
+        &self,
+        events: &Events,
+        choose: &mut Choose<'_>,
+    ) -> std::result::Result<Forward, SweepFailure> {
         let ne = events.times.len();
         let span = events.times[ne - 1] - events.times[0];
         let mut h = if span > 0.0 { 1e-3 * span } else { 1.0 };
@@ -328,8 +340,9 @@ impl<D: ClosureDrift> ClosureAction<D> {
             let mut m = self.drift.moments(&y).map_err(|_| SweepFailure)?;
             if let Some(k) = events.meas[e] {
                 let before = m;
+                let lk = choose(k, &y)?;
                 for (b, &a) in self.measured.iter().enumerate() {
-                    y[a] += lambda[k * s + b];
+                    y[a] += lk[b];
                 }
                 m = self.drift.moments(&y).map_err(|_| SweepFailure)?;
                 out.f += m.log_partition - before.log_partition;
@@ -612,6 +625,62 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 dy[a * nm + j] += d.h * (0..6).map(|i| B[i] * dks[i * rn + a * nm + j]).sum::<f64>();
             }
         }
+    }
+
+    /// The closure's assumed-density filter as a starting point of the dual: measurements
+    /// taken in time order, each multiplier chosen with the earlier ones fixed and the later ones
+    /// ignored, i.e. solving the filter condition μ_Z(λ(t_k−) + Eλ_k) = r_k − R_kλ_k
+    /// (`003_d2fc48a470e528fc.txt (I.60)` with the history replaced by the filtered mean) by
+    /// Newton's method (its Jacobian EᵀCE + R is positive definite, so the root is unique).
+    /// Missing data get λ_k = 0. `None` when the sweep fails.
+    pub fn filter_start(&mut self, data: &DualData) -> Option<Vec<f64>> {
+        let s = self.measured.len();
+        if data.output_dim != s || data.r.len() != self.meas_times.len() * s {
+            return None;
+        }
+        let mut chosen = vec![0.0; data.r.len()];
+        let events = self.fit_events.clone();
+        let measured = self.measured.clone();
+        let drift = &self.drift;
+        let r_dim = drift.n_params();
+        let mut choose = |k: usize, y: &[f64]| -> std::result::Result<Vec<f64>, SweepFailure> {
+            let idx: Vec<usize> = (0..s).filter(|&b| !data.r[k * s + b].is_nan()).collect();
+            let mut lk = vec![0.0; s];
+            for _ in 0..50 {
+                let mut yy = y.to_vec();
+                for (b, &a) in measured.iter().enumerate() {
+                    yy[a] += lk[b];
+                }
+                let m = drift.moments(&yy).map_err(|_| SweepFailure)?;
+                let na = idx.len();
+                let mut jac = DMatrix::zeros(na, na);
+                let mut g = nalgebra::DVector::zeros(na);
+                for (i, &b) in idx.iter().enumerate() {
+                    let (mb, v) = (k * s + b, data.variance[k * s + b]);
+                    g[i] = m.mean[measured[b]] + v * lk[b] - data.r[mb];
+                    for (j, &c) in idx.iter().enumerate() {
+                        jac[(i, j)] = m.covariance[measured[b] * r_dim + measured[c]];
+                    }
+                    jac[(i, i)] += v;
+                }
+                let scale: f64 = idx.iter().map(|&b| data.variance[k * s + b]).fold(0.0, f64::max);
+                if g.amax() <= 1e-12 * (1.0 + scale) {
+                    break;
+                }
+                let d = jac.cholesky().ok_or(SweepFailure)?.solve(&g);
+                for (i, &b) in idx.iter().enumerate() {
+                    lk[b] -= d[i];
+                }
+            }
+            if lk.iter().any(|v| !v.is_finite()) {
+                return Err(SweepFailure);
+            }
+            chosen[k * s..(k + 1) * s].copy_from_slice(&lk);
+            Ok(lk)
+        };
+        self.sweeps += 1;
+        self.forward_with(&events, &mut choose).ok()?;
+        Some(chosen)
     }
 
     /// The history m(t) = μ(λ(t)) + γ(t) of all moments at the output times, with μ(t)
