@@ -142,7 +142,7 @@ fn quartic_closure_gradient_is_the_adjoint_and_the_history_is_continuous() {
         data: &data,
     };
     // Output times t_k ± ε, 2ε on both sides of every jump for the one-sided limits of m(t).
-    let eps = 1e-4;
+    let eps = 1e-5;
     let mut extra = Vec::new();
     for &t in &data.times[..data.times.len() - 1] {
         extra.extend([t - 2.0 * eps, t - eps, t + eps, t + 2.0 * eps]);
@@ -165,7 +165,7 @@ fn quartic_closure_gradient_is_the_adjoint_and_the_history_is_continuous() {
     // ∇²F by the tangent sweeps (second-order adjoint) = differences of the gradient.
     check_hessian(&mut action, &lambda);
     // (II.44): m(t) is continuous across the jumps while μ(t) jumps; one-sided limits by linear
-    // extrapolation from t_k ± ε, t_k ± 2ε (error O(ε² m'') ≈ 1e-8).
+    // extrapolation from t_k ± ε, t_k ± 2ε (error O(ε² m'') ≈ 1e-10), to the 1e-8.
     let (times, m, mu) = action.moment_paths(&lambda).unwrap();
     let at = |t: f64| times.iter().position(|&s| (s - t).abs() < 1e-12).unwrap();
     for &tk in &data.times[..data.times.len() - 1] {
@@ -173,7 +173,7 @@ fn quartic_closure_gradient_is_the_adjoint_and_the_history_is_continuous() {
             let left = 2.0 * m[at(tk - eps)][a] - m[at(tk - 2.0 * eps)][a];
             let right = 2.0 * m[at(tk + eps)][a] - m[at(tk + 2.0 * eps)][a];
             let scale = 1.0 + m[at(tk)][a].abs();
-            assert!((left - right).abs() < 1e-7 * scale, "m_{a} jumps at {tk}: {left} vs {right}");
+            assert!((left - right).abs() < 1e-8 * scale, "m_{a} jumps at {tk}: {left} vs {right}");
             let jump_mu = (mu[at(tk + eps)][a] - mu[at(tk - eps)][a]).abs();
             assert!(jump_mu > 1e-3, "μ_{a} should jump at {tk} (got {jump_mu})");
         }
