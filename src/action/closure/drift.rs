@@ -145,25 +145,36 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
     ) -> std::result::Result<(), Unrealizable> {
         let n = self.family.dim();
         let (m, s) = self.family.mean_cov_from_natural(lambda).map_err(unrealizable)?;
-        let nodes = self.family.nodes(&m, &s).map_err(unrealizable)?;
+        // Nodes m + Lξ_k of the family's standard rule, formed one at a time (no allocation
+        // per node).
+        let l = cholesky(&s, n).map_err(unrealizable)?;
         let theta: Vec<D> = self.theta.iter().map(|&v| D::from(v)).collect();
         let mut f = vec![D::zero(); n];
         let mut fbar = vec![D::zero(); n];
         let mut fx = vec![D::zero(); n * n];
-        for (x, w) in &nodes {
-            self.sde.state_drift(D::from(t), x, &theta, &mut f);
+        let mut x = vec![D::zero(); n];
+        let mut dx = vec![D::zero(); n];
+        for (xi, w) in self.family.standard_rule().iter() {
             for i in 0..n {
-                let fw = f[i] * *w;
+                let mut v = D::zero();
+                for (k, &xik) in xi.iter().enumerate().take(i + 1) {
+                    v += l[i * n + k] * xik;
+                }
+                dx[i] = v;
+                x[i] = m[i] + v;
+            }
+            self.sde.state_drift(D::from(t), &x, &theta, &mut f);
+            for i in 0..n {
+                let fw = f[i] * w;
                 fbar[i] += fw;
                 for j in 0..n {
-                    fx[i * n + j] += fw * (x[j] - m[j]);
+                    fx[i * n + j] += fw * dx[j];
                 }
             }
         }
         // Σ̇ = ⟨f(x − m)ᵀ⟩ + ⟨(x − m)fᵀ⟩ + 2D; P = Σ⁻¹; Ṗ = −PΣ̇P; ȧ = Ṗm + Pṁ.
         let sdot: Vec<D> =
             (0..n * n).map(|k| fx[k] + fx[(k % n) * n + k / n] + self.diffusion[k] * 2.0).collect();
-        let l = cholesky(&s, n).map_err(unrealizable)?;
         let p = cholesky_inverse(&l, n).map_err(unrealizable)?;
         let mut ps = vec![D::zero(); n * n];
         for i in 0..n {
