@@ -68,7 +68,8 @@ pub enum Method {
     Mee,
     /// Gaussian Rayleigh–Ritz closure of the mean-optimal estimator (`003 (II.36)–(II.53)`).
     GaussianClosure,
-    /// Exponential-family closure M = (x, …, x^moments) (1-D; `003 (II.36)–(II.53)`).
+    /// Exponential-family closure: the polynomial moments of total degree `moments` (1-D: x, …, x^moments;
+    /// 2-D: the monomials x^i y^j, i + j ≤ moments) (`003 (II.36)–(II.53)`).
     ExpClosure,
     /// Closure of the KSP smoother (`003 (II.64)–(II.65)`).
     KspClosure,
@@ -133,7 +134,7 @@ impl Method {
             Method::GaussianClosure => {
                 "Gaussian Rayleigh-Ritz closure of the mean-optimal estimator (003 II.36-II.53)"
             }
-            Method::ExpClosure => "exponential-family closure M = (x, ..., x^moments), 1-D (003 II.36-II.53)",
+            Method::ExpClosure => "exponential-family closure, polynomial moments up to degree `moments`, 1-D or 2-D (003 II.36-II.53)",
             Method::KspClosure => "closure of the KSP smoother (003 II.64-II.65)",
             Method::DoubleExpClosure => "double-exponential closure (003 II.54-II.63)",
         }

@@ -114,11 +114,14 @@ pub struct ClosureOptions {
     pub rtol: f64,
     /// Absolute tolerance of the Runge–Kutta integration. Default 1e-9.
     pub atol: f64,
-    /// Support [a, b] of the exponential family (its quadrature grid). Default: the range of
-    /// the data and of the x0 prior (mean ± 5 sd), widened by half its width plus 1 on each side.
-    pub domain: Option<(f64, f64)>,
-    /// Panels × 8 Gauss–Legendre points of the exponential family's grid. Default 12 (96 nodes;
-    /// the double-well estimates of `benches/closure.rs` agree with 24 panels to 1e-5).
+    /// Support of the exponential family (its quadrature grid): one interval [a, b] per state,
+    /// or empty for the default: per state, the range of its data and of its initial prior
+    /// (mean ± 5 sd), widened by half its width plus 1 on each side. Set it for a state that is
+    /// not measured and whose range the prior does not cover.
+    pub domain: Vec<(f64, f64)>,
+    /// Panels × 8 Gauss–Legendre points per dimension of the exponential family's grid.
+    /// Default 12 (96 nodes in 1-D; the double-well estimates of `benches/closure.rs` agree with
+    /// 24 panels to 1e-5); in 2-D half as many per dimension (6 × 8 = 48, 2304 nodes).
     pub panels: usize,
     /// Further output times (finite, ≥ `t0`). Default none.
     pub extra_times: Vec<f64>,
@@ -136,7 +139,7 @@ impl Default for ClosureOptions {
             output_step: None,
             rtol: 1e-6,
             atol: 1e-9,
-            domain: None,
+            domain: Vec::new(),
             panels: 12,
             extra_times: Vec::new(),
             dispersion: true,
@@ -170,9 +173,9 @@ impl ClosureOptions {
         self
     }
 
-    /// Sets the exponential family's support.
-    pub fn with_domain(mut self, lower: f64, upper: f64) -> Self {
-        self.domain = Some((lower, upper));
+    /// Sets the exponential family's support, one interval per state.
+    pub fn with_domain(mut self, domain: &[(f64, f64)]) -> Self {
+        self.domain = domain.to_vec();
         self
     }
 
@@ -210,7 +213,7 @@ impl ClosureOptions {
                 return bad("output step", format!("must be positive and finite, got {s}"));
             }
         }
-        if let Some((a, b)) = self.domain {
+        for &(a, b) in &self.domain {
             if !(a.is_finite() && b.is_finite() && a < b) {
                 return bad("domain", format!("need finite a < b, got [{a}, {b}]"));
             }
@@ -461,36 +464,65 @@ fn exponential_setup<'a, S: Sde + ?Sized>(
     degree: usize,
     options: &ClosureOptions,
 ) -> Result<(ExponentialDrift<'a, S>, Vec<f64>)> {
-    let d = problem.sde.dims();
-    if d.states() != 1 {
+    let n = problem.sde.dims().states();
+    if !(1..=2).contains(&n) {
         return Err(invalid(
             "method",
             format!(
-                "the exponential closure handles models with one state (this model has {}); use gaussian-closure",
-                d.states()
+                "the exponential closure handles models with one or two states (this model has {n}); use gaussian-closure"
             ),
         ));
     }
-    if !(2..=12).contains(&degree) {
+    let max_degree = if n == 1 { 12 } else { 6 };
+    if !(2..=max_degree).contains(&degree) {
         return Err(invalid(
             "moments",
-            format!("the exponential closure needs degree 2 to 12, got {degree}"),
+            format!("the exponential closure in {n}-D needs degree 2 to {max_degree}, got {degree}"),
+        ));
+    }
+    if !options.domain.is_empty() && options.domain.len() != n {
+        return Err(invalid(
+            "domain",
+            format!("one interval per state: the model has {n}, got {}", options.domain.len()),
         ));
     }
     let names = problem.sde.state_names();
-    let prior = problem.x0_prior.iter().chain(problem.z0_prior).next().expect("one state");
-    let (m0, v0) = gaussian_prior(prior, &names[0])?;
-    let values: Vec<f64> = problem.data.values.iter().flatten().copied().collect();
-    let (a, b) = options.domain.unwrap_or_else(|| default_domain(&values, m0, v0));
-    let grid = onsager_closures::panel_grid(&[(a, b)], options.panels, 8)
-        .map_err(|e| invalid("domain", e.to_string()))?;
+    let priors: Vec<&Prior> = problem.x0_prior.iter().chain(problem.z0_prior).collect();
+    let mut moments = Vec::with_capacity(n);
+    let mut domain = Vec::with_capacity(n);
+    for i in 0..n {
+        let (m0, v0) = gaussian_prior(priors[i], &names[i])?;
+        moments.push((m0, v0));
+        let values: Vec<f64> = problem
+            .observation
+            .states
+            .iter()
+            .enumerate()
+            .filter(|&(_, &s)| s == i)
+            .flat_map(|(b, _)| problem.data.values.iter().map(move |row| row[b]))
+            .collect();
+        domain.push(options.domain.get(i).copied().unwrap_or_else(|| default_domain(&values, m0, v0)));
+    }
+    let panels = if n == 1 { options.panels } else { options.panels.div_ceil(2) };
+    let grid =
+        onsager_closures::panel_grid(&domain, panels, 8).map_err(|e| invalid("domain", e.to_string()))?;
     let family = Exponential::polynomial(grid, onsager_closures::Reference::Lebesgue, degree as u32)
         .map_err(|e| invalid("moments", e.to_string()))?;
-    // λ_0: the Gaussian prior is the member (m/v, −1/(2v), 0, …); polished by the Legendre
-    // inverse of its moments on the grid (moment matching, (II.39)).
-    let mut guess = vec![0.0; degree];
-    guess[0] = m0 / v0;
-    guess[1] = -0.5 / v0;
+    // λ_0: the (independent) Gaussian prior is the member with m_i/v_i on x_i, −1/(2v_i) on
+    // x_i² and 0 elsewhere; polished by the Legendre inverse of its moments on the grid (moment
+    // matching, (II.39)).
+    let exponents = family.exponents().ok_or_else(|| invalid("moments", "no polynomial exponents"))?;
+    let guess: Vec<f64> = exponents
+        .iter()
+        .map(|e| {
+            let total: u32 = e.iter().sum();
+            match e.iter().position(|&p| p > 0) {
+                Some(i) if total == e[i] && e[i] == 1 => moments[i].0 / moments[i].1,
+                Some(i) if total == e[i] && e[i] == 2 => -0.5 / moments[i].1,
+                _ => 0.0,
+            }
+        })
+        .collect();
     let mu0 = family.mean(&guess).map_err(|e| invalid("x0 prior", e.to_string()))?;
     let lambda0 = family
         .legendre(&mu0, &LegendreOptions::default().with_initial(guess.clone()))
@@ -511,7 +543,7 @@ fn exponential_setup<'a, S: Sde + ?Sized>(
 ///
 /// Errors ([`Error::InvalidOption`] unless noted): a non-Gaussian likelihood or prior, parameters
 /// to estimate, data before `t0`, invalid options, an exponential closure on a model with more
-/// than one state, and the kinds not implemented yet (`ksp-closure`, `double-exp-closure`).
+/// than two states, and the kinds not implemented yet (`ksp-closure`, `double-exp-closure`).
 /// Non-convergence of the dual, or sweeps that leave the moment space, are a [`Status`].
 pub fn closure_estimate<S: Sde + ?Sized>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
