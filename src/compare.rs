@@ -63,13 +63,16 @@ pub struct Comparison {
 }
 
 /// The methods compared by default: the exact grid methods where the model has at most two
-/// states, then JME, MEE and the UKS. The closures (`gaussian-closure`, `exp-closure`) are
-/// not among them yet: their dual Newton iterations take minutes on a 40-measurement record
-/// (see `docs/closures.md`); ask for them explicitly.
+/// states, the Gaussian and quartic exponential closures where it has one (seconds on a
+/// 40-measurement record; in 2-D ask for them explicitly), then JME, MEE and the UKS.
 pub fn default_methods<S: Sde + ?Sized>(problem: &EstimationProblem<'_, S, StateMeasurement>) -> Vec<Method> {
     let mut m = Vec::new();
-    if problem.sde.dims().states() <= 2 {
+    let states = problem.sde.dims().states();
+    if states <= 2 {
         m.extend([Method::Ksp, Method::MeanOptimal]);
+    }
+    if states == 1 {
+        m.extend([Method::GaussianClosure, Method::ExpClosure]);
     }
     m.extend([Method::Jme, Method::Mee, Method::Uks]);
     m
