@@ -26,8 +26,7 @@ pub struct CompareArgs {
     #[arg(long)]
     pub truth: Option<PathBuf>,
     /// Methods to compare, comma-separated (default: ksp and mean-optimal for one or two
-    /// states, jme, mee, uks; the closures gaussian-closure and exp-closure are slow for now —
-    /// minutes on 40 measurements — and must be asked for).
+    /// states, gaussian-closure and exp-closure for one state, jme, mee, uks).
     #[arg(long, value_delimiter = ',', value_parser = parse_method)]
     pub methods: Vec<Method>,
     /// Grid of the exact methods (default: the data range with margins).
