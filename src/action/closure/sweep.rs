@@ -480,7 +480,20 @@ impl<D: ClosureDrift> ClosureAction<D> {
         events: &Events,
         lambda: &[f64],
     ) -> std::result::Result<(Vec<Vec<f64>>, Tangents), SweepFailure> {
-        let (fw, g, derivs) = self.value(events, lambda, true)?;
+        // The forward sweep of the last evaluation at λ (the accepted Newton iterate) is reused.
+        let cached = match &self.cache {
+            Some((l, fw, _)) if l.as_slice() == lambda && events.times == self.fit_events.times => {
+                Some(fw.clone())
+            }
+            _ => None,
+        };
+        let (fw, g, derivs) = match cached {
+            Some(fw) => {
+                let (g, derivs) = self.backward(events, &fw, true)?;
+                (fw, g, derivs)
+            }
+            None => self.value(events, lambda, true)?,
+        };
         let base = Self::moments_at_events(&fw, &g);
         let r = self.drift.n_params();
         let rr = r * r;
