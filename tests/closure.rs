@@ -69,19 +69,8 @@ fn gaussian_closure_of_ou_is_the_rts_smoother() {
 fn filter_start_satisfies_the_filter_condition() {
     // Each multiplier of the closure's assumed-density filter solves μ_x(t_k+) = r_k − Rλ_k with
     // the earlier multipliers fixed.
-    let (obs, data) = double_well_problem_data(3, 6.0);
-    let priors = [Prior::flat()];
-    let x0 = [Prior::gaussian(-1.0, 0.3)];
-    let problem = EstimationProblem {
-        sde: &DoubleWell,
-        observation: &obs,
-        theta: &[0.5],
-        theta_prior: &priors,
-        estimate: &[],
-        x0_prior: &x0,
-        z0_prior: &[],
-        data: &data,
-    };
+    let case = DoubleWellCase::new(3, 6.0);
+    let (problem, data) = (case.problem(), &case.data);
     let dd = gaussian_dual_data(&problem).unwrap();
     let options = ClosureOptions::new();
     let mut gaussian = gaussian_closure_action(&problem, &options).unwrap();
@@ -97,15 +86,39 @@ fn filter_start_satisfies_the_filter_condition() {
     }
 }
 
-fn double_well_problem_data(seed: u64, t_end: f64) -> (StateMeasurement, Dataset) {
-    let obs = gaussian_obs(0, 0.2);
-    let mut rng = StdRng::seed_from_u64(seed);
-    let path =
-        simulate(&DoubleWell, &[0.5], &[-1.0], &[], &SimulateOptions::new(0.0, t_end, 0.005), &mut rng)
-            .unwrap();
-    let times: Vec<f64> = (1..=t_end as usize).map(|k| k as f64).collect();
-    let data = sample_measurements_at(&obs, &[0.5], &path, 1, &times, &mut rng).unwrap();
-    (obs, data)
+/// A double-well record (D = 0.5, x(0) = −1, y ~ N(x(k), 0.2²) at k = 1, …, t_end) and the
+/// closures' problem on it (x0 ~ N(−1, 0.3²)).
+struct DoubleWellCase {
+    obs: StateMeasurement,
+    data: Dataset,
+    priors: [Prior; 1],
+    x0: [Prior; 1],
+}
+
+impl DoubleWellCase {
+    fn new(seed: u64, t_end: f64) -> Self {
+        let obs = gaussian_obs(0, 0.2);
+        let mut rng = StdRng::seed_from_u64(seed);
+        let path =
+            simulate(&DoubleWell, &[0.5], &[-1.0], &[], &SimulateOptions::new(0.0, t_end, 0.005), &mut rng)
+                .unwrap();
+        let times: Vec<f64> = (1..=t_end as usize).map(|k| k as f64).collect();
+        let data = sample_measurements_at(&obs, &[0.5], &path, 1, &times, &mut rng).unwrap();
+        DoubleWellCase { obs, data, priors: [Prior::flat()], x0: [Prior::gaussian(-1.0, 0.3)] }
+    }
+
+    fn problem(&self) -> EstimationProblem<'_, DoubleWell, StateMeasurement> {
+        EstimationProblem {
+            sde: &DoubleWell,
+            observation: &self.obs,
+            theta: &[0.5],
+            theta_prior: &self.priors,
+            estimate: &[],
+            x0_prior: &self.x0,
+            z0_prior: &[],
+            data: &self.data,
+        }
+    }
 }
 
 /// ∇²F of the tangent sweeps against central differences of the adjoint gradient z(λ).
@@ -128,19 +141,8 @@ fn check_hessian<A: EffectiveAction>(action: &mut A, lambda: &[f64]) {
 
 #[test]
 fn quartic_closure_gradient_is_the_adjoint_and_the_history_is_continuous() {
-    let (obs, data) = double_well_problem_data(3, 4.0);
-    let priors = [Prior::flat()];
-    let x0 = [Prior::gaussian(-1.0, 0.3)];
-    let problem = EstimationProblem {
-        sde: &DoubleWell,
-        observation: &obs,
-        theta: &[0.5],
-        theta_prior: &priors,
-        estimate: &[],
-        x0_prior: &x0,
-        z0_prior: &[],
-        data: &data,
-    };
+    let case = DoubleWellCase::new(3, 4.0);
+    let (problem, data) = (case.problem(), &case.data);
     // Output times t_k ± ε, 2ε on both sides of every jump for the one-sided limits of m(t).
     let eps = 1e-5;
     let mut extra = Vec::new();
@@ -182,19 +184,8 @@ fn quartic_closure_gradient_is_the_adjoint_and_the_history_is_continuous() {
 
 #[test]
 fn gaussian_closure_gradient_is_the_adjoint() {
-    let (obs, data) = double_well_problem_data(5, 3.0);
-    let priors = [Prior::flat()];
-    let x0 = [Prior::gaussian(-1.0, 0.3)];
-    let problem = EstimationProblem {
-        sde: &DoubleWell,
-        observation: &obs,
-        theta: &[0.5],
-        theta_prior: &priors,
-        estimate: &[],
-        x0_prior: &x0,
-        z0_prior: &[],
-        data: &data,
-    };
+    let case = DoubleWellCase::new(5, 3.0);
+    let problem = case.problem();
     let options = ClosureOptions::new().with_tolerances(1e-12, 1e-13);
     let mut action = gaussian_closure_action(&problem, &options).unwrap();
     let lambda = [2.0, -1.0, 4.0];
@@ -222,19 +213,8 @@ fn unsupported_combinations_are_clear_errors() {
     assert!(matches!(ClosureKind::parse("exp-closure", Some(1)), Err(Error::InvalidOption { .. })));
     assert!(matches!(ClosureKind::parse("gaussian-closure", Some(3)), Err(Error::InvalidOption { .. })));
     assert!(matches!(ClosureKind::parse("nope", None), Err(Error::UnknownName { .. })));
-    let (obs, data) = double_well_problem_data(1, 2.0);
-    let priors = [Prior::flat()];
-    let x0 = [Prior::gaussian(-1.0, 0.3)];
-    let problem = EstimationProblem {
-        sde: &DoubleWell,
-        observation: &obs,
-        theta: &[0.5],
-        theta_prior: &priors,
-        estimate: &[],
-        x0_prior: &x0,
-        z0_prior: &[],
-        data: &data,
-    };
+    let case = DoubleWellCase::new(1, 2.0);
+    let problem = case.problem();
     for kind in [ClosureKind::Ksp, ClosureKind::DoubleExponential] {
         let err = closure_estimate(&problem, &kind, &ClosureOptions::new()).unwrap_err();
         assert!(err.to_string().contains("not implemented"), "{err}");

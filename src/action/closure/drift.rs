@@ -17,7 +17,7 @@
 //!   (`(II.43)`) in closed form.
 
 use num_dual::{Dual64, HyperDual64};
-use onsager_closures::{cholesky, cholesky_inverse, Exponential, Gaussian, TrialFamily};
+use onsager_closures::{cholesky, cholesky_inverse, cholesky_solve, Exponential, Gaussian, TrialFamily};
 
 use crate::model::{Scalar, Sde};
 use crate::{Error, Result};
@@ -375,7 +375,6 @@ impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
 /// The Jacobi-scaled Cholesky factor of a moment covariance C (entries of very different
 /// sizes): C = S⁻¹LLᵀS⁻¹ with S = diag(1/√C_aa).
 struct SpdFactor {
-    r: usize,
     scale: Vec<f64>,
     l: Vec<f64>,
 }
@@ -383,48 +382,18 @@ struct SpdFactor {
 impl SpdFactor {
     fn new(c: &[f64], r: usize) -> std::result::Result<Self, Unrealizable> {
         let scale: Vec<f64> = (0..r).map(|a| 1.0 / c[a * r + a].max(f64::MIN_POSITIVE).sqrt()).collect();
-        let mut l = vec![0.0; r * r];
-        for i in 0..r {
-            for j in 0..=i {
-                let mut v = c[i * r + j] * scale[i] * scale[j];
-                for k in 0..j {
-                    v -= l[i * r + k] * l[j * r + k];
-                }
-                if i == j {
-                    if v.is_nan() || v <= 0.0 {
-                        return Err(Unrealizable("the moment covariance C is not positive definite".into()));
-                    }
-                    l[i * r + i] = v.sqrt();
-                } else {
-                    l[i * r + j] = v / l[j * r + j];
-                }
-            }
-        }
-        Ok(SpdFactor { r, scale, l })
+        let scaled: Vec<f64> = (0..r * r).map(|ab| c[ab] * scale[ab / r] * scale[ab % r]).collect();
+        let l = cholesky(&scaled, r)
+            .map_err(|_| Unrealizable("the moment covariance C is not positive definite".into()))?;
+        Ok(SpdFactor { scale, l })
     }
 
     /// x = C⁻¹b in place.
     fn solve(&self, x: &mut [f64]) {
-        let (r, l) = (self.r, &self.l);
-        for (xa, sa) in x.iter_mut().zip(&self.scale) {
-            *xa *= sa;
-        }
-        for i in 0..r {
-            let mut v = x[i];
-            for k in 0..i {
-                v -= l[i * r + k] * x[k];
-            }
-            x[i] = v / l[i * r + i];
-        }
-        for i in (0..r).rev() {
-            let mut v = x[i];
-            for k in i + 1..r {
-                v -= l[k * r + i] * x[k];
-            }
-            x[i] = v / l[i * r + i];
-        }
-        for (xa, sa) in x.iter_mut().zip(&self.scale) {
-            *xa *= sa;
+        let b: Vec<f64> = x.iter().zip(&self.scale).map(|(v, s)| v * s).collect();
+        let y = cholesky_solve(&self.l, &b).expect("the factor and x have matching sizes");
+        for ((xa, ya), sa) in x.iter_mut().zip(y).zip(&self.scale) {
+            *xa = ya * sa;
         }
     }
 }
