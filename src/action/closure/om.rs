@@ -410,9 +410,11 @@ pub fn moment_path_estimate<S: Sde + ?Sized>(
 ) -> Result<PathEstimate> {
     let start = Instant::now();
     let mut mp = build(problem, kind, options)?;
-    let mut nlp_options = NlpOptions::default();
-    nlp_options.tolerance = options.tolerance;
-    nlp_options.max_iterations = options.max_iterations;
+    let nlp_options = NlpOptions {
+        tolerance: options.tolerance,
+        max_iterations: options.max_iterations,
+        ..NlpOptions::default()
+    };
     let sol = nlp::solve(&mut mp, nlp_options).map_err(|e| Error::InvalidOption {
         name: "nlp".into(),
         reason: format!("{} failed: {e}", kind.method_name()),
@@ -442,7 +444,7 @@ mod tests {
     use super::*;
     use crate::data::Dataset;
     use crate::kalman::linear::{kalman_rts, LinearGaussianModel};
-    use crate::model::library::Ou;
+    use crate::model::library::{DoubleWell, Ou};
     use crate::model::observation::Noise;
     use crate::model::prior::Prior;
     use crate::model::Param;
@@ -508,5 +510,147 @@ mod tests {
                 assert!(s1 < 1e-2 && s2 < s1 / 3.0, "sd: {s1} {s2}");
             }
         }
+    }
+
+    fn well_data() -> Dataset {
+        let times: Vec<f64> = (1..=10).map(|k| k as f64).collect();
+        let y = [-1.0, -0.9, -1.1, -0.2, 0.9, 1.0, 1.05, 0.95, 1.0, 1.1];
+        Dataset::try_new(vec!["y".into()], times, y.iter().map(|&v| vec![v]).collect()).unwrap()
+    }
+
+    fn well_problem<'a>(
+        ob: &'a StateMeasurement,
+        data: &'a Dataset,
+        priors: &'a [Prior],
+        x0: &'a [Prior],
+    ) -> EstimationProblem<'a, DoubleWell, StateMeasurement> {
+        EstimationProblem {
+            sde: &DoubleWell,
+            observation: ob,
+            theta: &[0.5],
+            theta_prior: priors,
+            estimate: &[],
+            x0_prior: x0,
+            z0_prior: &[],
+            data,
+        }
+    }
+
+    #[test]
+    fn gradient_and_hessian_match_finite_differences() {
+        // Central differences of the objective (gradient) and of the gradient (Hessian), on the
+        // double well (cubic drift) at a perturbed start point.
+        let (ob, data) = (obs(0.2), well_data());
+        let (priors, x0) = ([Prior::flat()], [Prior::gaussian(-1.0, 0.3)]);
+        let problem = well_problem(&ob, &data, &priors, &x0);
+        for kind in [ClosureKind::DoubleExponential, ClosureKind::Ksp] {
+            let mut mp = build(&problem, &kind, &MomentPathOptions::new().with_step(0.5)).unwrap();
+            let n = mp.num_variables();
+            let mut w = vec![0.0; n];
+            mp.initial_point(&mut w);
+            for (i, wi) in w.iter_mut().enumerate() {
+                *wi += 0.1 * ((i as f64) * 1.7).sin().abs() + if i % 2 == 1 { 0.05 } else { 0.0 };
+            }
+            let mut g = vec![0.0; n];
+            mp.gradient(&w, &mut g);
+            let structure = mp.hessian_structure();
+            let mut vals = vec![0.0; structure.len()];
+            mp.hessian_values(&w, 1.0, &[], &mut vals);
+            let mut hess = DMatrix::<f64>::zeros(n, n);
+            for (&(r, c), v) in structure.iter().zip(&vals) {
+                hess[(r, c)] += v;
+                if r != c {
+                    hess[(c, r)] += v;
+                }
+            }
+            let eps = 1e-6;
+            for i in 0..n {
+                let (mut wp, mut wm) = (w.clone(), w.clone());
+                wp[i] += eps;
+                wm[i] -= eps;
+                let fd = (mp.objective(&wp) - mp.objective(&wm)) / (2.0 * eps);
+                assert!((fd - g[i]).abs() < 1e-5 * (1.0 + g[i].abs()), "grad {i}: {fd} vs {}", g[i]);
+                let (mut gp, mut gm) = (vec![0.0; n], vec![0.0; n]);
+                mp.gradient(&wp, &mut gp);
+                mp.gradient(&wm, &mut gm);
+                for j in 0..n {
+                    let fd = (gp[j] - gm[j]) / (2.0 * eps);
+                    assert!(
+                        (fd - hess[(j, i)]).abs() < 1e-4 * (1.0 + fd.abs()),
+                        "hess ({j}, {i}): {fd} vs {}",
+                        hess[(j, i)]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn double_well_runs_and_is_compared_with_the_exact_estimates() {
+        use crate::action::{ksp_smoother, mean_optimal, ExactOptions, GridSpec};
+        // R = 0.04, measurements every 1.0 crossing the wells; references: the exact
+        // mean-optimal estimate (dual of the exact grid) and the exact KSP smoother.
+        let (ob, data) = (obs(0.2), well_data());
+        let (priors, x0) = ([Prior::flat()], [Prior::gaussian(-1.0, 0.3)]);
+        let problem = well_problem(&ob, &data, &priors, &x0);
+        let exact_opts =
+            ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 600)).with_dt(0.005).with_output_step(0.1);
+        let exact = mean_optimal(&problem, &exact_opts).unwrap();
+        let ksp = ksp_smoother(&problem, &exact_opts).unwrap();
+        let rmse = |est: &PathEstimate, times: &[f64], reference: &[Vec<f64>]| {
+            let mut s = 0.0;
+            let mut n = 0;
+            for (i, &t) in est.path.times.iter().enumerate() {
+                if let Some(j) = times.iter().position(|&u| (u - t).abs() < 1e-9) {
+                    s += (est.path.values[i][0] - reference[j][0]).powi(2);
+                    n += 1;
+                }
+            }
+            assert!(n > 50, "common times {n}");
+            (s / n as f64).sqrt()
+        };
+        for kind in [ClosureKind::DoubleExponential, ClosureKind::Ksp] {
+            let est = moment_path_estimate(&problem, &kind, &MomentPathOptions::new()).unwrap();
+            assert!(est.status.is_success(), "{kind:?}: {:?}", est.status);
+            let (e_mo, e_ksp) = (
+                rmse(&est, &exact.history.times, &exact.history.mean),
+                rmse(&est, &ksp.times, &ksp.smoothed_mean),
+            );
+            println!(
+                "{}: {} iterations, RMSE vs exact mean-optimal {e_mo:.4}, vs exact KSP {e_ksp:.4}",
+                est.method, est.iterations
+            );
+            assert!(e_mo < 0.5 && e_ksp < 0.5);
+        }
+    }
+
+    #[test]
+    fn bad_input_is_a_clear_error() {
+        let (ob, data) = (obs(0.2), well_data());
+        let priors = [Prior::flat()];
+        let x0 = [Prior::gaussian(-1.0, 0.3)];
+        let flat = [Prior::flat()];
+        let problem = well_problem(&ob, &data, &priors, &x0);
+        let o = MomentPathOptions::new();
+        let is_invalid = |r: Result<PathEstimate>, what: &str| match r {
+            Err(Error::InvalidOption { name, .. }) => assert_eq!(name, what),
+            other => panic!("expected InvalidOption({what}), got {other:?}"),
+        };
+        is_invalid(moment_path_estimate(&problem, &ClosureKind::Gaussian, &o), "method");
+        is_invalid(moment_path_estimate(&problem, &ClosureKind::Ksp, &o.clone().with_step(-1.0)), "step");
+        is_invalid(
+            moment_path_estimate(&problem, &ClosureKind::Ksp, &o.clone().with_tolerance(0.0)),
+            "tolerance",
+        );
+        is_invalid(moment_path_estimate(&problem, &ClosureKind::Ksp, &o.clone().with_t0(2.0)), "t0");
+        let p2 = well_problem(&ob, &data, &priors, &flat);
+        is_invalid(moment_path_estimate(&p2, &ClosureKind::Ksp, &o), "x0 prior");
+        let student = StateMeasurement::new(
+            vec![0],
+            vec!["y".into()],
+            Noise::StudentT { nu: Param::Fixed(4.0), scale: Param::Fixed(0.2) },
+        );
+        let p3 = well_problem(&student, &data, &priors, &x0);
+        is_invalid(moment_path_estimate(&p3, &ClosureKind::DoubleExponential, &o), "likelihood");
     }
 }
