@@ -108,21 +108,11 @@ pub trait Sde {
     /// The divergence of the noisy drift with respect to the noisy states,
     /// $\operatorname{div}_x f = \sum_i \partial f_i / \partial x_i$
     /// (the Onsager–Machlup correction, `000_74b95e149527c64e.txt (2.49)`), generic so that
-    /// its own derivatives are available. Computed with one nested dual pass per noisy state.
+    /// its own derivatives are available. The default is [`ad_divergence`] (one nested dual
+    /// pass of the drift per noisy state); a model with a closed form may override it (the
+    /// built-in models do, tested against [`ad_divergence`]).
     fn divergence<D: Scalar>(&self, t: D, x: &[D], z: &[D], theta: &[D]) -> D {
-        let n = x.len();
-        let lift = |v: &[D]| v.iter().map(|&a| Dual::from_re(a)).collect::<Vec<Dual<D>>>();
-        let mut xd = lift(x);
-        let (zd, td) = (lift(z), lift(theta));
-        let mut out = vec![Dual::from_re(D::from(0.0)); n];
-        let mut div = D::from(0.0);
-        for i in 0..n {
-            xd[i].eps = D::from(1.0);
-            self.drift(Dual::from_re(t), &xd, &zd, &td, &mut out);
-            xd[i].eps = D::from(0.0);
-            div += out[i].eps;
-        }
-        div
+        ad_divergence(self, t, x, z, theta)
     }
 
     /// The noise energy of a local velocity `xdot` of the noisy states,
@@ -205,6 +195,25 @@ pub trait Sde {
         let (value, gradient, hessian) = ad::hessian(&EnergyFn { sde: self, t, dims: d }, &w);
         Some(SecondOrder { value, gradient, hessian })
     }
+}
+
+/// div_x f of `sde` by automatic differentiation: one nested dual pass of [`Sde::drift`] per
+/// noisy state, summing ∂f_i/∂x_i (`000_74b95e149527c64e.txt (2.49)`). The default of
+/// [`Sde::divergence`] and the reference for closed-form overrides.
+pub fn ad_divergence<S: Sde + ?Sized, D: Scalar>(sde: &S, t: D, x: &[D], z: &[D], theta: &[D]) -> D {
+    let n = x.len();
+    let lift = |v: &[D]| v.iter().map(|&a| Dual::from_re(a)).collect::<Vec<Dual<D>>>();
+    let mut xd = lift(x);
+    let (zd, td) = (lift(z), lift(theta));
+    let mut out = vec![Dual::from_re(D::from(0.0)); n];
+    let mut div = D::from(0.0);
+    for i in 0..n {
+        xd[i].eps = D::from(1.0);
+        sde.drift(Dual::from_re(t), &xd, &zd, &td, &mut out);
+        xd[i].eps = D::from(0.0);
+        div += out[i].eps;
+    }
+    div
 }
 
 /// Value and first derivatives of a drift (f or h) at one point.

@@ -47,6 +47,11 @@ impl Sde for DoubleWell {
         out[0] = x * 4.0 - x.powi(3) * 4.0;
     }
 
+    /// $\operatorname{div} f = 4 - 12 x^2$, in closed form.
+    fn divergence<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], _theta: &[D]) -> D {
+        D::from(4.0) - x[0] * x[0] * 12.0
+    }
+
     /// $G = [\sqrt{2D}]$, so that ½GGᵀ = D (`003_d2fc48a470e528fc.txt (0.1)`). Not finite
     /// (hence rejected by [`Sde::diffusion_matrix`]) for D < 0, and singular for D = 0.
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {

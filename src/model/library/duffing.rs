@@ -63,6 +63,11 @@ impl Sde for Duffing {
         out[0] = x[0];
     }
 
+    /// $\operatorname{div}_x f = -d$ (`000_74b95e149527c64e.txt (4.6)`), in closed form.
+    fn divergence<D: Scalar>(&self, _t: D, _x: &[D], _z: &[D], theta: &[D]) -> D {
+        -theta[Self::D]
+    }
+
     /// $G = [\sigma_D]$.
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
         out[0] = theta[Self::SIGMA_D];

@@ -69,6 +69,11 @@ impl Sde for HolmesRand {
         out[0] = x[0];
     }
 
+    /// $\operatorname{div}_x f = -(a + \gamma z^2)$ (`000_74b95e149527c64e.txt (4.8a)`), in closed form.
+    fn divergence<D: Scalar>(&self, _t: D, _x: &[D], z: &[D], theta: &[D]) -> D {
+        -(theta[Self::A] + theta[Self::GAMMA] * z[0] * z[0])
+    }
+
     /// $G = [\sigma_D]$.
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
         out[0] = theta[Self::SIGMA_D];

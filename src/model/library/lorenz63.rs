@@ -53,6 +53,11 @@ impl Sde for Lorenz63 {
         out[2] = x1 * x2 - b * x3;
     }
 
+    /// $\operatorname{div} f = -s - 1 - b$, in closed form.
+    fn divergence<D: Scalar>(&self, _t: D, _x: &[D], _z: &[D], theta: &[D]) -> D {
+        -(theta[Self::SIGMA] + theta[Self::BETA] + 1.0)
+    }
+
     /// $G = \sigma_w I_3$ (column-major).
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
         let s = theta[Self::SIGMA_W];

@@ -129,6 +129,10 @@ impl Sde for BuiltinModel {
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
         delegate!(self, m => m.diffusion(theta, out))
     }
+
+    fn divergence<D: Scalar>(&self, t: D, x: &[D], z: &[D], theta: &[D]) -> D {
+        delegate!(self, m => m.divergence(t, x, z, theta))
+    }
 }
 
 /// A built-in model with everything needed to simulate it and to estimate its states and

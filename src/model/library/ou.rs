@@ -47,6 +47,11 @@ impl Sde for Ou {
         out[0] = -theta[Self::THETA] * x[0];
     }
 
+    /// $\operatorname{div} f = -\theta$, in closed form.
+    fn divergence<D: Scalar>(&self, _t: D, _x: &[D], _z: &[D], theta: &[D]) -> D {
+        -theta[Self::THETA]
+    }
+
     /// $G = [\sigma]$.
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
         out[0] = theta[Self::SIGMA];

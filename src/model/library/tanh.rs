@@ -41,6 +41,12 @@ impl Sde for Tanh {
         out[0] = x[0].tanh();
     }
 
+    /// $\operatorname{div} f = 1 - \tanh^2 x$, in closed form.
+    fn divergence<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], _theta: &[D]) -> D {
+        let th = x[0].tanh();
+        D::from(1.0) - th * th
+    }
+
     /// $G = [\sigma]$.
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
         out[0] = theta[Self::SIGMA];

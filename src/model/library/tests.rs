@@ -257,6 +257,42 @@ fn divergence_matches_closed_forms() {
     });
 }
 
+/// Every built-in model's closed-form `divergence` override equals the automatic-differentiation
+/// default [`crate::model::ad_divergence`], in `f64` and through first and second derivatives
+/// (hyper-dual numbers), on random points.
+#[test]
+fn closed_form_divergence_equals_ad_default() {
+    use crate::model::ad_divergence;
+    use num_dual::HyperDual64;
+    for_every_model(|p, pt| {
+        let (div, ad) = (
+            p.model.divergence(pt.t, &pt.x, &pt.z, &pt.theta),
+            ad_divergence(&p.model, pt.t, &pt.x, &pt.z, &pt.theta),
+        );
+        assert!(relative_eq!(div, ad, epsilon = 1e-12, max_relative = 1e-12), "{}: {div} vs {ad}", p.name);
+        // Second derivatives in every pair of the variables (x, z, θ).
+        let w = concat(&[&pt.x, &pt.z, &pt.theta]);
+        let (n, c) = (pt.x.len(), pt.z.len());
+        for i in 0..w.len() {
+            for j in 0..w.len() {
+                let mut wd: Vec<HyperDual64> = w.iter().map(|&v| HyperDual64::from(v)).collect();
+                wd[i].eps1 = 1.0;
+                wd[j].eps2 = 1.0;
+                let t = HyperDual64::from(pt.t);
+                let (x, z, th) = (&wd[..n], &wd[n..n + c], &wd[n + c..]);
+                let (a, b) = (p.model.divergence(t, x, z, th), ad_divergence(&p.model, t, x, z, th));
+                for (u, v) in [(a.re, b.re), (a.eps1, b.eps1), (a.eps2, b.eps2), (a.eps1eps2, b.eps1eps2)] {
+                    assert!(
+                        relative_eq!(u, v, epsilon = 1e-12, max_relative = 1e-12),
+                        "{} ({i}, {j}): {u} vs {v}",
+                        p.name
+                    );
+                }
+            }
+        }
+    });
+}
+
 #[test]
 fn van_der_pol_divergence_at_the_papers_mu() {
     // 001_8aefdf0570c96f51.txt Sec. 9: div f(t, x) = 2(1 − u²) with μ = 2; at u = 0.5 it is 1.5.

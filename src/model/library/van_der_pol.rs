@@ -48,6 +48,11 @@ impl Sde for VanDerPol {
         out[1] = -u + mu * (D::from(1.0) - u * u) * v;
     }
 
+    /// $\operatorname{div} f = \mu (1 - u^2)$ (`001_8aefdf0570c96f51.txt` Sec. 9), in closed form.
+    fn divergence<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], theta: &[D]) -> D {
+        theta[Self::MU] * (D::from(1.0) - x[0] * x[0])
+    }
+
     /// $G = \sigma I_2$ (column-major).
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
         let s = theta[Self::SIGMA];
