@@ -50,9 +50,11 @@ pub enum ClosureKind {
         /// The highest power (≥ 2).
         degree: usize,
     },
-    /// The closure of the KSP smoother (`(II.64)–(II.65)`): not implemented yet.
+    /// The closure of the KSP smoother (`(II.64)–(II.65)`), a moment-path problem ([`om`];
+    /// one-state models).
     Ksp,
-    /// The double-exponential closure (`(II.54)–(II.63)`): not implemented yet.
+    /// The double-exponential closure (`(II.54)–(II.63)`), a moment-path problem ([`om`];
+    /// one-state models).
     DoubleExponential,
 }
 
@@ -540,10 +542,13 @@ fn exponential_setup<'a, S: Sde + ?Sized>(
 ///
 /// The measurements must be Gaussian measurements of states (as for the exact mean-optimal
 /// estimator, the dual needs Gaussian errors, `(I.52)`), the initial priors Gaussian.
+/// `ksp-closure` and `double-exp-closure` are not dual problems: their estimate is the
+/// minimising moment path of [`om::moment_path_estimate`] (grid step = `output_step`).
 ///
 /// Errors ([`Error::InvalidOption`] unless noted): a non-Gaussian likelihood or prior, parameters
 /// to estimate, data before `t0`, invalid options, an exponential closure on a model with more
-/// than two states, and the kinds not implemented yet (`ksp-closure`, `double-exp-closure`).
+/// than two states, `ksp-closure` and `double-exp-closure` on a model with more than one state
+/// (see [`om::moment_path_estimate`]).
 /// Non-convergence of the dual, or sweeps that leave the moment space, are a [`Status`].
 pub fn closure_estimate<S: Sde + ?Sized>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
@@ -560,7 +565,11 @@ pub fn closure_estimate<S: Sde + ?Sized>(
             solve(exponential_closure_action(problem, *degree, options)?, &data, states, options)?
         }
         ClosureKind::Ksp | ClosureKind::DoubleExponential => {
-            return Err(invalid("method", format!("{} is not implemented", kind.method_name())))
+            let mut o = om::MomentPathOptions::new().with_t0(options.t0);
+            if let Some(s) = options.output_step {
+                o = o.with_step(s);
+            }
+            return om::moment_path_estimate(problem, kind, &o);
         }
     };
     let path = StatePath {
