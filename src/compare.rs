@@ -63,8 +63,9 @@ pub struct Comparison {
 }
 
 /// The methods compared by default: the exact grid methods where the model has at most two
-/// states, the Gaussian and quartic exponential closures where it has one (seconds on a
-/// 40-measurement record; in 2-D ask for them explicitly), then JME, MEE and the UKS.
+/// states, the closures where it has one (Gaussian, quartic exponential, double-exponential and
+/// KSP; seconds on a 40-measurement record; in 2-D ask for them explicitly), then JME, MEE and
+/// the UKS.
 pub fn default_methods<S: Sde + ?Sized>(problem: &EstimationProblem<'_, S, StateMeasurement>) -> Vec<Method> {
     let mut m = Vec::new();
     let states = problem.sde.dims().states();
@@ -72,7 +73,7 @@ pub fn default_methods<S: Sde + ?Sized>(problem: &EstimationProblem<'_, S, State
         m.extend([Method::Ksp, Method::MeanOptimal]);
     }
     if states == 1 {
-        m.extend([Method::GaussianClosure, Method::ExpClosure]);
+        m.extend([Method::GaussianClosure, Method::ExpClosure, Method::DoubleExpClosure, Method::KspClosure]);
     }
     m.extend([Method::Jme, Method::Mee, Method::Uks]);
     m

@@ -26,7 +26,7 @@ pub struct CompareArgs {
     #[arg(long)]
     pub truth: Option<PathBuf>,
     /// Methods to compare, comma-separated (default: ksp and mean-optimal for one or two
-    /// states, gaussian-closure and exp-closure for one state, jme, mee, uks).
+    /// states, the four closures for one state, jme, mee, uks).
     #[arg(long, value_delimiter = ',', value_parser = parse_method)]
     pub methods: Vec<Method>,
     /// Grid of the exact methods (default: the data range with margins).
