@@ -243,6 +243,15 @@ fn unsupported_combinations_are_clear_errors() {
         z0_prior: &[],
         data: &d2,
     };
+    // Measurement times must increase (direct construction of the action).
+    let (drift, lambda0) = (
+        onsager::action::closure::GaussianDrift::try_new(&DoubleWell, &[0.5]).unwrap(),
+        vec![-1.0 / 0.09, -0.5 / 0.09],
+    );
+    let err =
+        onsager::action::ClosureAction::try_new(drift, 0.0, lambda0, &[2.0, 1.0], vec![0], &[], 1e-6, 1e-9)
+            .unwrap_err();
+    assert!(err.to_string().contains("strictly increasing"), "{err}");
     // Two states but one domain interval.
     let one_interval = ClosureOptions::new().with_domain(&[(-3.0, 3.0)]);
     let err = closure_estimate(&p3, &ClosureKind::Exponential { degree: 4 }, &one_interval).unwrap_err();

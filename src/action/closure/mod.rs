@@ -354,12 +354,13 @@ fn solve<D: ClosureDrift>(
             let h = (&h + h.transpose()) * 0.5;
             match super::dispersion::posterior_variance(&history, &h, data) {
                 Ok(var) => var.iter().map(|v| v.iter().map(|x| x.max(0.0).sqrt()).collect()).collect(),
-                Err(_) => {
-                    // At a stationary point where ∇²F + R is not positive definite the ensemble
-                    // dispersion is undefined: report the closure's own variance.
+                // At a stationary point where ∇²F + R is not positive definite the ensemble
+                // dispersion is undefined: report the closure's own variance. Other errors pass.
+                Err(Error::InvalidOption { name, .. }) if name == "hessian" => {
                     sd_note = Some("closure variance (∇²F + R is not positive definite at the solution)");
                     history.variance.iter().map(|v| v.iter().map(|x| x.sqrt()).collect()).collect()
                 }
+                Err(e) => return Err(e),
             }
         }
         None => history.variance.iter().map(|v| v.iter().map(|x| x.sqrt()).collect()).collect(),

@@ -170,6 +170,12 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 reason: format!("the measurement times must be finite and not before t0 = {t0}"),
             });
         }
+        if meas_times.windows(2).any(|w| w[1] <= w[0]) {
+            return Err(Error::InvalidOption {
+                name: "measurement times".into(),
+                reason: "must be strictly increasing".into(),
+            });
+        }
         for (name, v) in [("rtol", rtol), ("atol", atol)] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(Error::InvalidOption {
@@ -677,6 +683,9 @@ impl<D: ClosureDrift> ClosureAction<D> {
                     jac[(i, i)] += v;
                 }
                 let scale: f64 = idx.iter().map(|&b| data.variance[k * s + b]).fold(0.0, f64::max);
+                if g.iter().any(|v| !v.is_finite()) {
+                    return Err(SweepFailure);
+                }
                 if g.amax() <= 1e-12 * (1.0 + scale) {
                     break;
                 }
