@@ -116,6 +116,18 @@ fn main() {
         } else if let Some((_, detail)) = v {
             println!("INFO holmes-rand-quantized [{name}] (sigma_y ~ l_b, no claim): {detail}");
         }
+        // Why the claim fails when Sigma_y is estimated: the joint MAP's Sigma_y-hat (docs/results.md).
+        for label in ["jme", "mee"] {
+            let sy = median(&s, label, "theta", "sigma_y");
+            let e = s["estimators"].as_array().and_then(|a| a.iter().find(|e| e["estimator"] == label));
+            if let (Some(sy), Some(e)) = (sy, e) {
+                println!(
+                    "INFO holmes-rand-quantized [{name}] {label}: median Sigma_y-hat {sy:.3e} (true {sd}), \
+                     {}/{} rows converged or acceptable",
+                    e["success"], e["rows"]
+                );
+            }
+        }
         // Diagnostic rows (not in the thesis): JME and MEE with Sigma_y fixed at its true value.
         let known = (|| {
             let (pem, jme, mee) = (
