@@ -21,7 +21,8 @@
 //! $u_{pj} = a_{pj} - \sum_{k=\max(f_p, f_j)}^{j-1} u_{pk}\, l_{jk}$ with $u_{pk} = l_{pk} d_k$,
 //! then $l_{pj} = u_{pj}/d_j$ and $d_p = a_{pp} - \sum_j u_{pj} l_{pj}$. Each inner sum is a dot
 //! product of two contiguous slices. Pivots with $|d| \le 10^{-30}\max|K_{ij}|$ are replaced by
-//! $\pm 10^{-12}\max|K_{ij}|$, exactly as faer's dynamic regularisation in
+//! $\pm\delta\max|K_{ij}|$ ([`REGULARIZATION_DELTA`](super::kkt::REGULARIZATION_DELTA)), exactly
+//! as faer's dynamic regularisation in
 //! [`FaerLdlt`](super::FaerLdlt), and the inertia is read from the signs of $D$.
 //!
 //! No sorting is needed anywhere: the slot of entry $(p, j)$ is `row_ptr[p] + j − f_p`.
@@ -62,6 +63,8 @@ pub struct BandLdlt {
     work_prev: Vec<f64>,
     norm_k: f64,
     last_residual: f64,
+    /// Number of pivots regularised by the last factorisation.
+    regularized: usize,
     factored: bool,
     /// Maximum number of iterative refinement steps (default 10).
     pub max_refinement_steps: usize,
@@ -94,16 +97,17 @@ impl BandLdlt {
 
     /// y = K x in permuted coordinates, from the stored lower envelope.
     fn sym_matvec(&self, x: &[f64], y: &mut [f64]) {
-        y.fill(0.0);
         for p in 0..x.len() {
             let (f, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1] - 1);
-            let row = &self.values[start..end];
             let xp = x[p];
-            let acc = self.values[end] * xp + dot(row, &x[f..p]);
-            for (yk, &a) in y[f..p].iter_mut().zip(row) {
-                *yk += a * xp;
+            let mut acc = self.values[end] * xp;
+            if f < p {
+                let row = &self.values[start..end];
+                acc += dot(row, &x[f..p]);
+                axpy(-xp, row, &mut y[f..p]);
             }
-            y[p] += acc;
+            // y[p] receives only the contributions of later rows, which are added after it
+            y[p] = acc;
         }
     }
 
@@ -112,27 +116,41 @@ impl BandLdlt {
         let dim = x.len();
         for p in 0..dim {
             let (f, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1] - 1);
-            x[p] -= dot(&self.factor[start..end], &x[f..p]);
+            if f < p {
+                x[p] -= dot(&self.factor[start..end], &x[f..p]);
+            }
         }
-        for p in 0..dim {
-            x[p] *= self.inv_d[p];
+        for (xp, &inv) in x.iter_mut().zip(&self.inv_d) {
+            *xp *= inv;
         }
         for p in (0..dim).rev() {
             let (f, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1] - 1);
-            let xp = x[p];
-            for (xk, &l) in x[f..p].iter_mut().zip(&self.factor[start..end]) {
-                *xk -= l * xp;
+            if f < p {
+                let xp = x[p];
+                let (head, _) = x.split_at_mut(p);
+                axpy(xp, &self.factor[start..end], &mut head[f..]);
             }
         }
     }
 }
 
-/// Σ aᵢbᵢ over the common length, with four independent accumulators (written with exact
-/// chunks so that no bounds are checked in the loop).
+/// y ← y − a x over the common length.
+#[inline]
+fn axpy(a: f64, x: &[f64], y: &mut [f64]) {
+    for (yk, &xk) in y.iter_mut().zip(x) {
+        *yk -= a * xk;
+    }
+}
+
+/// Σ aᵢbᵢ over the common length: a plain loop for the short rows of a narrow envelope,
+/// four independent accumulators (exact chunks, no bounds checks) for longer ones.
 #[inline]
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     let n = a.len().min(b.len());
     let (a, b) = (&a[..n], &b[..n]);
+    if n < 8 {
+        return a.iter().zip(b).fold(0.0, |s, (x, y)| s + x * y);
+    }
     let (ac, bc) = (a.chunks_exact(4), b.chunks_exact(4));
     let (ar, br) = (ac.remainder(), bc.remainder());
     let mut acc = [0.0f64; 4];
@@ -358,7 +376,7 @@ impl KktSolver for BandLdlt {
         self.norm_k = row_sums.iter().fold(0.0f64, |a, &b| a.max(b));
         self.work_r = row_sums;
         let scale = if max_abs > 0.0 { max_abs } else { 1.0 };
-        let (eps, delta) = (1e-30 * scale, 1e-12 * scale);
+        let (eps, delta) = (1e-30 * scale, super::kkt::REGULARIZATION_DELTA * scale);
         let mut regularized = 0usize;
         let mut inertia = Inertia::default();
         self.factor.copy_from_slice(&self.values);
@@ -369,11 +387,14 @@ impl KktSolver for BandLdlt {
             // u_pj = a_pj − Σ_k u_pk l_jk  (row p holds u_p· for the columns already done)
             let (first, row_ptr) = (&self.first[fp..p], &self.row_ptr[fp..p + 1]);
             for (jj, (&fj, ptr)) in first.iter().zip(row_ptr.windows(2)).enumerate() {
-                // column j = fp + jj; row j is stored at ptr[0]..ptr[1] (diagonal last)
+                // column j = fp + jj; row j is stored at ptr[0]..ptr[1] (diagonal last); the
+                // sum runs over k0..j, empty when row j starts at its diagonal
                 let k0 = fp.max(fj);
-                let rj = &done[ptr[0] + (k0 - fj)..ptr[1] - 1];
-                let (head, tail) = row.split_at_mut(jj);
-                tail[0] -= dot(&head[k0 - fp..], rj);
+                if k0 < fp + jj {
+                    let rj = &done[ptr[0] + (k0 - fj)..ptr[1] - 1];
+                    let (head, tail) = row.split_at_mut(jj);
+                    tail[0] -= dot(&head[k0 - fp..], rj);
+                }
             }
             let (offdiag, diag) = row.split_at_mut(p - fp);
             let mut d = diag[0];
@@ -398,6 +419,7 @@ impl KktSolver for BandLdlt {
             }
         }
         self.factored = true;
+        self.regularized = regularized;
         Some(FactorInfo { inertia, regularized_pivots: regularized })
     }
 
@@ -422,6 +444,7 @@ impl KktSolver for BandLdlt {
             &mut prev,
             self.norm_k,
             self.max_refinement_steps,
+            self.regularized > 0,
             |x, y| self.sym_matvec(x, y),
             |x| self.solve_permuted(x),
         );
