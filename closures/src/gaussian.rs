@@ -3,7 +3,7 @@
 use crate::error::{check_finite, check_len, Error};
 use crate::family::{max_abs, Cumulants, LegendreOptions, LegendreSolution, TrialFamily};
 use crate::quadrature::{cubature3, cubature5, gauss_hermite_tensor, Rule};
-use crate::scalar::{cholesky, cholesky_inverse, cholesky_log_det, Scalar};
+use crate::scalar::{cholesky, cholesky_inverse, cholesky_log_det, dot, Scalar};
 
 /// Quadrature used by [`Gaussian`] for expectations: a rule for $N(0, I_n)$ mapped to
 /// $N(m, \Sigma)$ by $x = m + L\xi$, $\Sigma = LL^\top$ (Cholesky).
@@ -370,10 +370,6 @@ impl Gaussian {
         }
         c
     }
-}
-
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
 fn mat_vec(m: &[f64], v: &[f64], n: usize) -> Vec<f64> {

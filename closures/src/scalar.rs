@@ -14,6 +14,26 @@ pub trait Scalar: num_dual::DualNum<Primitive = f64> + Copy {}
 
 impl<T: num_dual::DualNum<Primitive = f64> + Copy> Scalar for T {}
 
+/// $\sum_i a_i b_i$ over the common length of two `f64` slices, with four independent
+/// accumulators over exact chunks so that the loop vectorises (the summation order differs from
+/// a left-to-right sum only by round-off). The one dot-product kernel of the workspace's hot
+/// loops.
+#[inline]
+pub fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let (ac, bc) = (a.chunks_exact(4), b.chunks_exact(4));
+    let tail: f64 = ac.remainder().iter().zip(bc.remainder()).map(|(x, y)| x * y).sum();
+    let mut acc = [0.0f64; 4];
+    for (x, y) in ac.zip(bc) {
+        acc[0] += x[0] * y[0];
+        acc[1] += x[1] * y[1];
+        acc[2] += x[2] * y[2];
+        acc[3] += x[3] * y[3];
+    }
+    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
+}
+
 /// Cholesky factor $L$ (lower triangular, row-major, zeros above the diagonal) of the symmetric
 /// positive definite $n\times n$ matrix `a`, so that $a = L L^\top$.
 ///
@@ -123,6 +143,19 @@ pub fn cholesky_log_det<D: Scalar>(l: &[D], n: usize) -> Result<D, Error> {
 mod tests {
     use super::*;
     use approx::assert_relative_eq;
+
+    #[test]
+    fn dot_equals_the_plain_sum_for_every_length() {
+        // Lengths 0..=13 cover the empty slice, the remainder only, exact chunks and both; a
+        // longer b is cut to a's length.
+        for n in 0..=13usize {
+            let a: Vec<f64> = (0..n).map(|i| 1.0 + 0.5 * i as f64).collect();
+            let b: Vec<f64> = (0..n + 3).map(|i| (i as f64 * 0.7).sin()).collect();
+            let plain: f64 = a.iter().zip(&b).map(|(x, y)| x * y).sum();
+            assert_relative_eq!(dot(&a, &b), plain, epsilon = 1e-14, max_relative = 1e-14);
+            assert_relative_eq!(dot(&b, &a), plain, epsilon = 1e-14, max_relative = 1e-14);
+        }
+    }
 
     #[test]
     fn cholesky_reconstructs_and_inverts() {

@@ -15,6 +15,7 @@
 use std::time::Instant;
 
 use nalgebra::DMatrix;
+use onsager_closures::dot;
 
 use crate::data::{Dataset, EventTimes};
 use crate::estimate::{EstimationProblem, Status};
@@ -398,10 +399,6 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
 
 /// Cov(x_i(τ), Z_m) per event τ (states × multipliers).
 type CrossCovariances = Vec<DMatrix<f64>>;
-
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
-}
 
 /// Per-step diagnostics of one forward–backward sweep (see [`ExactAction::diagnostics`]).
 #[derive(Debug, Clone, PartialEq)]

@@ -516,10 +516,7 @@ mod tests {
     use crate::action::grid::GridSpec;
     use crate::model::library::{DoubleWell, Duffing, Ou, VanDerPol};
     use approx::assert_relative_eq;
-
-    fn dot(a: &[f64], b: &[f64]) -> f64 {
-        a.iter().zip(b).map(|(x, y)| x * y).sum()
-    }
+    use onsager_closures::dot;
 
     #[test]
     fn bernoulli_matches_closed_form() {

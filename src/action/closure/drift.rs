@@ -17,7 +17,7 @@
 //!   (`(II.43)`) in closed form.
 
 use num_dual::{Dual64, HyperDual64};
-use onsager_closures::{cholesky, cholesky_inverse, cholesky_solve, Exponential, Gaussian, TrialFamily};
+use onsager_closures::{cholesky, cholesky_inverse, cholesky_solve, dot, Exponential, Gaussian, TrialFamily};
 
 use crate::model::{Scalar, Sde};
 use crate::{Error, Result};
@@ -302,9 +302,12 @@ pub struct ExponentialDrift<'a, S: Sde + ?Sized> {
     theta: Vec<f64>,
     family: Exponential,
     diffusion: Vec<f64>,
-    /// ∂M_a/∂x_i at every node (node-major, R × dim per node).
+    /// The hot loops run over the nodes with one contiguous row per moment ("moment-major"):
+    /// M_a(x_k) at row a.
+    table: Vec<f64>,
+    /// ∂M_a/∂x_i(x_k) at row a·dim + i.
     jac: Vec<f64>,
-    /// D : ∇∇M_a at every node (node-major, R per node).
+    /// D : ∇∇M_a(x_k) at row a.
     second: Vec<f64>,
     linear: Vec<Option<usize>>,
     square: Vec<Option<usize>>,
@@ -358,7 +361,28 @@ impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
         };
         let linear = (0..n).map(|i| find(&|x: &[f64]| x[i])).collect();
         let square = (0..n).map(|i| find(&|x: &[f64]| x[i] * x[i])).collect();
-        Ok(ExponentialDrift { sde, theta: theta.to_vec(), family, diffusion, jac, second, linear, square })
+        // Node-major → moment-major.
+        let transpose = |m: &[f64], rows: usize| -> Vec<f64> {
+            let mut out = vec![0.0; m.len()];
+            for k in 0..nodes {
+                for a in 0..rows {
+                    out[a * nodes + k] = m[k * rows + a];
+                }
+            }
+            out
+        };
+        let (table, jac, second) = (transpose(table, r), transpose(&jac, r * n), transpose(&second, r));
+        Ok(ExponentialDrift {
+            sde,
+            theta: theta.to_vec(),
+            family,
+            diffusion,
+            table,
+            jac,
+            second,
+            linear,
+            square,
+        })
     }
 
     /// The family.
@@ -399,11 +423,12 @@ impl SpdFactor {
 }
 
 /// What W and ∂W/∂λ of an exponential closure are made of (see [`ExponentialDrift`]), flat:
-/// node probabilities π, centred moments d_k = M(x_k) − μ (node-major), generator averages g_k
-/// (node-major), V, the factor of C, W.
+/// node probabilities π, centred moments d = M(x_k) − μ, πd, generator values g_k (each
+/// moment-major: one row of node values per moment; g is 0 where π is), V, the factor of C, W.
 struct FirstOrder {
     p: Vec<f64>,
     d: Vec<f64>,
+    pd: Vec<f64>,
     g: Vec<f64>,
     v: Vec<f64>,
     c: SpdFactor,
@@ -416,75 +441,107 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
         let n = self.family.dim();
         let r = self.family.n_moments();
         let (p, _) = self.family.node_probabilities(lambda).map_err(unrealizable)?;
-        let table = self.family.moment_table();
-        let mut mu = vec![0.0; r];
-        for (row, &pk) in table.chunks_exact(r).zip(&p) {
-            for a in 0..r {
-                mu[a] += pk * row[a];
-            }
-        }
         let nodes = p.len();
-        let mut d = vec![0.0; nodes * r];
-        let mut g = vec![0.0; nodes * r];
-        let mut c = vec![0.0; r * r];
-        let mut v = vec![0.0; r];
+        // The drift at the nodes that carry mass, state-major.
+        let mut fs = vec![0.0; n * nodes];
         let mut f = vec![0.0; n];
         let points = self.family.grid().points();
-        for k in 0..nodes {
-            let pk = p[k];
-            if pk == 0.0 {
-                continue;
-            }
-            let dk = &mut d[k * r..(k + 1) * r];
-            for a in 0..r {
-                dk[a] = table[k * r + a] - mu[a];
-            }
-            for a in 0..r {
-                let pa = pk * dk[a];
-                for b in a..r {
-                    c[a * r + b] += pa * dk[b];
-                }
-            }
-            self.sde.state_drift(t, &points[k * n..(k + 1) * n], &self.theta, &mut f);
-            let jk = &self.jac[k * r * n..(k + 1) * r * n];
-            for a in 0..r {
-                let mut ga = self.second[k * r + a];
+        for (k, &pk) in p.iter().enumerate() {
+            if pk != 0.0 {
+                self.sde.state_drift(t, &points[k * n..(k + 1) * n], &self.theta, &mut f);
                 for i in 0..n {
-                    ga += jk[a * n + i] * f[i];
+                    fs[i * nodes + k] = f[i];
                 }
-                g[k * r + a] = ga;
-                v[a] += pk * ga;
             }
         }
-        for a in 0..r {
-            for b in 0..a {
-                c[a * r + b] = c[b * r + a];
+        // Filled row by row (no zeroing: these are the hot allocations).
+        let mut d = Vec::with_capacity(r * nodes);
+        let mut pd = Vec::with_capacity(r * nodes);
+        let mut g = self.second.clone();
+        let mut v = vec![0.0; r];
+        for (a, va) in v.iter_mut().enumerate() {
+            let row = a * nodes..(a + 1) * nodes;
+            let ma = &self.table[row.clone()];
+            let mu = dot(&p, ma);
+            d.extend(ma.iter().map(|&mk| mk - mu));
+            pd.extend(p.iter().zip(&d[row.clone()]).map(|(&pk, &dk)| pk * dk));
+            let ga = &mut g[row];
+            for i in 0..n {
+                let ji = &self.jac[(a * n + i) * nodes..(a * n + i + 1) * nodes];
+                let fi = &fs[i * nodes..(i + 1) * nodes];
+                for ((gk, &jk), &fk) in ga.iter_mut().zip(ji).zip(fi) {
+                    *gk += jk * fk;
+                }
             }
+            for (gk, &pk) in ga.iter_mut().zip(&p) {
+                if pk == 0.0 {
+                    *gk = 0.0;
+                }
+            }
+            *va = dot(&p, ga);
         }
         if !v.iter().all(|x| x.is_finite()) {
             return Err(Unrealizable("the drift is not finite on the family's grid".into()));
         }
+        let mut c = vec![0.0; r * r];
+        for a in 0..r {
+            for b in a..r {
+                let cab = dot(&pd[a * nodes..(a + 1) * nodes], &d[b * nodes..(b + 1) * nodes]);
+                c[a * r + b] = cab;
+                c[b * r + a] = cab;
+            }
+        }
         let c = SpdFactor::new(&c, r)?;
         let mut w = v.clone();
         c.solve(&mut w);
-        Ok(FirstOrder { p, d, g, v, c, w })
+        Ok(FirstOrder { p, d, pd, g, v, c, w })
+    }
+
+    /// Σ_k s_k d_a(x_k) d_b(x_k) for all a, b (symmetric, row-major r × r) of a node weight s.
+    fn weighted_second_moments(z: &FirstOrder, s: &[f64], out: &mut [f64]) {
+        let r = z.w.len();
+        let nodes = z.p.len();
+        let mut sd = vec![0.0; nodes];
+        for a in 0..r {
+            let da = &z.d[a * nodes..(a + 1) * nodes];
+            for ((x, &sk), &dk) in sd.iter_mut().zip(s).zip(da) {
+                *x = sk * dk;
+            }
+            for b in a..r {
+                let v = dot(&sd, &z.d[b * nodes..(b + 1) * nodes]);
+                out[a * r + b] = v;
+                out[b * r + a] = v;
+            }
+        }
+    }
+
+    /// Σ_a c_a m_a(x_k) at every node of moment-major rows m.
+    fn project(rows: &[f64], c: &[f64]) -> Vec<f64> {
+        let nodes = rows.len() / c.len().max(1);
+        let mut out = vec![0.0; nodes];
+        for (row, &ca) in rows.chunks_exact(nodes).zip(c) {
+            for (o, &mk) in out.iter_mut().zip(row) {
+                *o += ca * mk;
+            }
+        }
+        out
     }
 
     /// ∂W/∂λ = C⁻¹Σπ_k(g_k − (d_k·W)d_k)d_kᵀ into `jac` (row-major).
     fn jacobian_of(&self, z: &FirstOrder, jac: &mut [f64]) {
         let r = z.w.len();
-        jac.iter_mut().for_each(|v| *v = 0.0);
-        for (k, &pk) in z.p.iter().enumerate() {
-            if pk == 0.0 {
-                continue;
+        let nodes = z.p.len();
+        let wd = Self::project(&z.d, &z.w);
+        let mut e = vec![0.0; nodes];
+        for a in 0..r {
+            let row = a * nodes..(a + 1) * nodes;
+            for (((ek, &pk), &gk), (&pdk, &u)) in
+                e.iter_mut().zip(&z.p).zip(&z.g[row.clone()]).zip(z.pd[row].iter().zip(&wd))
+            {
+                *ek = pk * gk - u * pdk;
             }
-            let dk = &z.d[k * r..(k + 1) * r];
-            let u: f64 = (0..r).map(|a| dk[a] * z.w[a]).sum();
-            for a in 0..r {
-                let ga = pk * (z.g[k * r + a] - u * dk[a]);
-                for j in 0..r {
-                    jac[a * r + j] += ga * dk[j];
-                }
+            for j in 0..r {
+                jac[a * r + j] = dot(&e, &z.d[j * nodes..(j + 1) * nodes]);
             }
         }
         let mut col = vec![0.0; r];
@@ -549,36 +606,13 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
         self.jacobian_of(&z, jac);
         let mut u = kappa.to_vec();
         z.c.solve(&mut u);
-        // hess accumulates ⟨ψ d dᵀ⟩ (upper triangle); tm = T.
+        // hess = ⟨ψ d dᵀ⟩, tm = T, with ψ_k = π_k(uᵀg_k − (uᵀd_k)(Wᵀd_k)) and π_k uᵀd_k.
+        let (ud, wd, ug) = (Self::project(&z.d, &u), Self::project(&z.d, &z.w), Self::project(&z.g, &u));
+        let psi: Vec<f64> = (0..z.p.len()).map(|k| z.p[k] * (ug[k] - ud[k] * wd[k])).collect();
+        let tu: Vec<f64> = z.p.iter().zip(&ud).map(|(p, u)| p * u).collect();
         let mut tm = vec![0.0; r * r];
-        hess.iter_mut().for_each(|v| *v = 0.0);
-        for (k, &pk) in z.p.iter().enumerate() {
-            if pk == 0.0 {
-                continue;
-            }
-            let dk = &z.d[k * r..(k + 1) * r];
-            let (mut ud, mut wd, mut ug) = (0.0, 0.0, 0.0);
-            for a in 0..r {
-                ud += u[a] * dk[a];
-                wd += z.w[a] * dk[a];
-                ug += u[a] * z.g[k * r + a];
-            }
-            let psi = pk * (ug - ud * wd);
-            let tu = pk * ud;
-            for a in 0..r {
-                let (pa, ta) = (psi * dk[a], tu * dk[a]);
-                for b in a..r {
-                    hess[a * r + b] += pa * dk[b];
-                    tm[a * r + b] += ta * dk[b];
-                }
-            }
-        }
-        for a in 0..r {
-            for b in 0..a {
-                hess[a * r + b] = hess[b * r + a];
-                tm[a * r + b] = tm[b * r + a];
-            }
-        }
+        Self::weighted_second_moments(&z, &psi, hess);
+        Self::weighted_second_moments(&z, &tu, &mut tm);
         let mut tj = vec![0.0; r * r];
         for a in 0..r {
             for j in 0..r {
