@@ -209,6 +209,32 @@ fn rcm_order(s: &KktStructure<'_>, dense_var: &[bool], dense_row: &[bool]) -> Ve
                 + v_rows[v_ptr[i]..v_ptr[i + 1]].iter().map(|&r| r_ptr[r + 1] - r_ptr[r] - 1).sum::<usize>()
         })
         .collect();
+    // the deduplicated adjacency lists, built once so that the breadth-first searches below do
+    // not walk the (overlapping) constraint rows again in every pass
+    let mut adj_ptr = vec![0usize; n + 1];
+    let mut adj: Vec<usize> = Vec::new();
+    let mut seen = vec![usize::MAX; n];
+    for v in 0..n {
+        if keep(v) {
+            seen[v] = v;
+            for &u in &h_idx[h_ptr[v]..h_ptr[v + 1]] {
+                if seen[u] != v {
+                    seen[u] = v;
+                    adj.push(u);
+                }
+            }
+            for &r in &v_rows[v_ptr[v]..v_ptr[v + 1]] {
+                for &u in &r_vars[r_ptr[r]..r_ptr[r + 1]] {
+                    if seen[u] != v {
+                        seen[u] = v;
+                        adj.push(u);
+                    }
+                }
+            }
+        }
+        adj_ptr[v + 1] = adj.len();
+    }
+    drop((seen, h_ptr, h_idx, v_ptr, v_rows, r_ptr, r_vars));
     let mut level = vec![usize::MAX; n];
     let mut order: Vec<usize> = Vec::with_capacity(n);
     let mut next: Vec<usize> = Vec::new();
@@ -235,18 +261,10 @@ fn rcm_order(s: &KktStructure<'_>, dense_var: &[bool], dense_row: &[bool]) -> Ve
             let v = out[head];
             head += 1;
             next.clear();
-            for &u in &h_idx[h_ptr[v]..h_ptr[v + 1]] {
+            for &u in &adj[adj_ptr[v]..adj_ptr[v + 1]] {
                 if level[u] != mark {
                     level[u] = mark;
                     next.push(u);
-                }
-            }
-            for &r in &v_rows[v_ptr[v]..v_ptr[v + 1]] {
-                for &u in &r_vars[r_ptr[r]..r_ptr[r + 1]] {
-                    if level[u] != mark {
-                        level[u] = mark;
-                        next.push(u);
-                    }
                 }
             }
             if sorted {
@@ -355,23 +373,29 @@ impl KktSolver for BandLdlt {
             return None; // `analyse` was not called
         }
         scatter_values(&mut self.values, &self.hess_map, &self.jac_map, &self.diag_map, n, m, v);
+        // max |K_ij| and the row sums of |K| (∞-norm of the symmetric matrix), in one pass
+        // without branches: a non-finite entry makes the total non-finite
         let mut max_abs = 0.0f64;
+        let mut total = 0.0f64;
         let mut row_sums = std::mem::take(&mut self.work_r);
-        row_sums.fill(0.0);
         for p in 0..dim {
-            let (f, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1]);
-            for (k, &a) in self.values[start..end].iter().enumerate() {
-                if !a.is_finite() {
-                    self.work_r = row_sums;
-                    return None;
-                }
+            let (f, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1] - 1);
+            let mut s = self.values[end].abs();
+            max_abs = max_abs.max(s);
+            for (rk, &a) in row_sums[f..p].iter_mut().zip(&self.values[start..end]) {
                 let a = a.abs();
                 max_abs = max_abs.max(a);
-                row_sums[p] += a;
-                if f + k != p {
-                    row_sums[f + k] += a;
-                }
+                *rk += a;
+                s += a;
             }
+            // row p's own sum is complete once its stored part is added: later rows only add
+            // to columns before their diagonal
+            row_sums[p] = s;
+            total += s;
+        }
+        if !total.is_finite() {
+            self.work_r = row_sums;
+            return None;
         }
         self.norm_k = row_sums.iter().fold(0.0f64, |a, &b| a.max(b));
         self.work_r = row_sums;

@@ -1149,3 +1149,26 @@ fn iteration_counts_are_unchanged() {
         }
     }
 }
+
+#[test]
+fn band_ordering_is_a_permutation() {
+    // The reverse Cuthill–McKee ordering with its deduplicated adjacency lists must place every
+    // variable and constraint row exactly once, and the envelope never exceeds the dense lower
+    // triangle.
+    use rand::SeedableRng;
+    let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+    for trial in 0..10 {
+        let (n, m) = (30 + 7 * trial, 8 + 2 * trial);
+        let (hess, jac) = random_kkt(&mut rng, n, m);
+        let structure = KktStructure { n, m, hessian: &hess, jacobian: &jac };
+        let mut band = BandLdlt::new();
+        band.analyse(&structure).unwrap();
+        let mut seen = vec![false; n + m];
+        for &g in band.permutation() {
+            assert!(!seen[g], "trial {trial}: {g} placed twice");
+            seen[g] = true;
+        }
+        assert!(seen.iter().all(|&s| s), "trial {trial}");
+        assert!(band.envelope_size() <= (n + m) * (n + m + 1) / 2);
+    }
+}
