@@ -46,12 +46,27 @@ const B: [f64; 6] = [35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 /
 const E: [f64; 7] =
     [71.0 / 57600.0, 0.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253.0 / 339200.0, 22.0 / 525.0, -1.0 / 40.0];
 
-/// One accepted Runge–Kutta step: start time, size and the six stage arguments.
+/// One accepted Runge–Kutta step: start time, size, the six stage arguments Y_i and the stage
+/// Jacobians J_i = ∂W/∂λ(Y_i) (R × R row-major each), formed with W in the forward sweep so
+/// that the adjoint sweep need not evaluate the drift again.
 #[derive(Debug, Clone)]
 struct Step {
     t: f64,
     h: f64,
     stages: Vec<f64>,
+    jac: Vec<f64>,
+}
+
+/// What a Dormand–Prince step returns: the new state, the error norm, the stage arguments and
+/// Jacobians of the step, and W and ∂W/∂λ at the new state (the seventh stage, first-same-as-
+/// last).
+struct RkStep {
+    y: Vec<f64>,
+    err: f64,
+    stages: Vec<f64>,
+    jac: Vec<f64>,
+    k7: Vec<f64>,
+    j7: Vec<f64>,
 }
 
 /// A stored forward sweep.
@@ -228,14 +243,15 @@ impl<D: ClosureDrift> ClosureAction<D> {
         Ok(())
     }
 
-    /// One Dormand–Prince step from (t, y) of size h, given k_1 = W(t, y): the new state, the
-    /// error norm, the stage arguments and W at the new state (the seventh stage, first-same-as-
-    /// last); `None` when a stage is not realizable.
-    #[allow(clippy::type_complexity)]
-    fn rk_step(&self, t: f64, y: &[f64], h: f64, k1: &[f64]) -> Option<(Vec<f64>, f64, Vec<f64>, Vec<f64>)> {
+    /// One Dormand–Prince step from (t, y) of size h, given k_1 = W(t, y) and j_1 = ∂W/∂λ(t, y);
+    /// `None` when a stage is not realizable.
+    fn rk_step(&self, t: f64, y: &[f64], h: f64, k1: &[f64], j1: &[f64]) -> Option<RkStep> {
         let r = y.len();
+        let rr = r * r;
         let mut k = vec![0.0; 7 * r];
         k[..r].copy_from_slice(k1);
+        let mut jac = vec![0.0; 7 * rr];
+        jac[..rr].copy_from_slice(j1);
         let mut stages = vec![0.0; 6 * r];
         stages[..r].copy_from_slice(y);
         let mut arg = vec![0.0; r];
@@ -247,7 +263,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 stages[i * r..(i + 1) * r].copy_from_slice(&arg);
             }
             let (ki, _) = k.split_at_mut((i + 1) * r);
-            self.drift.w(t + C[i] * h, &arg, &mut ki[i * r..]).ok()?;
+            let (ji, _) = jac.split_at_mut((i + 1) * rr);
+            self.drift.w_jacobian(t + C[i] * h, &arg, &mut ki[i * r..], &mut ji[i * rr..]).ok()?;
         }
         // The seventh stage argument is the fifth-order solution (FSAL).
         let y_new = arg;
@@ -261,7 +278,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
         if !err.is_finite() || y_new.iter().any(|v| !v.is_finite()) {
             return None;
         }
-        Some((y_new, err, stages, k[6 * r..].to_vec()))
+        let j7 = jac.split_off(6 * rr);
+        Some(RkStep { y: y_new, err, stages, jac, k7: k[6 * r..].to_vec(), j7 })
     }
 
     /// Integrates from `t` to `t_end` with error control, pushing the accepted steps.
@@ -280,23 +298,27 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let mut tc = t;
         let mut h = h_guess.min(span);
         let mut rejections = 0usize;
-        let mut k1 = vec![0.0; y.len()];
-        self.drift.w(tc, y, &mut k1).map_err(|_| SweepFailure)?;
+        let r = y.len();
+        let mut k1 = vec![0.0; r];
+        let mut j1 = vec![0.0; r * r];
+        self.drift.w_jacobian(tc, y, &mut k1, &mut j1).map_err(|_| SweepFailure)?;
         while tc < t_end {
             let last = tc + h >= t_end - 1e-12 * span.max(1.0);
             let hh = if last { t_end - tc } else { h };
-            match self.rk_step(tc, y, hh, &k1) {
-                Some((y_new, err, stages, k7)) if err <= 1.0 => {
-                    steps.push(Step { t: tc, h: hh, stages });
-                    *y = y_new;
-                    k1 = k7;
+            match self.rk_step(tc, y, hh, &k1, &j1) {
+                Some(st) if st.err <= 1.0 => {
+                    let err = st.err;
+                    steps.push(Step { t: tc, h: hh, stages: st.stages, jac: st.jac });
+                    *y = st.y;
+                    k1 = st.k7;
+                    j1 = st.j7;
                     tc = if last { t_end } else { tc + hh };
                     let fac = if err == 0.0 { 5.0 } else { (0.9 * err.powf(-0.2)).clamp(0.2, 5.0) };
                     h = hh * fac;
                     *h_guess = h;
                 }
-                Some((_, err, _, _)) => {
-                    h = hh * (0.9 * err.powf(-0.2)).clamp(0.1, 0.9);
+                Some(st) => {
+                    h = hh * (0.9 * st.err.powf(-0.2)).clamp(0.1, 0.9);
                     rejections += 1;
                 }
                 None => {
@@ -410,7 +432,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                         let hi = &mut hess[i * rr..(i + 1) * rr];
                         self.drift.w_second(ti, yi, ki, &mut w, ji, hi).map_err(|_| SweepFailure)?;
                     } else {
-                        self.drift.w_jacobian(ti, yi, &mut w, ji).map_err(|_| SweepFailure)?;
+                        ji.copy_from_slice(&step.jac[i * rr..(i + 1) * rr]);
                     }
                     // Ȳ_i = J_iᵀ k̄_i.
                     for (b, yb) in ybar.iter_mut().enumerate() {
