@@ -32,8 +32,19 @@
 //! maximised where λ_k = R_k⁻¹(r_k − z_k) (`(I.60)`); the estimate is z_k = ∂F/∂λ_k at the
 //! optimum. [`maximize_dual`] runs Newton's method on Φ with a backtracking line search and stops
 //! when the optimality residual max |λ_k − R_k⁻¹(r_k − z_k)| is below the tolerance.
+//!
+//! A Rayleigh–Ritz F need not be convex (`003_d2fc48a470e528fc.txt` Sec. II.1 after (II.16)):
+//! where K = ∇²F + R is not positive definite Φ is not locally concave, the Newton direction is
+//! not an ascent direction, and a line search along a barely regularised Newton direction
+//! wanders. There [`maximize_dual`] takes trust-region steps instead (the exact subproblem by
+//! an eigen-decomposition of K, Moré & Sorensen 1983; Nocedal & Wright, *Numerical
+//! Optimization*, 2nd ed., Ch. 4, Alg. 4.1 and Thm 4.1), in the metric of R (scaled multipliers
+//! R^{1/2}λ, i.e. standardised residuals), which follow the negative-curvature directions of K
+//! uphill and converge to a local maximiser (K positive semi-definite). Where K is positive
+//! definite the Newton step with the line search is kept unchanged (the exact grid's F is a
+//! cumulant generating function, convex, and never leaves this branch).
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
 use crate::estimate::Status;
 use crate::{Error, Result};
@@ -202,6 +213,9 @@ pub struct DualSolution {
     pub status: Status,
     /// ∇²F at the last Newton iterate, when one was computed.
     pub hessian: Option<DMatrix<f64>>,
+    /// Why the maximisation stopped without converging (`None` when it converged or hit the
+    /// iteration limit).
+    pub reason: Option<String>,
 }
 
 fn phi(lambda: &[f64], data: &DualData, active: &[usize], f: f64) -> f64 {
@@ -216,34 +230,114 @@ fn residual(lambda: &[f64], z: &[f64], data: &DualData, active: &[usize]) -> f64
     active.iter().map(|&m| (lambda[m] - (data.r[m] - z[m]) / data.variance[m]).abs()).fold(0.0, f64::max)
 }
 
-/// Solves K s = g by Cholesky; when K = ∇²F + R is not positive definite (a Rayleigh–Ritz F
-/// need not be convex, `003_d2fc48a470e528fc.txt` Sec. II.1 after (II.16)) the diagonal is
-/// shifted Levenberg–Marquardt style, τ = 10⁻⁸·max K_ii growing tenfold, so the step stays an
-/// ascent direction with curvature information; the gradient itself as a last resort.
-fn regularized_solve(k: &DMatrix<f64>, g: &DVector<f64>) -> DVector<f64> {
-    if let Some(ch) = k.clone().cholesky() {
-        return ch.solve(g);
+/// The trust-region subproblem of the dual: the step p maximising the quadratic model
+/// m(p) = gᵀp − ½pᵀKp of Φ over ‖p‖ ≤ `radius` (K symmetric, possibly indefinite), with the
+/// model increase m(p). By Moré & Sorensen (1983) (Nocedal & Wright, 2nd ed., Thm 4.1) p solves
+/// (K + σI)p = g with σ ≥ 0, K + σI positive semi-definite and σ(radius − ‖p‖) = 0; with the
+/// eigen-decomposition K = QΛQᵀ, p(σ) = Σ_i (q_iᵀg)/(Λ_i + σ) q_i and σ is the root of
+/// 1/‖p(σ)‖ = 1/radius (Newton's method safeguarded by bisection); in the "hard case" (g
+/// orthogonal to the eigenspace of the smallest eigenvalue) the step is completed along that
+/// eigenvector to the boundary (N&W Sec. 4.3). `None` when K has non-finite entries or the
+/// eigen-decomposition fails.
+fn trust_region_step(k: &DMatrix<f64>, g: &DVector<f64>, radius: f64) -> Option<(DVector<f64>, f64)> {
+    let n = g.len();
+    if k.iter().chain(g.iter()).any(|v| !v.is_finite()) || radius.is_nan() || radius <= 0.0 {
+        return None;
     }
-    let scale = k.diagonal().iter().fold(0.0f64, |m, v| m.max(v.abs())).max(f64::MIN_POSITIVE);
-    let mut tau = 1e-8 * scale;
-    for _ in 0..20 {
-        let mut shifted = k.clone();
-        for i in 0..k.nrows() {
-            shifted[(i, i)] += tau;
+    let eig = SymmetricEigen::try_new(k.clone(), f64::EPSILON, 0)?;
+    let (lam, q) = (&eig.eigenvalues, &eig.eigenvectors);
+    let c = q.transpose() * g;
+    let lmin = lam.min();
+    let scale = lam.amax().max(f64::MIN_POSITIVE);
+    let gnorm = g.norm();
+    let model = |p: &DVector<f64>| g.dot(p) - 0.5 * p.dot(&(k * p));
+    let step = |sigma: f64, skip: &dyn Fn(usize) -> bool| {
+        let mut p = DVector::zeros(n);
+        for i in (0..n).filter(|&i| !skip(i)) {
+            p.axpy(c[i] / (lam[i] + sigma), &q.column(i), 1.0);
         }
-        if let Some(ch) = shifted.cholesky() {
-            return ch.solve(g);
-        }
-        tau *= 10.0;
+        p
+    };
+    let norm_at = |sigma: f64| (0..n).map(|i| (c[i] / (lam[i] + sigma)).powi(2)).sum::<f64>().sqrt();
+    // Interior Newton step.
+    if lmin > 1e-12 * scale && norm_at(0.0) <= radius {
+        let p = step(0.0, &|_| false);
+        let m = model(&p);
+        return Some((p, m));
     }
-    g.clone()
+    let sigma_lo = (-lmin).max(0.0);
+    // Hard case: the smallest eigenspace carries (numerically) no gradient and the rest of the
+    // step at σ = −Λ_1 stays inside the region.
+    let degenerate = |i: usize| lam[i] <= lmin + 1e-12 * scale;
+    let hard = lmin <= 1e-12 * scale
+        && (0..n).filter(|&i| degenerate(i)).all(|i| c[i].abs() <= 1e-12 * gnorm.max(f64::MIN_POSITIVE));
+    if hard {
+        let rest = (0..n)
+            .filter(|&i| !degenerate(i))
+            .map(|i| (c[i] / (lam[i] + sigma_lo)).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        if rest <= radius {
+            let mut p = step(sigma_lo, &degenerate);
+            let j = (0..n).find(|&i| degenerate(i))?;
+            let tau = (radius * radius - rest * rest).max(0.0).sqrt();
+            p.axpy(tau, &q.column(j), 1.0);
+            let m = model(&p);
+            return Some((p, m));
+        }
+    }
+    // ‖p(σ)‖ decreases on (σ_lo, ∞) and ‖p(σ_lo + ‖g‖/radius)‖ ≤ radius: bracket [lo, hi].
+    let (mut lo, mut hi) = (sigma_lo, sigma_lo + gnorm / radius);
+    let mut sigma = hi;
+    for _ in 0..100 {
+        let nrm = norm_at(sigma);
+        let phi = 1.0 / nrm - 1.0 / radius;
+        if phi.abs() <= 1e-10 / radius || hi - lo <= 1e-15 * hi.max(f64::MIN_POSITIVE) {
+            break;
+        }
+        if phi < 0.0 {
+            lo = sigma;
+        } else {
+            hi = sigma;
+        }
+        // d(1/‖p‖)/dσ = Σ c_i²/(Λ_i + σ)³ / ‖p‖³.
+        let d3: f64 = (0..n).map(|i| c[i] * c[i] / (lam[i] + sigma).powi(3)).sum();
+        let next = sigma - phi * nrm.powi(3) / d3;
+        sigma = if next > lo && next < hi { next } else { 0.5 * (lo + hi) };
+    }
+    let p = step(sigma, &|_| false);
+    if p.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let m = model(&p);
+    Some((p, m))
 }
 
-/// Maximises the dual Φ(λ) (see the [module documentation](self)) by Newton's method with the
-/// Hessian −(∇²F + R) and a backtracking (Armijo) line search, from `start` (default λ = 0).
-/// Components of missing data stay at their starting values.
+/// The first trust-region radius in the scaled multipliers R^{1/2}λ: one standardised residual.
+const INITIAL_RADIUS: f64 = 1.0;
+
+/// Trust-region radius control (Nocedal & Wright, 2nd ed., Alg. 4.1): shrink to a quarter of the
+/// step when the model predicted the change of Φ poorly (ρ < ¼), double it after a good step
+/// (ρ > ¾) that reached the boundary.
+fn update_radius(radius: f64, step_norm: f64, rho: f64) -> f64 {
+    if rho < 0.25 {
+        0.25 * step_norm
+    } else if rho > 0.75 && step_norm >= 0.99 * radius {
+        2.0 * radius
+    } else {
+        radius
+    }
+}
+
+/// Maximises the dual Φ(λ) (see the [module documentation](self)) from `start` (default λ = 0):
+/// where K = ∇²F + R is positive definite, Newton's method (Hessian −K) with a backtracking
+/// (Armijo) line search; elsewhere a trust-region step ([`trust_region_step`], radius kept across
+/// iterations). Components of missing data stay at their starting values.
 ///
-/// Errors: misuse (lengths, invalid data or options). Non-convergence is a [`Status`].
+/// Errors: misuse (lengths, invalid data or options). Non-convergence is a [`Status`]:
+/// `MaxIterations`, or `NumericalFailure` with [`DualSolution::reason`] (no ascent along the
+/// Newton direction, the trust region shrinking to nothing, non-finite values), `Acceptable`
+/// when such a stop happens with the residual within 10³ × the tolerance.
 pub fn maximize_dual<A: EffectiveAction + ?Sized>(
     action: &mut A,
     data: &DualData,
@@ -280,10 +374,15 @@ pub fn maximize_dual<A: EffectiveAction + ?Sized>(
             evaluations,
             status: Status::NumericalFailure,
             hessian: None,
+            reason: Some("F or its gradient is not finite at the starting multipliers".into()),
         });
     }
     let mut hessian = None;
     let mut iterations = 0;
+    let mut reason = None;
+    // The trust-region radius (scaled multipliers), set when K is first not positive definite and
+    // kept across iterations.
+    let mut tr_radius: Option<f64> = None;
     let status = loop {
         let res = residual(&lambda, &cur.z, data, &active);
         if res <= options.tolerance {
@@ -305,44 +404,93 @@ pub fn maximize_dual<A: EffectiveAction + ?Sized>(
             k[(i, i)] += data.variance[mi];
         }
         hessian = Some(h);
-        let step = regularized_solve(&k, &g);
-        let slope = g.dot(&step);
         let phi0 = phi(&lambda, data, &active, cur.value);
-        let mut t = 1.0;
-        let mut accepted = None;
-        for _ in 0..40 {
-            let mut trial = lambda.clone();
-            for (i, &mi) in active.iter().enumerate() {
-                trial[mi] += t * step[i];
-            }
-            let val = action.evaluate(&trial)?;
-            evaluations += 1;
-            let ok_values = val.value.is_finite() && val.z.iter().all(|v| v.is_finite());
-            if ok_values {
-                let phi1 = phi(&trial, data, &active, val.value);
-                // Armijo; near the optimum Φ differences drown in rounding, so also accept a step
-                // that decreases the optimality residual.
-                if phi1 >= phi0 + 1e-4 * t * slope
-                    || residual(&trial, &val.z, data, &active)
-                        < 0.5 * residual(&lambda, &cur.z, data, &active)
-                {
-                    accepted = Some((trial, val));
-                    break;
+        let res0 = residual(&lambda, &cur.z, data, &active);
+        let accepted = match k.clone().cholesky() {
+            Some(ch) => {
+                // Φ locally concave: the Newton step with an Armijo backtracking line search.
+                let step = ch.solve(&g);
+                let slope = g.dot(&step);
+                let mut t = 1.0;
+                let mut accepted = None;
+                for _ in 0..40 {
+                    let mut trial = lambda.clone();
+                    for (i, &mi) in active.iter().enumerate() {
+                        trial[mi] += t * step[i];
+                    }
+                    let val = action.evaluate(&trial)?;
+                    evaluations += 1;
+                    let ok_values = val.value.is_finite() && val.z.iter().all(|v| v.is_finite());
+                    if ok_values {
+                        let phi1 = phi(&trial, data, &active, val.value);
+                        // Armijo; near the optimum Φ differences drown in rounding, so also accept
+                        // a step that decreases the optimality residual.
+                        if phi1 >= phi0 + 1e-4 * t * slope
+                            || residual(&trial, &val.z, data, &active) < 0.5 * res0
+                        {
+                            accepted = Some((trial, val));
+                            break;
+                        }
+                    }
+                    t *= 0.5;
                 }
+                accepted.ok_or("the line search along the Newton direction found no ascent")
             }
-            t *= 0.5;
-        }
+            None => {
+                // K not positive definite: a trust-region step in the scaled multipliers
+                // R^{1/2}λ (K̃ = R^{-1/2}KR^{-1/2}, g̃ = R^{-1/2}g), accepted on the ratio ρ of
+                // the actual to the predicted increase of Φ.
+                let sq: Vec<f64> = active.iter().map(|&m| data.variance[m].sqrt()).collect();
+                let ks = DMatrix::from_fn(na, na, |i, j| k[(i, j)] / (sq[i] * sq[j]));
+                let gs = DVector::from_fn(na, |i, _| g[i] / sq[i]);
+                let size =
+                    1.0 + active.iter().zip(&sq).map(|(&m, q)| (q * lambda[m]).powi(2)).sum::<f64>().sqrt();
+                let radius = tr_radius.get_or_insert(INITIAL_RADIUS);
+                let mut outcome = Err("the trust region shrank to nothing without an increase of Φ");
+                for _ in 0..60 {
+                    let Some((ps, predicted)) = trust_region_step(&ks, &gs, *radius) else {
+                        outcome = Err("non-finite ∇²F or a failed eigen-decomposition of ∇²F + R");
+                        break;
+                    };
+                    if predicted.is_nan() || predicted <= 0.0 {
+                        outcome = Err("the quadratic model of Φ predicts no increase");
+                        break;
+                    }
+                    let mut trial = lambda.clone();
+                    for (i, &mi) in active.iter().enumerate() {
+                        trial[mi] += ps[i] / sq[i];
+                    }
+                    let val = action.evaluate(&trial)?;
+                    evaluations += 1;
+                    let ok_values = val.value.is_finite() && val.z.iter().all(|v| v.is_finite());
+                    let rho = if ok_values {
+                        (phi(&trial, data, &active, val.value) - phi0) / predicted
+                    } else {
+                        f64::NEG_INFINITY
+                    };
+                    *radius = update_radius(*radius, ps.norm(), rho);
+                    if rho > 1e-4 {
+                        outcome = Ok((trial, val));
+                        break;
+                    }
+                    if *radius <= 1e-12 * size {
+                        break;
+                    }
+                }
+                outcome
+            }
+        };
         match accepted {
-            Some((l, v)) => {
+            Ok((l, v)) => {
                 lambda = l;
                 cur = v;
             }
-            None => {
-                break if residual(&lambda, &cur.z, data, &active) <= 1e3 * options.tolerance {
-                    Status::Acceptable
-                } else {
-                    Status::NumericalFailure
-                };
+            Err(why) => {
+                if res0 <= 1e3 * options.tolerance {
+                    break Status::Acceptable;
+                }
+                reason = Some(format!("{why} (optimality residual {res0:.3e})"));
+                break Status::NumericalFailure;
             }
         }
     };
@@ -356,6 +504,7 @@ pub fn maximize_dual<A: EffectiveAction + ?Sized>(
         evaluations,
         status,
         hessian,
+        reason,
     })
 }
 
@@ -422,6 +571,28 @@ mod tests {
         assert_eq!(sol.lambda[2], 0.0);
     }
 
+    impl Quadratic {
+        /// The trait's default (central-difference) Hessian of any action.
+        fn default_hessian_of<A: EffectiveAction>(action: &mut A, lambda: &[f64]) -> DMatrix<f64> {
+            struct Fd<'a, A>(&'a mut A);
+            impl<A: EffectiveAction> EffectiveAction for Fd<'_, A> {
+                fn measurement_times(&self) -> &[f64] {
+                    self.0.measurement_times()
+                }
+                fn output_dim(&self) -> usize {
+                    self.0.output_dim()
+                }
+                fn evaluate(&mut self, lambda: &[f64]) -> Result<ActionValue> {
+                    self.0.evaluate(lambda)
+                }
+                fn history(&mut self, lambda: &[f64], cross: bool) -> Result<History> {
+                    self.0.history(lambda, cross)
+                }
+            }
+            Fd(action).hessian(lambda).unwrap()
+        }
+    }
+
     #[test]
     fn default_hessian_is_the_covariance() {
         let times = vec![0.0, 1.0];
@@ -433,5 +604,199 @@ mod tests {
                 assert_relative_eq!(h[(i, j)], c[(i, j)], epsilon = 1e-9);
             }
         }
+    }
+
+    /// A non-concave dual: F(λ) = −Σ_i a_i cos((Qλ)_i − c_i) with Q orthogonal (a rotation), so
+    /// that with R = ρI and r = ρQᵀc, Φ(λ) = ½ρ‖c‖² + Σ_i [a_i cos(μ_i − c_i) − ½ρ(μ_i − c_i)²],
+    /// μ = Qλ. For 0 < a_i < 4ρ the only stationary point is μ = c (a_i|sin x| < ρ|x| for x ≠ 0),
+    /// the global maximiser λ* = Qᵀc, while K = ∇²F + ρI = Qᵀdiag(ρ + a_i cos(μ_i − c_i))Q is
+    /// indefinite wherever cos(μ_i − c_i) < −ρ/a_i.
+    struct Cosines {
+        times: Vec<f64>,
+        q: DMatrix<f64>,
+        a: Vec<f64>,
+        c: Vec<f64>,
+    }
+
+    impl Cosines {
+        fn new() -> Self {
+            let (t1, t2) = (0.7f64, -0.4f64);
+            let r1 = DMatrix::from_row_slice(
+                3,
+                3,
+                &[t1.cos(), -t1.sin(), 0.0, t1.sin(), t1.cos(), 0.0, 0.0, 0.0, 1.0],
+            );
+            let r2 = DMatrix::from_row_slice(
+                3,
+                3,
+                &[1.0, 0.0, 0.0, 0.0, t2.cos(), -t2.sin(), 0.0, t2.sin(), t2.cos()],
+            );
+            Cosines {
+                times: vec![0.0, 1.0, 2.0],
+                q: r1 * r2,
+                a: vec![3.0, 2.5, 1.5],
+                c: vec![0.5, -1.0, 0.25],
+            }
+        }
+        fn lambda_star(&self) -> DVector<f64> {
+            self.q.transpose() * DVector::from_column_slice(&self.c)
+        }
+        fn data(&self, rho: f64) -> DualData {
+            DualData {
+                r: (self.lambda_star() * rho).iter().copied().collect(),
+                variance: vec![rho; 3],
+                output_dim: 1,
+            }
+        }
+    }
+
+    impl EffectiveAction for Cosines {
+        fn measurement_times(&self) -> &[f64] {
+            &self.times
+        }
+        fn output_dim(&self) -> usize {
+            1
+        }
+        fn evaluate(&mut self, lambda: &[f64]) -> Result<ActionValue> {
+            let mu = &self.q * DVector::from_column_slice(lambda);
+            let value = -(0..3).map(|i| self.a[i] * (mu[i] - self.c[i]).cos()).sum::<f64>();
+            let dmu = DVector::from_fn(3, |i, _| self.a[i] * (mu[i] - self.c[i]).sin());
+            Ok(ActionValue { value, z: (self.q.transpose() * dmu).iter().copied().collect() })
+        }
+        fn hessian(&mut self, lambda: &[f64]) -> Result<DMatrix<f64>> {
+            let mu = &self.q * DVector::from_column_slice(lambda);
+            let d = DMatrix::from_fn(
+                3,
+                3,
+                |i, j| if i == j { self.a[i] * (mu[i] - self.c[i]).cos() } else { 0.0 },
+            );
+            Ok(self.q.transpose() * d * &self.q)
+        }
+        fn history(&mut self, lambda: &[f64], _cross: bool) -> Result<History> {
+            let z = self.evaluate(lambda)?.z;
+            Ok(History {
+                times: self.times.clone(),
+                mean: z.iter().map(|&v| vec![v]).collect(),
+                variance: vec![vec![0.0]; 3],
+                cross: None,
+            })
+        }
+    }
+
+    #[test]
+    fn cosine_action_derivatives_match_differences() {
+        let mut f = Cosines::new();
+        let l = [0.3, 2.9, -1.7];
+        let v = f.evaluate(&l).unwrap();
+        let h = f.hessian(&l).unwrap();
+        let fd = Quadratic::default_hessian_of(&mut f, &l);
+        for m in 0..3 {
+            let mut lp = l;
+            let mut lm = l;
+            lp[m] += 1e-6;
+            lm[m] -= 1e-6;
+            let d = (f.evaluate(&lp).unwrap().value - f.evaluate(&lm).unwrap().value) / 2e-6;
+            assert_relative_eq!(v.z[m], d, epsilon = 1e-8);
+            for j in 0..3 {
+                assert_relative_eq!(h[(m, j)], fd[(m, j)], epsilon = 1e-7);
+            }
+        }
+    }
+
+    #[test]
+    fn non_concave_dual_converges_to_the_maximiser_where_plain_newton_does_not() {
+        let rho = 1.0;
+        let mut f = Cosines::new();
+        let data = f.data(rho);
+        // Start where every cos(μ_i − c_i) = −1: K = Qᵀdiag(ρ − a_i)Q is negative definite.
+        let start: Vec<f64> = (f.q.transpose() * DVector::from_fn(3, |i, _| f.c[i] + std::f64::consts::PI))
+            .iter()
+            .copied()
+            .collect();
+        let k0 = f.hessian(&start).unwrap() + DMatrix::identity(3, 3) * rho;
+        assert!(k0.clone().cholesky().is_none());
+        // Plain Newton, λ ← λ + K⁻¹g, heads for the stationary points of Φ regardless of their
+        // type and does not reach λ*.
+        let star = f.lambda_star();
+        let mut l = DVector::from_column_slice(&start);
+        for _ in 0..50 {
+            let v = f.evaluate(l.as_slice()).unwrap();
+            let g = DVector::from_fn(3, |i, _| data.r[i] - rho * l[i] - v.z[i]);
+            let k = f.hessian(l.as_slice()).unwrap() + DMatrix::identity(3, 3) * rho;
+            match k.lu().solve(&g) {
+                Some(step) => l += step,
+                None => break,
+            }
+        }
+        assert!((&l - &star).amax() > 1e-3, "plain Newton reached λ* from this start");
+        // The trust-region steps follow the negative curvature uphill to λ*.
+        let sol = maximize_dual(&mut f, &data, &DualOptions::default(), Some(&start)).unwrap();
+        assert_eq!(sol.status, Status::Converged, "{:?}", sol.reason);
+        assert!(sol.residual <= 1e-9);
+        for i in 0..3 {
+            assert_relative_eq!(sol.lambda[i], star[i], epsilon = 1e-9);
+        }
+        // Φ(λ*) = ½ρ‖c‖² + Σ a_i.
+        let phi_star = 0.5 * rho * f.c.iter().map(|c| c * c).sum::<f64>() + f.a.iter().sum::<f64>();
+        assert_relative_eq!(sol.phi, phi_star, epsilon = 1e-10);
+        assert!(sol.reason.is_none());
+    }
+
+    /// Checks the optimality conditions of the trust-region subproblem (Nocedal & Wright, 2nd ed.,
+    /// Thm 4.1): (K + σI)p = g, ‖p‖ ≤ Δ, σ(Δ − ‖p‖) = 0, K + σI ⪰ 0, σ ≥ 0; and the model value.
+    fn check_subproblem(k: &DMatrix<f64>, g: &DVector<f64>, radius: f64, expect_boundary: bool) {
+        let (p, m) = trust_region_step(k, g, radius).unwrap();
+        let n = g.len();
+        assert!(p.norm() <= radius * (1.0 + 1e-9));
+        assert_relative_eq!(m, g.dot(&p) - 0.5 * p.dot(&(k * &p)), epsilon = 1e-12);
+        // σ from the residual of (K + σI)p = g along p.
+        let kp = k * &p;
+        let sigma = if p.norm() > 0.0 { (g - &kp).dot(&p) / p.dot(&p) } else { 0.0 };
+        assert!(sigma >= -1e-9);
+        for i in 0..n {
+            assert_relative_eq!(kp[i] + sigma * p[i], g[i], epsilon = 1e-8);
+        }
+        let min_eig = SymmetricEigen::new(k.clone()).eigenvalues.min();
+        assert!(min_eig + sigma >= -1e-8);
+        if expect_boundary {
+            assert_relative_eq!(p.norm(), radius, epsilon = 1e-8);
+        } else {
+            assert!(sigma.abs() <= 1e-9);
+        }
+        // No point of a few random directions on the boundary does better.
+        for s in 0..20 {
+            let d = DVector::from_fn(n, |i, _| ((i * 7 + s * 3) % 11) as f64 - 5.0);
+            let q = &d * (radius / d.norm());
+            assert!(g.dot(&q) - 0.5 * q.dot(&(k * &q)) <= m + 1e-10);
+        }
+    }
+
+    #[test]
+    fn trust_region_step_solves_the_subproblem() {
+        let k = DMatrix::from_row_slice(3, 3, &[2.0, 0.5, 0.0, 0.5, -1.0, 0.3, 0.0, 0.3, 0.5]);
+        let g = DVector::from_column_slice(&[1.0, -0.5, 0.25]);
+        // Indefinite K: always on the boundary.
+        check_subproblem(&k, &g, 0.1, true);
+        check_subproblem(&k, &g, 3.0, true);
+        // Positive definite K: the Newton step inside a large region, on the boundary otherwise.
+        let kp = DMatrix::from_row_slice(3, 3, &[2.0, 0.5, 0.0, 0.5, 1.0, 0.3, 0.0, 0.3, 0.5]);
+        let newton = kp.clone().cholesky().unwrap().solve(&g);
+        check_subproblem(&kp, &g, 2.0 * newton.norm(), false);
+        let (p, _) = trust_region_step(&kp, &g, 2.0 * newton.norm()).unwrap();
+        assert_relative_eq!((p - &newton).amax(), 0.0, epsilon = 1e-12);
+        check_subproblem(&kp, &g, 0.5 * newton.norm(), true);
+        // The hard case: g orthogonal to the eigenvector of the smallest eigenvalue.
+        let kh = DMatrix::from_diagonal(&DVector::from_column_slice(&[-2.0, 1.0, 3.0]));
+        let gh = DVector::from_column_slice(&[0.0, 1.0, 1.0]);
+        check_subproblem(&kh, &gh, 5.0, true);
+        let (p, _) = trust_region_step(&kh, &gh, 5.0).unwrap();
+        assert!(p[0].abs() > 1.0);
+        // Non-finite input is refused.
+        assert!(trust_region_step(
+            &DMatrix::from_element(1, 1, f64::NAN),
+            &DVector::from_element(1, 1.0),
+            1.0
+        )
+        .is_none());
     }
 }
