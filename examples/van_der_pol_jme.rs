@@ -7,16 +7,18 @@
 //! time per phase, so that the solve can be profiled (`valgrind --tool=callgrind`) or timed
 //! outside criterion.
 //!
-//! Run with `cargo run --release --example van_der_pol_jme [REPEATS] [jme|mee] [auto|band|faer]`
-//! (the last argument chooses the KKT solver, default auto).
+//! Run with `cargo run --release --example van_der_pol_jme [REPEATS] [jme|mee] [auto|band|faer] [keep]`
+//! (the third argument chooses the KKT solver, default auto; `keep` passes one solver to every
+//! repeat through `estimate_path_with`, so that the band solver analyses the KKT pattern once,
+//! as a Monte Carlo run can).
 
 use rand::SeedableRng;
 
 use onsager::estimate::EstimationProblem;
 use onsager::model::library::preset;
 use onsager::model::observation::{Noise, Param};
-use onsager::nlp::{LinearSolver, NlpOptions};
-use onsager::path::{estimate_path, spline_guess, Merit, PathOptions, Transcription};
+use onsager::nlp::{AutoLdlt, BandLdlt, FaerLdlt, KktSolver, LinearSolver, NlpOptions};
+use onsager::path::{estimate_path, estimate_path_with, spline_guess, Merit, PathOptions, Transcription};
 use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
 
 fn main() -> onsager::Result<()> {
@@ -29,6 +31,12 @@ fn main() -> onsager::Result<()> {
         Some("band") => LinearSolver::Band,
         Some("faer") => LinearSolver::Faer,
         _ => LinearSolver::Auto,
+    };
+    let keep = std::env::args().nth(4).as_deref() == Some("keep");
+    let mut kept: Box<dyn KktSolver> = match solver {
+        LinearSolver::Band => Box::new(BandLdlt::new()),
+        LinearSolver::Faer => Box::new(FaerLdlt::new()),
+        _ => Box::new(AutoLdlt::new()),
     };
     let p = preset("van-der-pol")?;
     let mut rng = rand::rngs::StdRng::seed_from_u64(1);
@@ -59,7 +67,11 @@ fn main() -> onsager::Result<()> {
             .with_laplace(false)
             .with_initial_path(guess.clone())
             .with_nlp(NlpOptions::default().with_linear_solver(solver));
-        let sol = estimate_path(&problem, options)?;
+        let sol = if keep {
+            estimate_path_with(&problem, options, kept.as_mut())?
+        } else {
+            estimate_path(&problem, options)?
+        };
         let r = &sol.report;
         println!(
             "{run:>3} {:>10} {:>5} {:>5} {:>5} {:>5} {:>9.4} {:>9.4} {:>9.4} {:>9.4}",

@@ -45,6 +45,10 @@ pub struct BandLdlt {
     m: usize,
     /// `perm[p]` = original row of position `p`.
     perm: Vec<usize>,
+    /// `iperm[g]` = position of original row `g`.
+    iperm: Vec<usize>,
+    /// Number of [`KktSolver::analyse`] calls answered by reusing the previous analysis.
+    reused: usize,
     /// First stored column of each row.
     first: Vec<usize>,
     /// Start of each row in `values` / `factor`; the row's diagonal is at `row_ptr[p + 1] − 1`.
@@ -88,6 +92,48 @@ impl BandLdlt {
     /// ‖b − K x‖∞ / ‖b‖∞ after the last solve.
     pub fn last_relative_residual(&self) -> f64 {
         self.last_residual
+    }
+
+    /// Number of [`KktSolver::analyse`] calls that reused the previous ordering and envelope
+    /// (see [`Self::reuse_analysis`]).
+    pub fn reused_analyses(&self) -> usize {
+        self.reused
+    }
+
+    /// Keeps the ordering and envelope of the previous analysis for the structure `s` if they
+    /// fit it: same dimensions and every entry of `s` inside the envelope (then the
+    /// factorisation of the new matrix fills in only inside it, George & Liu 1981, Theorem
+    /// 4.1.1, whatever ordering a fresh analysis would have chosen). Only the slot maps of the
+    /// patterns are recomputed, in O(nnz). Returns whether the analysis was reused. This is
+    /// what makes repeated solves of one transcription (Monte Carlo replicates, the Laplace sd
+    /// after the solve) skip the ordering.
+    pub fn reuse_analysis(&mut self, s: &KktStructure<'_>) -> bool {
+        let (n, m) = (s.n, s.m);
+        let dim = n + m;
+        if self.n != n || self.m != m || self.row_ptr.len() != dim + 1 || self.iperm.len() != dim {
+            return false;
+        }
+        let (iperm, first, row_ptr) = (&self.iperm, &self.first, &self.row_ptr);
+        let lower = |a: usize, b: usize| if a >= b { (a, b) } else { (b, a) };
+        let slot = |(r, c): (usize, usize)| (c >= first[r]).then(|| row_ptr[r] + (c - first[r]));
+        let in_range = |&(i, j): &(usize, usize), rows: usize| i < rows && j < n;
+        if !s.hessian.iter().all(|e| in_range(e, n)) || !s.jacobian.iter().all(|e| in_range(e, m)) {
+            return false;
+        }
+        let hess: Option<Vec<usize>> =
+            s.hessian.iter().map(|&(i, j)| slot(lower(iperm[i], iperm[j]))).collect();
+        let jac: Option<Vec<usize>> =
+            s.jacobian.iter().map(|&(r, c)| slot(lower(iperm[n + r], iperm[c]))).collect();
+        match (hess, jac) {
+            (Some(h), Some(j)) => {
+                self.hess_map = h;
+                self.jac_map = j;
+                self.factored = false;
+                self.reused += 1;
+                true
+            }
+            _ => false,
+        }
     }
 
     /// The ordering: `perm[p]` = original row at position `p`.
@@ -309,6 +355,12 @@ fn rcm_order(s: &KktStructure<'_>, dense_var: &[bool], dense_row: &[bool]) -> Ve
 
 impl KktSolver for BandLdlt {
     fn analyse(&mut self, s: &KktStructure<'_>) -> Result<()> {
+        if self.reuse_analysis(s) {
+            return Ok(());
+        }
+        // a failed analysis must leave nothing to reuse or factorise with
+        self.iperm.clear();
+        self.row_ptr.clear();
         let (n, m) = (s.n, s.m);
         let dim = n + m;
         self.n = n;
@@ -355,6 +407,7 @@ impl KktSolver for BandLdlt {
         self.diag_map = (0..dim).map(|g| row_ptr[iperm[g] + 1] - 1).collect();
         self.first = first;
         self.row_ptr = row_ptr;
+        self.iperm = iperm;
         self.values = vec![0.0; size];
         self.factor = vec![0.0; size];
         self.inv_d = vec![0.0; dim];

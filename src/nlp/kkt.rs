@@ -174,6 +174,11 @@ impl AutoLdlt {
 
 impl KktSolver for AutoLdlt {
     fn analyse(&mut self, structure: &KktStructure<'_>) -> Result<()> {
+        if let AutoLdlt::Band(b) = self {
+            if b.reuse_analysis(structure) {
+                return Ok(());
+            }
+        }
         let mut band = BandLdlt::new();
         if band.analyse(structure).is_ok() {
             *self = AutoLdlt::Band(Box::new(band));

@@ -11,16 +11,19 @@
 //! inverse). The factorisation is checked to have inertia (n, m, 0): H positive definite on the
 //! null space of A, i.e. a strict local maximum.
 
-use crate::nlp::{AutoLdlt, KktSolver, KktStructure, KktValues, NlpProblem};
+use crate::nlp::{KktSolver, KktStructure, KktValues, NlpProblem};
 
 /// Posterior variances of the variables `wanted` at the point `w` with constraint multipliers
-/// `lambda` (the convention of [`crate::nlp`]: ∇f + Jᵀλ = 0). `None` when the KKT matrix
-/// cannot be factorised or does not have the inertia of a strict local minimum of −J.
-pub(super) fn laplace_variances<P: NlpProblem>(
+/// `lambda` (the convention of [`crate::nlp`]: ∇f + Jᵀλ = 0), with the KKT solver `solver`
+/// (typically the one of the NLP solve, whose analysis of the same pattern it can reuse).
+/// `None` when the KKT matrix cannot be factorised or does not have the inertia of a strict
+/// local minimum of −J.
+pub(super) fn laplace_variances<P: NlpProblem, K: KktSolver + ?Sized>(
     nlp: &mut P,
     w: &[f64],
     lambda: &[f64],
     wanted: &[usize],
+    solver: &mut K,
 ) -> Option<Vec<f64>> {
     let (n, m) = (nlp.num_variables(), nlp.num_constraints());
     let hs = nlp.hessian_structure();
@@ -29,7 +32,6 @@ pub(super) fn laplace_variances<P: NlpProblem>(
     let mut jv = vec![0.0; js.len()];
     nlp.hessian_values(w, 1.0, lambda, &mut hv);
     nlp.jacobian_values(w, &mut jv);
-    let mut solver = AutoLdlt::new();
     solver.analyse(&KktStructure { n, m, hessian: &hs, jacobian: &js }).ok()?;
     let zeros = vec![0.0; n];
     let info = solver.factorize(&KktValues {

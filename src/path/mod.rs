@@ -408,9 +408,29 @@ pub fn estimate_path<S: Sde + ?Sized, O: Observation + ?Sized>(
     problem: &EstimationProblem<'_, S, O>,
     options: PathOptions,
 ) -> Result<PathSolution> {
+    match options.nlp.linear_solver {
+        nlp::LinearSolver::Auto => estimate_path_with(problem, options, &mut nlp::AutoLdlt::new()),
+        nlp::LinearSolver::Faer => estimate_path_with(problem, options, &mut nlp::FaerLdlt::new()),
+        nlp::LinearSolver::Band => estimate_path_with(problem, options, &mut nlp::BandLdlt::new()),
+    }
+}
+
+/// [`estimate_path`] with a given KKT solver (`options.nlp.linear_solver` is then ignored),
+/// used for the NLP solve and the Laplace sd. A [`nlp::BandLdlt`] or [`nlp::AutoLdlt`] that
+/// already analysed a transcription with the same grid keeps its ordering
+/// ([`nlp::BandLdlt::reuse_analysis`]): pass the same solver to the estimates of a Monte Carlo
+/// run to analyse the KKT pattern once.
+///
+/// # Errors
+/// As [`estimate_path`].
+pub fn estimate_path_with<S: Sde + ?Sized, O: Observation + ?Sized, K: nlp::KktSolver + ?Sized>(
+    problem: &EstimationProblem<'_, S, O>,
+    options: PathOptions,
+    kkt: &mut K,
+) -> Result<PathSolution> {
     let mut nlp_problem = build_nlp(problem, &options)?;
     let start = Instant::now();
-    let solution = nlp::solve(&mut nlp_problem, options.nlp)?;
+    let solution = nlp::InteriorPoint::try_new(options.nlp)?.solve_with(&mut nlp_problem, kkt)?;
     let solve_seconds = start.elapsed().as_secs_f64();
     let w = &solution.w;
     let ns = problem.sde.dims().states();
@@ -420,7 +440,7 @@ pub fn estimate_path<S: Sde + ?Sized, O: Observation + ?Sized>(
     if options.laplace && solution.report.status.is_success() {
         let n = nlp_problem.num_variables();
         let wanted: Vec<usize> = (0..n_nodes * ns).chain(n - ne..n).collect();
-        if let Some(var) = laplace::laplace_variances(&mut nlp_problem, w, &solution.lambda, &wanted) {
+        if let Some(var) = laplace::laplace_variances(&mut nlp_problem, w, &solution.lambda, &wanted, kkt) {
             let sd: Vec<f64> = var.iter().map(|v| v.sqrt()).collect();
             path_sd = Some(sd[..n_nodes * ns].chunks(ns).map(|c| c.to_vec()).collect());
             theta_sd = Some(sd[n_nodes * ns..].to_vec());

@@ -336,3 +336,36 @@ fn band_and_faer_solve_a_jme_kkt_system_alike() {
         }
     }
 }
+
+/// A KKT solver kept across estimates reuses its analysis (for the Laplace sd after the solve
+/// and for the next estimate on the same grid) and gives bit-for-bit the estimate of a fresh
+/// solver; a different grid gets a fresh analysis.
+#[test]
+fn kept_kkt_solver_reuses_its_analysis() {
+    use crate::nlp::AutoLdlt;
+    let p = preset("duffing").unwrap();
+    let times: Vec<f64> = (0..=20).map(|k| 0.1 * k as f64).collect();
+    let data = data_for(&p, &times);
+    let prob = p.problem(&data, &[0, 1, 2]);
+    let options =
+        |step: f64| PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson).with_step(step);
+    let fresh = estimate_path(&prob, options(0.025)).unwrap();
+    let mut kkt = AutoLdlt::new();
+    let reused = |k: &AutoLdlt| match k {
+        AutoLdlt::Band(b) => b.reused_analyses(),
+        AutoLdlt::Faer(_) => panic!("expected the band solver"),
+    };
+    for round in 1..=2 {
+        let kept = estimate_path_with(&prob, options(0.025), &mut kkt).unwrap();
+        // the NLP solve and the Laplace sd of the first estimate analyse once; later ones reuse
+        assert_eq!(reused(&kkt), 2 * round - 1);
+        assert_eq!(kept.report.iterations, fresh.report.iterations);
+        assert_eq!(kept.estimate.path.values, fresh.estimate.path.values);
+        assert_eq!(kept.estimate.path.sd, fresh.estimate.path.sd);
+        assert_eq!(kept.estimate.theta, fresh.estimate.theta);
+    }
+    let other = estimate_path_with(&prob, options(0.05), &mut kkt).unwrap();
+    assert_eq!(other.report.status, crate::Status::Converged);
+    let sd = other.estimate.path.sd.as_ref().expect("Laplace sd");
+    assert!(sd.iter().flatten().all(|v| v.is_finite() && *v > 0.0));
+}
