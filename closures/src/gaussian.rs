@@ -251,14 +251,39 @@ impl Gaussian {
     /// # Errors
     /// [`Error::NotNormalizable`] if $P$ is not positive definite, plus input errors.
     pub fn mean_cov_from_natural<D: Scalar>(&self, lambda: &[D]) -> Result<(Vec<D>, Vec<D>), Error> {
-        self.check_lambda(lambda)?;
-        let (mean, cov, _) = self.mean_cov_logdet(lambda)?;
+        let (mean, cov, _) = self.mean_cov_precision_from_natural(lambda)?;
         Ok((mean, cov))
+    }
+
+    /// Mean $m = P^{-1}a$, covariance $\Sigma = P^{-1}$ and precision $P$ (row-major) from
+    /// $\lambda$: [`Gaussian::mean_cov_from_natural`] for callers that need $P$ as well.
+    ///
+    /// # Errors
+    /// As [`Gaussian::mean_cov_from_natural`].
+    #[allow(clippy::type_complexity)]
+    pub fn mean_cov_precision_from_natural<D: Scalar>(
+        &self,
+        lambda: &[D],
+    ) -> Result<(Vec<D>, Vec<D>, Vec<D>), Error> {
+        self.check_lambda(lambda)?;
+        let (mean, cov, p, _) = self.mean_cov_factor(lambda)?;
+        Ok((mean, cov, p))
     }
 
     /// $(m, \Sigma, \log\det\Sigma)$ from $\lambda$.
     #[allow(clippy::type_complexity)]
     fn mean_cov_logdet<D: Scalar>(&self, lambda: &[D]) -> Result<(Vec<D>, Vec<D>, D), Error> {
+        let (mean, cov, _, l) = self.mean_cov_factor(lambda)?;
+        let log_det_cov = -cholesky_log_det(&l, self.dim)?;
+        if !log_det_cov.re().is_finite() {
+            return Err(Error::NotNormalizable { reason: "the mean or covariance overflows".into() });
+        }
+        Ok((mean, cov, log_det_cov))
+    }
+
+    /// $(m, \Sigma, P, L)$ from $\lambda$ with $P = LL^\top$.
+    #[allow(clippy::type_complexity)]
+    fn mean_cov_factor<D: Scalar>(&self, lambda: &[D]) -> Result<(Vec<D>, Vec<D>, Vec<D>, Vec<D>), Error> {
         let n = self.dim;
         let p = self.precision(lambda);
         let l = cholesky(&p, n).map_err(|_| Error::NotNormalizable {
@@ -267,13 +292,11 @@ impl Gaussian {
                 .into(),
         })?;
         let cov = cholesky_inverse(&l, n)?;
-        let mean = (0..n).map(|i| (0..n).map(|j| cov[i * n + j] * lambda[j]).sum()).collect();
-        let log_det_cov = -cholesky_log_det(&l, n)?;
-        let mean: Vec<D> = mean;
-        if mean.iter().chain(&cov).chain([&log_det_cov]).any(|v| !v.re().is_finite()) {
+        let mean: Vec<D> = (0..n).map(|i| (0..n).map(|j| cov[i * n + j] * lambda[j]).sum()).collect();
+        if mean.iter().chain(&cov).any(|v| !v.re().is_finite()) {
             return Err(Error::NotNormalizable { reason: "the mean or covariance overflows".into() });
         }
-        Ok((mean, cov, log_det_cov))
+        Ok((mean, cov, p, l))
     }
 
     /// The log-partition function, generic over the scalar:

@@ -80,6 +80,13 @@ pub fn cholesky_solve<D: Scalar>(l: &[D], b: &[D]) -> Result<Vec<D>, Error> {
     let n = b.len();
     check_len("cholesky factor", l, n * n)?;
     let mut y = b.to_vec();
+    solve_in_place(l, &mut y);
+    Ok(y)
+}
+
+/// y ← (LLᵀ)⁻¹y for a factor of matching size (checked by the callers).
+fn solve_in_place<D: Scalar>(l: &[D], y: &mut [D]) {
+    let n = y.len();
     for i in 0..n {
         let mut s = y[i];
         for k in 0..i {
@@ -94,7 +101,6 @@ pub fn cholesky_solve<D: Scalar>(l: &[D], b: &[D]) -> Result<Vec<D>, Error> {
         }
         y[i] = s / l[i * n + i];
     }
-    Ok(y)
 }
 
 /// Inverse $(L L^\top)^{-1}$ (row-major, symmetric) from the Cholesky factor `l` of an
@@ -104,15 +110,11 @@ pub fn cholesky_solve<D: Scalar>(l: &[D], b: &[D]) -> Result<Vec<D>, Error> {
 /// [`Error::DimensionMismatch`] if `l.len() != n * n`.
 pub fn cholesky_inverse<D: Scalar>(l: &[D], n: usize) -> Result<Vec<D>, Error> {
     check_len("cholesky factor", l, n * n)?;
+    // Row j of the inverse is (LLᵀ)⁻¹e_j (the inverse is symmetric): solved in place.
     let mut inv = vec![D::zero(); n * n];
-    let mut e = vec![D::zero(); n];
-    for j in 0..n {
-        e.iter_mut().for_each(|v| *v = D::zero());
-        e[j] = D::one();
-        let col = cholesky_solve(l, &e)?;
-        for i in 0..n {
-            inv[i * n + j] = col[i];
-        }
+    for (j, row) in inv.chunks_exact_mut(n.max(1)).enumerate().take(n) {
+        row[j] = D::one();
+        solve_in_place(l, row);
     }
     // Symmetrise against round-off.
     for i in 0..n {

@@ -211,6 +211,16 @@ fn gaussian_3d_matches_closed_forms() {
     for (a, b) in m2.iter().zip(&m).chain(s2.iter().zip(&sigma)) {
         assert_relative_eq!(*a, *b, epsilon = 1e-14, max_relative = 1e-13);
     }
+    // The variant that also returns the precision: the same (m, Σ) and PΣ = I.
+    let (m3, s3, p3) = g.mean_cov_precision_from_natural(&lambda).unwrap();
+    assert_eq!((m3, s3.clone()), (m2, s2));
+    let n = m.len();
+    for i in 0..n {
+        for j in 0..n {
+            let ps: f64 = (0..n).map(|k| p3[i * n + k] * s3[k * n + j]).sum();
+            assert_relative_eq!(ps, if i == j { 1.0 } else { 0.0 }, epsilon = 1e-12);
+        }
+    }
 }
 
 #[test]

@@ -17,7 +17,7 @@
 //!   (`(II.43)`) in closed form.
 
 use num_dual::{Dual64, HyperDual64};
-use onsager_closures::{cholesky, cholesky_inverse, cholesky_solve, dot, Exponential, Gaussian, TrialFamily};
+use onsager_closures::{cholesky, cholesky_solve, dot, Exponential, Gaussian, TrialFamily};
 
 use crate::model::{Scalar, Sde};
 use crate::{Error, Result};
@@ -144,16 +144,23 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
         out: &mut [D],
     ) -> std::result::Result<(), Unrealizable> {
         let n = self.family.dim();
-        let (m, s) = self.family.mean_cov_from_natural(lambda).map_err(unrealizable)?;
-        // Nodes m + Lξ_k of the family's standard rule, formed one at a time (no allocation
-        // per node).
+        let (m, s, p) = self.family.mean_cov_precision_from_natural(lambda).map_err(unrealizable)?;
+        // Nodes m + Lξ_k of the family's standard rule, formed one at a time; the work vectors
+        // share one allocation (this runs once per stage and dual direction).
         let l = cholesky(&s, n).map_err(unrealizable)?;
-        let theta: Vec<D> = self.theta.iter().map(|&v| D::from(v)).collect();
-        let mut f = vec![D::zero(); n];
-        let mut fbar = vec![D::zero(); n];
-        let mut fx = vec![D::zero(); n * n];
-        let mut x = vec![D::zero(); n];
-        let mut dx = vec![D::zero(); n];
+        let nt = self.theta.len();
+        let mut buf = vec![D::zero(); nt + 4 * n + 4 * n * n];
+        let (theta, rest) = buf.split_at_mut(nt);
+        let (f, rest) = rest.split_at_mut(n);
+        let (fbar, rest) = rest.split_at_mut(n);
+        let (x, rest) = rest.split_at_mut(n);
+        let (dx, rest) = rest.split_at_mut(n);
+        let (fx, rest) = rest.split_at_mut(n * n);
+        let (sdot, rest) = rest.split_at_mut(n * n);
+        let (ps, pdot) = rest.split_at_mut(n * n);
+        for (t, &v) in theta.iter_mut().zip(&self.theta) {
+            *t = D::from(v);
+        }
         for (xi, w) in self.family.standard_rule().iter() {
             for i in 0..n {
                 let mut v = D::zero();
@@ -163,7 +170,7 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
                 dx[i] = v;
                 x[i] = m[i] + v;
             }
-            self.sde.state_drift(D::from(t), &x, &theta, &mut f);
+            self.sde.state_drift(D::from(t), x, theta, f);
             for i in 0..n {
                 let fw = f[i] * w;
                 fbar[i] += fw;
@@ -173,16 +180,14 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
             }
         }
         // Σ̇ = ⟨f(x − m)ᵀ⟩ + ⟨(x − m)fᵀ⟩ + 2D; P = Σ⁻¹; Ṗ = −PΣ̇P; ȧ = Ṗm + Pṁ.
-        let sdot: Vec<D> =
-            (0..n * n).map(|k| fx[k] + fx[(k % n) * n + k / n] + self.diffusion[k] * 2.0).collect();
-        let p = cholesky_inverse(&l, n).map_err(unrealizable)?;
-        let mut ps = vec![D::zero(); n * n];
+        for k in 0..n * n {
+            sdot[k] = fx[k] + fx[(k % n) * n + k / n] + self.diffusion[k] * 2.0;
+        }
         for i in 0..n {
             for j in 0..n {
                 ps[i * n + j] = (0..n).map(|k| p[i * n + k] * sdot[k * n + j]).sum();
             }
         }
-        let mut pdot = vec![D::zero(); n * n];
         for i in 0..n {
             for j in 0..n {
                 pdot[i * n + j] = -(0..n).map(|k| ps[i * n + k] * p[k * n + j]).sum::<D>();

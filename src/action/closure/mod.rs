@@ -291,6 +291,8 @@ struct Solved {
     sd_kind: &'static str,
     dual: DualSolution,
     sweeps: usize,
+    /// Accepted Runge–Kutta steps of those sweeps.
+    rk_steps: usize,
 }
 
 fn solve<D: ClosureDrift>(
@@ -371,7 +373,7 @@ fn solve<D: ClosureDrift>(
         (None, true) => "ensemble dispersion",
         (None, false) => "closure variance",
     };
-    Ok(Solved { history, sd, sd_kind, dual, sweeps: action.sweeps() })
+    Ok(Solved { history, sd, sd_kind, dual, sweeps: action.sweeps(), rk_steps: action.steps() })
 }
 
 /// The closure's [`ClosureAction`] for a problem, built as [`closure_estimate`] builds it (for
@@ -593,6 +595,7 @@ pub fn closure_estimate<S: Sde + ?Sized>(
     est.details.insert("f_value".into(), json!(finite(&[dual.f_value])[0]));
     est.details.insert("phi".into(), json!(finite(&[dual.phi])[0]));
     est.details.insert("sweeps".into(), json!(solved.sweeps));
+    est.details.insert("rk_steps".into(), json!(solved.rk_steps));
     est.details.insert("sd".into(), json!(solved.sd_kind));
     Ok(est)
 }
