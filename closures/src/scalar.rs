@@ -14,16 +14,19 @@ pub trait Scalar: num_dual::DualNum<Primitive = f64> + Copy {}
 
 impl<T: num_dual::DualNum<Primitive = f64> + Copy> Scalar for T {}
 
-/// $\sum_i a_i b_i$ over the common length of two `f64` slices, with four independent
-/// accumulators over exact chunks so that the loop vectorises (the summation order differs from
-/// a left-to-right sum only by round-off). The one dot-product kernel of the workspace's hot
-/// loops.
+/// $\sum_i a_i b_i$ over the common length of two `f64` slices: a plain loop below 8 terms (the
+/// short rows of a narrow band), otherwise four independent accumulators over exact chunks so
+/// that the loop vectorises (the order differs from a left-to-right sum only by round-off). The
+/// one dot-product kernel of the workspace's hot loops (band LDLᵀ, closure drifts, exact grid).
 #[inline]
 pub fn dot(a: &[f64], b: &[f64]) -> f64 {
     let n = a.len().min(b.len());
     let (a, b) = (&a[..n], &b[..n]);
+    if n < 8 {
+        return a.iter().zip(b).fold(0.0, |s, (x, y)| s + x * y);
+    }
     let (ac, bc) = (a.chunks_exact(4), b.chunks_exact(4));
-    let tail: f64 = ac.remainder().iter().zip(bc.remainder()).map(|(x, y)| x * y).sum();
+    let (ar, br) = (ac.remainder(), bc.remainder());
     let mut acc = [0.0f64; 4];
     for (x, y) in ac.zip(bc) {
         acc[0] += x[0] * y[0];
@@ -31,7 +34,11 @@ pub fn dot(a: &[f64], b: &[f64]) -> f64 {
         acc[2] += x[2] * y[2];
         acc[3] += x[3] * y[3];
     }
-    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
+    let mut s = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+    for (x, y) in ar.iter().zip(br) {
+        s += x * y;
+    }
+    s
 }
 
 /// Cholesky factor $L$ (lower triangular, row-major, zeros above the diagonal) of the symmetric

@@ -30,6 +30,8 @@
 // Loops over matrix positions index several arrays (pattern, values, permutation) at once.
 #![allow(clippy::needless_range_loop)]
 
+use onsager_closures::dot;
+
 use super::kkt::{scatter_values, FactorInfo, Inertia, KktSolver, KktStructure, KktValues};
 use crate::{Error, Result};
 
@@ -186,31 +188,6 @@ fn axpy(a: f64, x: &[f64], y: &mut [f64]) {
     for (yk, &xk) in y.iter_mut().zip(x) {
         *yk -= a * xk;
     }
-}
-
-/// Σ aᵢbᵢ over the common length: a plain loop for the short rows of a narrow envelope,
-/// four independent accumulators (exact chunks, no bounds checks) for longer ones.
-#[inline]
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    let n = a.len().min(b.len());
-    let (a, b) = (&a[..n], &b[..n]);
-    if n < 8 {
-        return a.iter().zip(b).fold(0.0, |s, (x, y)| s + x * y);
-    }
-    let (ac, bc) = (a.chunks_exact(4), b.chunks_exact(4));
-    let (ar, br) = (ac.remainder(), bc.remainder());
-    let mut acc = [0.0f64; 4];
-    for (x, y) in ac.zip(bc) {
-        acc[0] += x[0] * y[0];
-        acc[1] += x[1] * y[1];
-        acc[2] += x[2] * y[2];
-        acc[3] += x[3] * y[3];
-    }
-    let mut s = (acc[0] + acc[1]) + (acc[2] + acc[3]);
-    for (x, y) in ar.iter().zip(br) {
-        s += x * y;
-    }
-    s
 }
 
 /// Compressed rows of a pattern: `ptr` (length `rows + 1`) and `idx`, built by counting
