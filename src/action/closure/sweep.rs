@@ -14,7 +14,9 @@
 //! The ODE is integrated by the Dormand–Prince 5(4) pair with error control (Hairer, Nørsett,
 //! Wanner, *Solving ODEs I*, 2nd ed., Sec. II.5, Table 5.2); the backward sweep is the exact
 //! discrete adjoint of the accepted Runge–Kutta steps (the stages are stored), so the gradient
-//! is that of the computed F to round-off and the continuous (II.47) to the ODE tolerance.
+//! is that of the computed F for the accepted step sequence to round-off (the sequence itself
+//! depends on λ through the error control, so F has tolerance-sized jumps where it changes) and
+//! that of the continuous (II.47) to the ODE tolerance.
 //! ∇²F (and the cross-covariances of the dispersion) are the exact derivatives of the computed
 //! gradient: a tangent-linear forward sweep for all multipliers at once and the tangent of the
 //! discrete adjoint, which needs the Hessians of the stage-adjoint contractions k̄ᵀW
