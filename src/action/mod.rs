@@ -102,6 +102,9 @@ pub fn mean_optimal_path_estimate<S: Sde + ?Sized, O: Observation + ?Sized>(
     est.details.insert("optimality_residual".into(), json!(finite(&[mo.dual.residual])[0]));
     est.details.insert("f_value".into(), json!(finite(&[mo.dual.f_value])[0]));
     est.details.insert("phi".into(), json!(finite(&[mo.dual.phi])[0]));
+    if let Some(reason) = &mo.dual.reason {
+        est.details.insert("dual_reason".into(), json!(reason));
+    }
     est.details.insert("sweeps".into(), json!(mo.dual.evaluations));
     est
 }

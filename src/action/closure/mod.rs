@@ -594,6 +594,9 @@ pub fn closure_estimate<S: Sde + ?Sized>(
     est.details.insert("optimality_residual".into(), json!(finite(&[dual.residual])[0]));
     est.details.insert("f_value".into(), json!(finite(&[dual.f_value])[0]));
     est.details.insert("phi".into(), json!(finite(&[dual.phi])[0]));
+    if let Some(reason) = &dual.reason {
+        est.details.insert("dual_reason".into(), json!(reason));
+    }
     est.details.insert("sweeps".into(), json!(solved.sweeps));
     est.details.insert("rk_steps".into(), json!(solved.rk_steps));
     est.details.insert("sd".into(), json!(solved.sd_kind));
