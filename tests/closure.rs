@@ -45,6 +45,11 @@ fn gaussian_closure_of_ou_is_the_rts_smoother() {
     let est = closure_estimate(&problem, &ClosureKind::Gaussian, &options).unwrap();
     assert_eq!(est.status, Status::Converged);
     assert_eq!(est.method, "gaussian-closure");
+    // The cost counters: every counted sweep takes at least one Runge–Kutta step per interval
+    // between measurements; a converged dual has no stop reason.
+    let count = |key: &str| est.details[key].as_u64().unwrap();
+    assert!(count("sweeps") >= 1 && count("rk_steps") >= count("sweeps") * (data.len() as u64 - 1));
+    assert!(!est.details.contains_key("dual_reason"));
     let model = LinearGaussianModel::from_sde(
         &Ou,
         &OU_THETA,

@@ -213,8 +213,8 @@ pub struct DualSolution {
     pub status: Status,
     /// ∇²F at the last Newton iterate, when one was computed.
     pub hessian: Option<DMatrix<f64>>,
-    /// Why the maximisation stopped without converging (`None` when it converged or hit the
-    /// iteration limit).
+    /// Why the maximisation stopped short of the tolerance (`None` when it converged or hit
+    /// the iteration limit; set for `Acceptable` and `NumericalFailure`).
     pub reason: Option<String>,
 }
 
@@ -486,10 +486,10 @@ pub fn maximize_dual<A: EffectiveAction + ?Sized>(
                 cur = v;
             }
             Err(why) => {
+                reason = Some(format!("{why} (optimality residual {res0:.3e})"));
                 if res0 <= 1e3 * options.tolerance {
                     break Status::Acceptable;
                 }
-                reason = Some(format!("{why} (optimality residual {res0:.3e})"));
                 break Status::NumericalFailure;
             }
         }

@@ -105,10 +105,12 @@ impl BandLdlt {
     /// Keeps the ordering and envelope of the previous analysis for the structure `s` if they
     /// fit it: same dimensions and every entry of `s` inside the envelope (then the
     /// factorisation of the new matrix fills in only inside it, George & Liu 1981, Theorem
-    /// 4.1.1, whatever ordering a fresh analysis would have chosen). Only the slot maps of the
-    /// patterns are recomputed, in O(nnz). Returns whether the analysis was reused. This is
-    /// what makes repeated solves of one transcription (Monte Carlo replicates, the Laplace sd
-    /// after the solve) skip the ordering.
+    /// 4.1.1). Only the slot maps of the patterns are recomputed, in O(nnz). Returns whether
+    /// the analysis was reused. This is what makes repeated solves of one transcription (Monte
+    /// Carlo replicates, the Laplace sd after the solve) skip the ordering. The check is
+    /// structural only: a different pattern that happens to fit may be eliminated in an order a
+    /// fresh analysis would not choose (a constraint row before one of its variables), which the
+    /// unpivoted LDLᵀ can pay for with regularised pivots; pass the same transcription.
     pub fn reuse_analysis(&mut self, s: &KktStructure<'_>) -> bool {
         let (n, m) = (s.n, s.m);
         let dim = n + m;

@@ -725,7 +725,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
             Ok(lk)
         };
         self.sweeps += 1;
-        self.forward_with(&events, &mut choose).ok()?;
+        let fw = self.forward_with(&events, &mut choose).ok()?;
+        self.steps += fw.steps.iter().map(Vec::len).sum::<usize>();
         Some(chosen)
     }
 
