@@ -58,9 +58,12 @@ fn every_builtin_experiment_runs_quick_with_summary_and_plots() {
             serde_json::from_str(&std::fs::read_to_string(report.summary.unwrap()).unwrap()).unwrap();
         assert_eq!(summary["experiment"], *name);
         assert_eq!(summary["quick"], true);
-        let first = &summary["scenarios"][0]["estimators"][0];
+        // Medians over the usable rows: every metric has one for some estimator of the first
+        // scenario (a quick row may legitimately end `numerical-failure`, e.g. holmes-rand's
+        // degenerate joint MAP of Σ_y, and is then left out of the statistics).
+        let estimators = summary["scenarios"][0]["estimators"].as_array().unwrap();
         for col in &results.metric_columns {
-            assert!(first["metrics"][col]["median"].is_number(), "{name}: {col}");
+            assert!(estimators.iter().any(|e| e["metrics"][col]["median"].is_number()), "{name}: {col}");
         }
         // A box plot per metric and per estimated parameter, a path plot per scenario.
         let scenarios = experiment.scenarios(true).unwrap().len();
