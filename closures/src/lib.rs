@@ -83,5 +83,7 @@ pub use exponential::{
 pub use family::{legendre_newton, Cumulants, LegendreOptions, LegendreSolution, TrialFamily};
 pub use gaussian::{Gaussian, GaussianRule};
 pub use quadrature::Rule;
-pub use scalar::{cholesky, cholesky_inverse, cholesky_log_det, cholesky_solve, dot, Scalar};
+pub use scalar::{
+    cholesky, cholesky_inverse, cholesky_log_det, cholesky_solve, cholesky_solve_in_place, dot, Scalar,
+};
 pub use weights::normalize_log_weights;

@@ -84,11 +84,20 @@ pub fn cholesky<D: Scalar>(a: &[D], n: usize) -> Result<Vec<D>, Error> {
 /// # Errors
 /// [`Error::DimensionMismatch`] if `l` is not $n\times n$ with $n$ = `b.len()`.
 pub fn cholesky_solve<D: Scalar>(l: &[D], b: &[D]) -> Result<Vec<D>, Error> {
-    let n = b.len();
-    check_len("cholesky factor", l, n * n)?;
     let mut y = b.to_vec();
-    solve_in_place(l, &mut y);
+    cholesky_solve_in_place(l, &mut y)?;
     Ok(y)
+}
+
+/// Solves $L L^\top x = b$ in place (`y` holds $b$ on entry and $x$ on return), without
+/// allocating: the hot-loop form of [`cholesky_solve`].
+///
+/// # Errors
+/// [`Error::DimensionMismatch`] if `l` is not $n\times n$ with $n$ = `y.len()`.
+pub fn cholesky_solve_in_place<D: Scalar>(l: &[D], y: &mut [D]) -> Result<(), Error> {
+    check_len("cholesky factor", l, y.len() * y.len())?;
+    solve_in_place(l, y);
+    Ok(())
 }
 
 /// y ← (LLᵀ)⁻¹y for a factor of matching size (checked by the callers).
@@ -197,6 +206,16 @@ mod tests {
             epsilon = 1e-13,
             max_relative = 1e-13
         );
+        // Identity: A x = b for the solve, allocating and in place alike.
+        let rhs = [1.0, -2.0, 0.5];
+        let x = cholesky_solve(&l, &rhs).unwrap();
+        let mut y = rhs;
+        cholesky_solve_in_place(&l, &mut y).unwrap();
+        for i in 0..n {
+            let ax: f64 = (0..n).map(|k| a[i * n + k] * x[k]).sum();
+            assert_relative_eq!(ax, rhs[i], epsilon = 1e-13);
+            assert_eq!(x[i], y[i]);
+        }
     }
 
     #[test]
@@ -204,6 +223,10 @@ mod tests {
         assert!(matches!(cholesky(&[1.0, 2.0, 2.0, 1.0], 2), Err(Error::NotPositiveDefinite { .. })));
         assert!(matches!(cholesky(&[f64::NAN], 1), Err(Error::NonFinite { .. })));
         assert!(matches!(cholesky(&[1.0, 0.0, 0.0], 2), Err(Error::DimensionMismatch { .. })));
+        assert!(matches!(
+            cholesky_solve_in_place(&[1.0], &mut [1.0, 2.0]),
+            Err(Error::DimensionMismatch { .. })
+        ));
         // Degenerate size: the empty matrix has the empty factor.
         assert_eq!(cholesky::<f64>(&[], 0).unwrap(), Vec::<f64>::new());
     }

@@ -17,7 +17,7 @@
 //!   (`(II.43)`) in closed form.
 
 use num_dual::{Dual64, HyperDual64};
-use onsager_closures::{cholesky, cholesky_solve, dot, Exponential, Gaussian, TrialFamily};
+use onsager_closures::{cholesky, cholesky_solve_in_place, dot, Exponential, Gaussian, TrialFamily};
 
 use crate::model::{Scalar, Sde};
 use crate::{Error, Result};
@@ -419,10 +419,12 @@ impl SpdFactor {
 
     /// x = C⁻¹b in place.
     fn solve(&self, x: &mut [f64]) {
-        let b: Vec<f64> = x.iter().zip(&self.scale).map(|(v, s)| v * s).collect();
-        let y = cholesky_solve(&self.l, &b).expect("the factor and x have matching sizes");
-        for ((xa, ya), sa) in x.iter_mut().zip(y).zip(&self.scale) {
-            *xa = ya * sa;
+        for (v, s) in x.iter_mut().zip(&self.scale) {
+            *v *= s;
+        }
+        cholesky_solve_in_place(&self.l, x).expect("the factor and x have matching sizes");
+        for (v, s) in x.iter_mut().zip(&self.scale) {
+            *v *= s;
         }
     }
 }
@@ -460,6 +462,7 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
             }
         }
         // Filled row by row (no zeroing: these are the hot allocations).
+        let massless = p.contains(&0.0);
         let mut d = Vec::with_capacity(r * nodes);
         let mut pd = Vec::with_capacity(r * nodes);
         let mut g = self.second.clone();
@@ -478,9 +481,11 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
                     *gk += jk * fk;
                 }
             }
-            for (gk, &pk) in ga.iter_mut().zip(&p) {
-                if pk == 0.0 {
-                    *gk = 0.0;
+            if massless {
+                for (gk, &pk) in ga.iter_mut().zip(&p) {
+                    if pk == 0.0 {
+                        *gk = 0.0;
+                    }
                 }
             }
             *va = dot(&p, ga);

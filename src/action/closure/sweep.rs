@@ -510,19 +510,26 @@ impl<D: ClosureDrift> ClosureAction<D> {
         events: &Events,
         lambda: &[f64],
     ) -> std::result::Result<(Vec<Vec<f64>>, Tangents), SweepFailure> {
-        // The forward sweep of the last evaluation at λ (the accepted Newton iterate) is reused.
-        let cached = match &self.cache {
-            Some((l, fw, _)) if l.as_slice() == lambda && events.times == self.fit_events.times => {
-                Some(fw.clone())
+        // The forward sweep of the last evaluation at λ (the accepted Newton iterate) is reused:
+        // taken out of the cache and put back at the end.
+        let kept = match self.cache.take() {
+            Some((l, fw, g)) if l.as_slice() == lambda && events.times == self.fit_events.times => {
+                Some((l, fw, g))
             }
-            _ => None,
+            other => {
+                self.cache = other;
+                None
+            }
         };
-        let (fw, g, derivs) = match cached {
-            Some(fw) => {
+        let (fw, g, derivs, restore) = match kept {
+            Some((l, fw, g0)) => {
                 let (g, derivs) = self.backward(events, &fw, true)?;
-                (fw, g, derivs)
+                (fw, g, derivs, Some((l, g0)))
             }
-            None => self.value(events, lambda, true)?,
+            None => {
+                let (fw, g, derivs) = self.value(events, lambda, true)?;
+                (fw, g, derivs, None)
+            }
         };
         let base = Self::moments_at_events(&fw, &g);
         let r = self.drift.n_params();
@@ -537,11 +544,11 @@ impl<D: ClosureDrift> ClosureAction<D> {
         // Active columns (multipliers at or before the event) after each event.
         let mut active = vec![0usize; ne];
         let mut ncol = 0;
-        let mut dys = Vec::new();
+        let (mut dys, mut dks) = (Vec::new(), Vec::new());
         for e in 0..ne {
             if e > 0 {
                 for d in &derivs[e - 1] {
-                    Self::tangent_step(d, r, nm, ncol, &mut dl, &mut dys);
+                    Self::tangent_step(d, r, nm, ncol, &mut dl, &mut dys, &mut dks);
                 }
             }
             if let Some(k) = events.meas[e] {
@@ -559,6 +566,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let mut dg = vec![0.0; r * nm];
         let mut dk = vec![0.0; 6 * r * nm];
         let mut dyb = vec![0.0; r * nm];
+        let mut stage_tangents = Vec::new();
         for e in (0..ne).rev() {
             let c = &fw.cov[e];
             for (j, oj) in out.iter_mut().enumerate() {
@@ -586,12 +594,13 @@ impl<D: ClosureDrift> ClosureAction<D> {
             // Recompute the stage tangents of the interval (e − 1, e) from δλ after event e − 1.
             let ncol = active[e - 1];
             let mut y = dl_after[e - 1].clone();
-            let mut stage_tangents = Vec::with_capacity(derivs[e - 1].len());
+            let block = 6 * r * nm;
+            stage_tangents.clear();
             for d in &derivs[e - 1] {
-                Self::tangent_step(d, r, nm, ncol, &mut y, &mut dys);
-                stage_tangents.push(dys.clone());
+                Self::tangent_step(d, r, nm, ncol, &mut y, &mut dys, &mut dks);
+                stage_tangents.extend_from_slice(&dys);
             }
-            for (d, dy) in derivs[e - 1].iter().zip(&stage_tangents).rev() {
+            for (d, dy) in derivs[e - 1].iter().zip(stage_tangents.chunks_exact(block)).rev() {
                 let h = d.h;
                 for i in 0..6 {
                     for q in 0..r * nm {
@@ -632,6 +641,9 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 }
             }
         }
+        if let Some((l, g0)) = restore {
+            self.cache = Some((l, fw, g0));
+        }
         if out.iter().flatten().flatten().any(|v| !v.is_finite()) {
             return Err(SweepFailure);
         }
@@ -639,13 +651,22 @@ impl<D: ClosureDrift> ClosureAction<D> {
     }
 
     /// One step of the tangent-linear Runge–Kutta sweep on the first `ncol` columns of
-    /// δy (R × nm): the stage tangents δY_i into `dys` (6 R × nm blocks), δy advanced in place.
-    fn tangent_step(d: &StepDerivs, r: usize, nm: usize, ncol: usize, dy: &mut [f64], dys: &mut Vec<f64>) {
+    /// δy (R × nm): the stage tangents δY_i into `dys` (6 R × nm blocks), δy advanced in place;
+    /// `dks` is a workspace. Only the first `ncol` columns of `dys` are written (the others are
+    /// zero tangents, which no caller reads).
+    fn tangent_step(
+        d: &StepDerivs,
+        r: usize,
+        nm: usize,
+        ncol: usize,
+        dy: &mut [f64],
+        dys: &mut Vec<f64>,
+        dks: &mut Vec<f64>,
+    ) {
         let rn = r * nm;
         let rr = r * r;
-        dys.clear();
         dys.resize(6 * rn, 0.0);
-        let mut dks = vec![0.0; 6 * rn];
+        dks.resize(6 * rn, 0.0);
         for i in 0..6 {
             for a in 0..r {
                 for j in 0..ncol {
