@@ -9,7 +9,9 @@
 //! the KKT solver and its matrix and factor sizes. Measure the peak memory with
 //! `/usr/bin/time -v target/release/examples/duffing_large`.
 //!
-//! Run with `cargo run --release --example duffing_large [auto|band|faer] [SEED]`.
+//! Run with `cargo run --release --example duffing_large [auto|band|faer] [SEED] [PIECES]`
+//! (PIECES per measurement interval, default 36; a smaller value gives a smaller problem of the
+//! same kind, e.g. for `valgrind --tool=callgrind`).
 
 use rand::rngs::StdRng;
 use rand::SeedableRng;
@@ -20,7 +22,7 @@ use onsager::nlp::{LinearSolver, NlpOptions};
 use onsager::path::{estimate_path, regression_theta_guess, spline_guess, Merit, PathOptions, Transcription};
 use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
 
-/// Pieces per measurement interval (0.1 / 36 ≈ 0.00278).
+/// Default pieces per measurement interval (0.1 / 36 ≈ 0.00278).
 const PIECES_PER_SAMPLE: usize = 36;
 
 fn main() -> onsager::Result<()> {
@@ -30,6 +32,7 @@ fn main() -> onsager::Result<()> {
         _ => LinearSolver::Auto,
     };
     let seed: u64 = std::env::args().nth(2).and_then(|s| s.parse().ok()).unwrap_or(1);
+    let pieces: usize = std::env::args().nth(3).and_then(|s| s.parse().ok()).unwrap_or(PIECES_PER_SAMPLE);
     let p = preset("duffing")?;
     let estimate: Vec<usize> =
         ["a", "b", "d", "sigma_y"].iter().map(|n| p.param_index(n)).collect::<Result<_, _>>()?;
@@ -50,7 +53,7 @@ fn main() -> onsager::Result<()> {
         data: &data,
     };
     let t0 = onsager::estimate::default_initial_time(&data);
-    let step = p.sample_every / PIECES_PER_SAMPLE as f64;
+    let step = p.sample_every / pieces as f64;
     let t_end = data.times.last().copied().unwrap_or(t0);
     let nodes = ((t_end - t0) / step).round() as usize;
     let times: Vec<f64> = (0..=nodes).map(|k| t0 + k as f64 * step).collect();

@@ -841,12 +841,12 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
                 Self::locals_into(b, w, local);
                 match self.hs_piece(b) {
                     Some(k) => self.hs_gradient_into(k, b, local, grad),
-                    None => {
-                        let g = ad::gradient(&ObjFn { nlp: self, block: b }, local).1;
+                    None => with_buffer(local.len(), |g| {
+                        ad::gradient_into(&ObjFn { nlp: self, block: b }, local, g);
                         for (&v, gi) in b.vars.iter().zip(g) {
-                            grad[v] += gi;
+                            grad[v] += *gi;
                         }
-                    }
+                    }),
                 }
             });
         }
@@ -881,14 +881,16 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
                 Self::locals_into(b, w, local);
                 match self.hs_piece(b) {
                     Some(k) => self.hs_jacobian_into(k, local, out),
-                    None => {
-                        let j = ad::jacobian(&ConFn { nlp: self, block: b }, local).1;
-                        for r in 0..b.rows {
-                            for c in 0..nv {
-                                out[r * nv + c] = j[(r, c)];
+                    None => with_buffer(b.rows, |value| {
+                        with_buffer(b.rows * nv, |j| {
+                            ad::jacobian_into(&ConFn { nlp: self, block: b }, local, value, j);
+                            for r in 0..b.rows {
+                                for c in 0..nv {
+                                    out[r * nv + c] = j[r + c * b.rows];
+                                }
                             }
-                        }
-                    }
+                        })
+                    }),
                 }
             });
         }
@@ -920,14 +922,20 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
                 match self.hs_piece(b) {
                     Some(k) => self.hs_hessian_into(k, local, obj_factor, lam, out),
                     None => {
-                        let h = ad::hessian(&LagFn { nlp: self, block: b, obj_factor, lambda: lam }, local).2;
-                        let mut slot = 0;
-                        for i in 0..b.vars.len() {
-                            for j in 0..=i {
-                                out[slot] = h[(i, j)];
-                                slot += 1;
-                            }
-                        }
+                        let nv = b.vars.len();
+                        let f = LagFn { nlp: self, block: b, obj_factor, lambda: lam };
+                        with_buffer(nv, |g| {
+                            with_buffer(nv * nv, |h| {
+                                ad::hessian_into(&f, local, g, h);
+                                let mut slot = 0;
+                                for i in 0..nv {
+                                    for j in 0..=i {
+                                        out[slot] = h[i + j * nv];
+                                        slot += 1;
+                                    }
+                                }
+                            })
+                        })
                     }
                 }
             });
