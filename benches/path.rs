@@ -14,21 +14,23 @@
 //! interval (36,000 pieces, 216,006 unknowns), seed-1 data as in `examples/duffing_large.rs`.
 //! Target: ≤ 0.5 s and ≤ 300 MB.
 //!
-//! Measured on the development machine (2 shared cores, load average 4–6 from other jobs, so
-//! wall times are inflated and noisy) on 2026-11-21; machine-independent counts with them:
-//! - `path_van_der_pol`: 221 ms (criterion median, 95 % interval 167–257 ms) with the band
-//!   solver and 308 ms (295–328 ms) with faer, 7 iterations and 7 numeric factorisations (plus
-//!   one for the initial multipliers) with either; `valgrind --tool=callgrind` counts 1.46 × 10⁹
-//!   instructions in `nlp::solve` for one solve (`examples/van_der_pol_jme.rs`), against
-//!   3.37 × 10⁹ before this benchmark's problem got the band solver and allocation-free
-//!   derivatives (same session; 7 iterations then too).
-//! - `path_duffing_joint_36k`: 6.5 s (criterion median, 95 % interval 6.0–7.2 s), 5 iterations,
-//!   5 numeric factorisations (plus one), evaluation about 70 % of it; peak resident memory
-//!   255 MB (`/usr/bin/time -v` on `examples/duffing_large.rs`), 318 MB with faer, whose solve
-//!   took 9.1 s against 6.4 s for the band solver in the same session. Before the band solver
-//!   and the allocation-free derivatives `examples/duffing_large.rs` took 7.8 s to solve and
-//!   362 MB, against 4.0–4.7 s and 254 MB after, run alternately in the same session (5
-//!   iterations both).
+//! Measured on the development machine (2 shared cores, load average 5–6 from other jobs, so
+//! wall times are inflated and noisy) on 2026-11-22, with machine-independent counts
+//! (`valgrind --tool=callgrind` on the examples; same-run before/after of the derivative
+//! caching in docs/map.md, "One second-order pass per Lobatto point, cached"):
+//! - `path_van_der_pol`: 7 iterations, 7 numeric factorisations (plus one for the initial
+//!   multipliers); one solve of `examples/van_der_pol_jme.rs` is 0.881 × 10⁹ instructions in
+//!   `nlp::solve` (0.892 × 10⁹ before the caching, 3.37 × 10⁹ before the band solver and the
+//!   allocation-free derivatives), of which derivatives (gradient + Jacobian + Hessian)
+//!   0.228 × 10⁹ (0.240 × 10⁹ before), trial objective and constraints 0.045 × 10⁹, the band
+//!   factorisation 0.155 × 10⁹. Criterion at
+//!   a770b22: band 154 ms median, faer 192 ms, band kept across solves 109 ms (same run).
+//! - `path_duffing_joint_36k`: 5 iterations, 5 numeric factorisations (plus one); native
+//!   `examples/duffing_large.rs` under that load: `solve_seconds` 9.9 s against 12.3 s before
+//!   the caching (same session; user CPU of the process 1.72 s against 1.83 s), peak resident
+//!   memory 296 MB against 257 MB (the per-point derivative cache, 47.5 MB). On the 6,000-piece
+//!   variant (`duffing_large auto 1 6`) the derivatives are 0.86 × 10⁹ instructions against
+//!   1.03 × 10⁹ before, the whole example 2.11 × 10⁹ against 2.31 × 10⁹.
 //!
 //! Both targets are missed; docs/map.md ("Performance") lists what remains.
 

@@ -216,23 +216,24 @@ pub fn jacobian_into<F: VectorFn + ?Sized>(f: &F, w: &[f64], value: &mut [f64], 
     fn fixed<const N: usize, F: VectorFn + ?Sized>(f: &F, w: &[f64], value: &mut [f64], jac: &mut [f64]) {
         let m = value.len();
         let x: [DualSVec64<N>; N] = std::array::from_fn(|i| DualSVec64::<N>::from_re(w[i]).derivative(i));
-        let mut out = [DualSVec64::<N>::from_re(0.0); MAX_FIXED_OUT];
-        f.eval(&x, &mut out[..m]);
-        for (i, o) in out[..m].iter().enumerate() {
-            value[i] = o.re;
-            match &o.eps.0 {
-                Some(g) => {
-                    for j in 0..N {
-                        jac[i + j * m] = g[j];
+        with_outputs(m, |out: &mut [DualSVec64<N>]| {
+            f.eval(&x, out);
+            for (i, o) in out.iter().enumerate() {
+                value[i] = o.re;
+                match &o.eps.0 {
+                    Some(g) => {
+                        for j in 0..N {
+                            jac[i + j * m] = g[j];
+                        }
                     }
-                }
-                None => {
-                    for j in 0..N {
-                        jac[i + j * m] = 0.0;
+                    None => {
+                        for j in 0..N {
+                            jac[i + j * m] = 0.0;
+                        }
                     }
                 }
             }
-        }
+        })
     }
     let m = f.dim_out();
     let fallback = |value: &mut [f64], jac: &mut [f64]| {
@@ -248,6 +249,104 @@ pub fn jacobian_into<F: VectorFn + ?Sized>(f: &F, w: &[f64], value: &mut [f64], 
         return fallback(value, jac);
     }
     with_fixed_dim!(w.len(), N => fixed::<N, F>(f, w, value, jac), fallback(value, jac))
+}
+
+/// Writes the value of `f` at `w` into `value` (length m = `dim_out`), its Jacobian into `jac`
+/// (m × n, column-major, n = `w.len()`) and the Hessian of every output into `hess` (m
+/// column-major n × n blocks, output r's at `r·n²`): one pass of [`Dual2SVec64`] for at most
+/// [`MAX_FIXED`] inputs and 16 outputs, otherwise one [`hessian`] per output.
+pub fn hessians_into<F: VectorFn + ?Sized>(
+    f: &F,
+    w: &[f64],
+    value: &mut [f64],
+    jac: &mut [f64],
+    hess: &mut [f64],
+) {
+    fn fixed<const N: usize, F: VectorFn + ?Sized>(
+        f: &F,
+        w: &[f64],
+        value: &mut [f64],
+        jac: &mut [f64],
+        hess: &mut [f64],
+    ) {
+        let m = value.len();
+        let x: [Dual2SVec64<N>; N] = std::array::from_fn(|i| Dual2SVec64::<N>::from_re(w[i]).derivative(i));
+        with_outputs(m, |out: &mut [Dual2SVec64<N>]| {
+            f.eval(&x, out);
+            for (r, o) in out.iter().enumerate() {
+                value[r] = o.re;
+                match &o.v1.0 {
+                    Some(g) => {
+                        for j in 0..N {
+                            jac[r + j * m] = g[j];
+                        }
+                    }
+                    None => {
+                        for j in 0..N {
+                            jac[r + j * m] = 0.0;
+                        }
+                    }
+                }
+                let hr = &mut hess[r * N * N..(r + 1) * N * N];
+                match &o.v2.0 {
+                    Some(h) => hr.copy_from_slice(h.as_slice()),
+                    None => hr.fill(0.0),
+                }
+            }
+        })
+    }
+    let (n, m) = (w.len(), f.dim_out());
+    let fallback = |value: &mut [f64], jac: &mut [f64], hess: &mut [f64]| {
+        if n == 0 {
+            f.eval::<f64>(w, value);
+            return;
+        }
+        for r in 0..m {
+            let (v, g, h) = hessian(&Component { f, r }, w);
+            value[r] = v;
+            for j in 0..n {
+                jac[r + j * m] = g[j];
+            }
+            hess[r * n * n..(r + 1) * n * n].copy_from_slice(h.as_slice());
+        }
+    };
+    if m > MAX_FIXED_OUT {
+        return fallback(value, jac, hess);
+    }
+    with_fixed_dim!(n, N => fixed::<N, F>(f, w, value, jac, hess), fallback(value, jac, hess))
+}
+
+/// Output `r` of a [`VectorFn`], as a [`ScalarFn`].
+struct Component<'a, F: ?Sized> {
+    f: &'a F,
+    r: usize,
+}
+
+impl<F: VectorFn + ?Sized> ScalarFn for Component<'_, F> {
+    fn dim_in(&self) -> usize {
+        self.f.dim_in()
+    }
+    fn eval<D: Scalar>(&self, w: &[D]) -> D {
+        let mut out = vec![D::from(0.0); self.f.dim_out()];
+        self.f.eval(w, &mut out);
+        out[self.r]
+    }
+}
+
+/// Calls `f` with `m ≤ MAX_FIXED_OUT` zeros of `D` on the stack (in an array of 4 or
+/// `MAX_FIXED_OUT`: only those are cleared).
+fn with_outputs<D: Scalar, R>(m: usize, f: impl FnOnce(&mut [D]) -> R) -> R {
+    if m <= 4 {
+        f(&mut zeros::<D, 4>()[..m])
+    } else {
+        f(&mut zeros::<D, MAX_FIXED_OUT>()[..m])
+    }
+}
+
+/// An array of zeros built element by element: for large dual numbers this writes only their
+/// real parts and empty-derivative tags, where `[D::from(0.0); M]` copies every byte.
+pub fn zeros<D: Scalar, const M: usize>() -> [D; M] {
+    std::array::from_fn(|_| D::from(0.0))
 }
 
 /// Solves the small dense system `A u = b` in place by Gaussian elimination with partial
@@ -386,6 +485,19 @@ mod tests {
             assert_relative_eq!(gradient_into(&Mixed, &w, &mut g3), v, max_relative = 1e-14);
             for i in 0..n {
                 assert_relative_eq!(g[i], g3[i], max_relative = 1e-14, epsilon = 1e-14);
+            }
+            let (mut hv, mut hj, mut hh) = (vec![0.0; 3], vec![0.0; 3 * n], vec![0.0; 3 * n * n]);
+            hessians_into(&Map, &w, &mut hv, &mut hj, &mut hh);
+            for r in 0..3 {
+                let (v, g, h) = hessian(&Component { f: &Map, r }, &w);
+                assert_relative_eq!(hv[r], v, max_relative = 1e-14);
+                for i in 0..n {
+                    assert_relative_eq!(hj[r + i * 3], g[i], max_relative = 1e-14, epsilon = 1e-14);
+                    for j in 0..n {
+                        let hij = hh[r * n * n + i + j * n];
+                        assert_relative_eq!(hij, h[(i, j)], max_relative = 1e-14, epsilon = 1e-14);
+                    }
+                }
             }
             let (jv, jm) = jacobian(&Map, &w);
             let (mut v4, mut j4) = (vec![0.0; 3], vec![0.0; 3 * n]);

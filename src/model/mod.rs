@@ -86,6 +86,16 @@ pub trait Sde {
     /// The noise matrix G(θ), `noisy × noisy`, column-major.
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]);
 
+    /// Whether θ_i may enter the drifts f and h (and so div_x f). The default, `true` for
+    /// every parameter, is always correct; a model returns `false` for a parameter used only by
+    /// G or by the measurements, so that a transcription leaves the (zero) derivatives of the
+    /// dynamics with respect to it out of its automatic differentiation. The built-in models'
+    /// answers are tested against the derivatives of the drifts.
+    fn drift_uses_param(&self, i: usize) -> bool {
+        let _ = i;
+        true
+    }
+
     // ----- provided methods -------------------------------------------------------------
 
     /// Names of all states: noisy then clean.

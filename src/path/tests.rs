@@ -108,6 +108,49 @@ fn derivatives_match_finite_differences() {
     }
 }
 
+/// The Hermite–Simpson Jacobian and Hessian evaluated on their own (each Lobatto point
+/// differentiated again) equal those that reuse the per-point derivatives stored by `gradient`
+/// at the same point (the path of `derivatives_match_finite_differences`), for both merits; a
+/// gradient at another point is not reused.
+#[test]
+fn jacobian_and_hessian_without_and_with_the_gradients_cache_agree() {
+    let p = preset("duffing").unwrap();
+    let data = data_for(&p, &[0.0, 0.3, 0.6]);
+    for merit in [Merit::OnsagerMachlup, Merit::Energy] {
+        let prob = p.problem(&data, &[0, 1, 2, 5]);
+        let options = PathOptions::new(merit, Transcription::HermiteSimpson).with_step(0.15);
+        let mut nlp = build_nlp(&prob, &options).unwrap();
+        let (n, m) = (nlp.num_variables(), nlp.num_constraints());
+        let mut w = vec![0.0; n];
+        nlp.initial_point(&mut w);
+        for (i, wi) in w.iter_mut().enumerate() {
+            *wi += 0.1 * ((i as f64) * 0.7).sin();
+        }
+        let lambda: Vec<f64> = (0..m).map(|r| ((r as f64) * 1.3).cos()).collect();
+        let (nj, nh) = (nlp.jacobian_structure().len(), nlp.hessian_structure().len());
+        let eval = |nlp: &mut PathNlp<_, _>| {
+            let (mut jv, mut hv) = (vec![0.0; nj], vec![0.0; nh]);
+            nlp.jacobian_values(&w, &mut jv);
+            nlp.hessian_values(&w, 0.7, &lambda, &mut hv);
+            (jv, hv)
+        };
+        let fresh = eval(&mut nlp);
+        let mut g = vec![0.0; n];
+        nlp.gradient(&w, &mut g);
+        let cached = eval(&mut nlp);
+        let mut w2 = w.clone();
+        w2[n / 2] += 0.01;
+        nlp.gradient(&w2, &mut g);
+        let after_other = eval(&mut nlp);
+        for (a, b, c) in [(&fresh.0, &cached.0, &after_other.0), (&fresh.1, &cached.1, &after_other.1)] {
+            for ((x, y), z) in a.iter().zip(b).zip(c) {
+                assert_relative_eq!(x, y, epsilon = 1e-13, max_relative = 1e-12);
+                assert_eq!(x, z);
+            }
+        }
+    }
+}
+
 /// With noise w(t) = sin 2t + ½ on [0, 2] (piece coefficients a_k = w at the midpoint,
 /// b_k = the change of w across the piece), the Hermite–Simpson energy part converges to
 /// −∫½w² dt = −½[1 − sin(8)/8 + (1 − cos 4)/2 + ½] (closed form), at second order in h.

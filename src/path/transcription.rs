@@ -103,6 +103,12 @@ pub struct PathNlp<'a, S: Sde + ?Sized, O: Observation + ?Sized> {
     n_hess: usize,
     /// G(θ), column-major, for Hermite–Simpson (where no estimated θ enters it).
     g_fixed: Vec<f64>,
+    /// Positions in `problem.estimate` of the estimated θ that may enter the dynamics
+    /// ([`Sde::drift_uses_param`]): the θ part of a Lobatto point's local vector.
+    point_theta: Vec<usize>,
+    /// Hermite–Simpson per-point derivatives, computed by `gradient` and reused by
+    /// `jacobian_values` and `hessian_values` at the same variable vector.
+    cache: PointCache,
     initial: Vec<f64>,
     lower: Vec<f64>,
     upper: Vec<f64>,
@@ -171,8 +177,11 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         blocks.push(Block { kind: BlockKind::Prior, vars, row0: row, rows: 0, jac0: 0, hess0: 0 });
         let (mut jac, mut hess) = (0, 0);
         // Hermite–Simpson pieces: the Hessian is block-diagonal over the three Lobatto points'
-        // (s_i, θ_e) plus the noise diagonal (see `hs_hessian_into`); other blocks are dense
-        let npt = ns + ne;
+        // (s_i, θ_d) plus the noise diagonal (see `hs_hessian_into`), θ_d the estimated θ that
+        // enter the dynamics; other blocks are dense
+        let point_theta: Vec<usize> =
+            (0..ne).filter(|&j| problem.sde.drift_uses_param(problem.estimate[j])).collect();
+        let npt = ns + point_theta.len();
         for b in &mut blocks {
             b.jac0 = jac;
             b.hess0 = hess;
@@ -225,6 +234,8 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
             n_jac: jac,
             n_hess: hess,
             g_fixed,
+            point_theta,
+            cache: PointCache::default(),
             initial,
             lower,
             upper,
@@ -284,18 +295,15 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
     /// Calls `f` with the full θ (fixed values with the estimated ones `est` put in), held on
     /// the stack when θ is short, so the per-point AD evaluations do not allocate.
     fn with_theta<D: Scalar, R>(&self, est: &[D], f: impl FnOnce(&[D]) -> R) -> R {
-        let nt = self.problem.theta.len();
-        if nt > STACK_LEN {
-            return f(&self.theta_full(est));
-        }
-        let mut buf = [D::from(0.0); STACK_LEN];
-        for (b, &v) in buf.iter_mut().zip(self.problem.theta.iter()) {
-            *b = D::from(v);
-        }
-        for (j, &i) in self.problem.estimate.iter().enumerate() {
-            buf[i] = est[j];
-        }
-        f(&buf[..nt])
+        with_dual_buffer(self.problem.theta.len(), |buf| {
+            for (b, &v) in buf.iter_mut().zip(self.problem.theta.iter()) {
+                *b = D::from(v);
+            }
+            for (j, &i) in self.problem.estimate.iter().enumerate() {
+                buf[i] = est[j];
+            }
+            f(buf)
+        })
     }
 
     /// The log-merit contribution of a block at its local vector.
@@ -425,7 +433,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
                     }
                 };
                 let mut heap = Vec::new();
-                let mut stack = [D::from(0.0); 3 * STACK_LEN];
+                let mut stack: [D; 3 * STACK_LEN] = ad::zeros();
                 let r = if ns <= STACK_LEN {
                     &mut stack[..3 * ns]
                 } else {
@@ -464,30 +472,75 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         [(t0, 0, 1.0, 1.0, -0.5), (0.5 * (t0 + t1), ns, 4.0, 0.0, 0.0), (t1, 2 * ns, 1.0, -1.0, 0.5)]
     }
 
-    /// The point-local vector (s_i, θ_e) of Lobatto point `off` of a piece's local vector,
-    /// written into `out` (length ns + ne).
+    /// The point-local vector (s_i, θ_d) of Lobatto point `off` of a piece's local vector,
+    /// written into `out` (length ns + `point_theta.len()`; θ_d: the estimated θ that enter
+    /// the dynamics).
     fn hs_point_local(&self, local: &[f64], off: usize, out: &mut [f64]) {
         let ns = self.problem.sde.dims().states();
-        let ne = self.problem.estimate.len();
+        let th = &local[local.len() - self.problem.estimate.len()..];
         out[..ns].copy_from_slice(&local[off..off + ns]);
-        out[ns..ns + ne].copy_from_slice(&local[local.len() - ne..]);
+        for (o, &j) in out[ns..].iter_mut().zip(&self.point_theta) {
+            *o = th[j];
+        }
     }
 
-    /// Scatters a point-local (s_i, θ_e) index into the piece-local vector.
+    /// Scatters a point-local (s_i, θ_d) index into the piece-local vector.
     fn hs_point_index(&self, nv: usize, off: usize, j: usize) -> usize {
         let ns = self.problem.sde.dims().states();
         let ne = self.problem.estimate.len();
         if j < ns {
             off + j
         } else {
-            nv - ne + (j - ns)
+            nv - ne + self.point_theta[j - ns]
+        }
+    }
+
+    /// Number of inputs of a Lobatto point's functions, (s_i, θ_d).
+    fn hs_point_dim(&self) -> usize {
+        self.problem.sde.dims().states() + self.point_theta.len()
+    }
+
+    /// Number of outputs of a Lobatto point's [`PointFn`] in the cache: the rate [f; h] and,
+    /// for Onsager–Machlup, div_x f.
+    fn hs_point_outputs(&self) -> usize {
+        self.problem.sde.dims().states() + usize::from(self.merit == Merit::OnsagerMachlup)
+    }
+
+    /// Length of one Lobatto point's entry in [`PointCache`]: the rate Jacobian (ns × npt),
+    /// then the packed lower triangles of the Hessians of the point's outputs.
+    fn hs_cache_len(&self) -> usize {
+        let (ns, npt) = (self.problem.sde.dims().states(), self.hs_point_dim());
+        ns * npt + self.hs_point_outputs() * npt * (npt + 1) / 2
+    }
+
+    /// A Lobatto point's function at time `t` for a piece's local vector.
+    fn point_fn<'b>(&'b self, t: f64, local: &'b [f64]) -> PointFn<'b, 'a, S, O> {
+        let ne = self.problem.estimate.len();
+        PointFn {
+            nlp: self,
+            t,
+            theta_e: &local[local.len() - ne..],
+            with_div: false,
+            div_weight: 0.0,
+            mu: None,
         }
     }
 
     /// Adds the gradient of −merit of a Hermite–Simpson piece to `grad` (global), point by
     /// point: the energy h(½|a|² + |b|²/24) and, for Onsager–Machlup,
-    /// (h/12) Σ α_i div_x f(t_i, s_i).
-    fn hs_gradient_into(&self, k: usize, b: &Block, local: &[f64], grad: &mut [f64]) {
+    /// (h/12) Σ α_i div_x f(t_i, s_i). Each point's outputs (the rate and div_x f) are
+    /// differentiated twice in one pass ([`ad::hessians_into`]) and the rate Jacobian and the
+    /// Hessians are stored in `store` (the piece's slice of [`PointCache`]); `ph` is scratch
+    /// for the Hessians (length outputs · npt²).
+    fn hs_gradient_into(
+        &self,
+        k: usize,
+        b: &Block,
+        local: &[f64],
+        grad: &mut [f64],
+        store: &mut [f64],
+        ph: &mut [f64],
+    ) {
         let d = self.problem.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
         let h = self.grid.step;
@@ -496,33 +549,56 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
             grad[b.vars[3 * ns + i]] += h * local[3 * ns + i];
             grad[b.vars[3 * ns + nx + i]] += h * local[3 * ns + nx + i] / 12.0;
         }
-        if self.merit == Merit::OnsagerMachlup {
-            let npt = ns + self.problem.estimate.len();
-            with_buffer(npt, |pl| {
-                with_buffer(npt, |pg| {
-                    for (t, off, alpha, _, _) in self.hs_points(k) {
-                        let f = PointFn { nlp: self, t, div_weight: alpha * h / 12.0, mu: None };
+        let om = self.merit == Merit::OnsagerMachlup;
+        let (npt, nout, len) = (self.hs_point_dim(), self.hs_point_outputs(), self.hs_cache_len());
+        with_buffer(npt, |pl| {
+            with_buffer(nout, |value| {
+                with_buffer(nout * npt, |jr| {
+                    for (i, (t, off, alpha, _, _)) in self.hs_points(k).into_iter().enumerate() {
+                        let f = PointFn { with_div: om, ..self.point_fn(t, local) };
                         self.hs_point_local(local, off, pl);
-                        ad::gradient_into(&f, pl, pg);
-                        for (j, &v) in pg.iter().enumerate() {
-                            grad[b.vars[self.hs_point_index(nv, off, j)]] += v;
+                        ad::hessians_into(&f, pl, value, jr, ph);
+                        if om {
+                            for j in 0..npt {
+                                grad[b.vars[self.hs_point_index(nv, off, j)]] +=
+                                    alpha * h / 12.0 * jr[ns + j * nout];
+                            }
+                        }
+                        let st = &mut store[i * len..(i + 1) * len];
+                        let (sj, sh) = st.split_at_mut(ns * npt);
+                        for j in 0..npt {
+                            for r in 0..ns {
+                                sj[r + j * ns] = jr[r + j * nout];
+                            }
+                        }
+                        let mut q = 0;
+                        for o in 0..nout {
+                            let ho = &ph[o * npt * npt..(o + 1) * npt * npt];
+                            for r in 0..npt {
+                                for c in 0..=r {
+                                    sh[q] = ho[r + c * npt];
+                                    q += 1;
+                                }
+                            }
                         }
                     }
                 })
-            });
-        }
+            })
+        });
     }
 
     /// Writes the constraint Jacobian of a Hermite–Simpson piece (rows × nv, row-major) into
     /// `jac`, from the rate Jacobians at its three points (see [`Self::block_constraints`] for
     /// the defects).
-    fn hs_jacobian_into(&self, k: usize, local: &[f64], jac: &mut [f64]) {
+    /// `cached`: the piece's slice of [`PointCache`] when it holds the current point.
+    fn hs_jacobian_into(&self, k: usize, local: &[f64], jac: &mut [f64], cached: Option<&[f64]>) {
         let p = self.problem;
         let d = p.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
         let h = self.grid.step;
         let nv = local.len();
-        let npt = ns + p.estimate.len();
+        let npt = self.hs_point_dim();
+        let len = self.hs_cache_len();
         let gm = &self.g_fixed;
         jac.fill(0.0);
         for i in 0..ns {
@@ -535,11 +611,16 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         with_buffer(npt, |pl| {
             with_buffer(ns, |value| {
                 with_buffer(ns * npt, |jr| {
-                    for (t, off, alpha, beta, sigma) in self.hs_points(k) {
+                    for (i, (t, off, alpha, beta, sigma)) in self.hs_points(k).into_iter().enumerate() {
                         let (w1, w2) = (-alpha * h / 6.0, -beta * h / 8.0);
-                        let f = PointFn { nlp: self, t, div_weight: 0.0, mu: None };
-                        self.hs_point_local(local, off, pl);
-                        ad::jacobian_into(&f, pl, value, jr);
+                        let jr: &[f64] = match cached {
+                            Some(c) => &c[i * len..i * len + ns * npt],
+                            None => {
+                                self.hs_point_local(local, off, pl);
+                                ad::jacobian_into(&self.point_fn(t, local), pl, value, jr);
+                                jr
+                            }
+                        };
                         for j in 0..npt {
                             let c = self.hs_point_index(nv, off, j);
                             for r in 0..ns {
@@ -571,7 +652,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         let d = self.problem.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
         let nv = b.vars.len();
-        let npt = ns + self.problem.estimate.len();
+        let npt = self.hs_point_dim();
         for off in [0, ns, 2 * ns] {
             for r in 0..npt {
                 let vr = b.vars[self.hs_point_index(nv, off, r)];
@@ -589,32 +670,58 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
 
     /// Writes the Hessian of σ_f(−merit) + λᵀc of a Hermite–Simpson piece into `values` (the
     /// block's slots, see [`Self::hs_hessian_structure`]): at each Lobatto point the Hessian in
-    /// (s_i, θ_e) of σ_f (h/12) α_i div_x f + μ_iᵀ [f; h], μ_i = −(h/6) α_i λ₁ − (h/8) β_i λ₂,
+    /// (s_i, θ_d) of σ_f (h/12) α_i div_x f + μ_iᵀ [f; h], μ_i = −(h/6) α_i λ₁ − (h/8) β_i λ₂,
     /// then the energy's constant diagonal on (a, b). The noise term G(a + (σ − ½)b) is linear
-    /// (G does not depend on an estimated θ for Hermite–Simpson).
-    fn hs_hessian_into(&self, k: usize, local: &[f64], obj_factor: f64, lambda: &[f64], values: &mut [f64]) {
+    /// (G does not depend on an estimated θ for Hermite–Simpson). With `cached` (the piece's
+    /// slice of [`PointCache`] at the current point) the point Hessians are combinations of the
+    /// stored output Hessians; otherwise one second-order pass of the combination per point.
+    fn hs_hessian_into(
+        &self,
+        k: usize,
+        local: &[f64],
+        obj_factor: f64,
+        lambda: &[f64],
+        values: &mut [f64],
+        cached: Option<&[f64]>,
+    ) {
         let d = self.problem.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
         let h = self.grid.step;
-        let npt = ns + self.problem.estimate.len();
+        let npt = self.hs_point_dim();
+        let tri = npt * (npt + 1) / 2;
+        let len = self.hs_cache_len();
         let om = self.merit == Merit::OnsagerMachlup;
         let mut slot = 0;
         with_buffer(ns, |mu| {
             with_buffer(npt, |pl| {
                 with_buffer(npt, |pg| {
                     with_buffer(npt * npt, |ph| {
-                        for (t, off, alpha, beta, _) in self.hs_points(k) {
+                        for (i, (t, off, alpha, beta, _)) in self.hs_points(k).into_iter().enumerate() {
                             for r in 0..ns {
                                 mu[r] = -alpha * h / 6.0 * lambda[r] - beta * h / 8.0 * lambda[ns + r];
                             }
                             let div_weight = if om { obj_factor * alpha * h / 12.0 } else { 0.0 };
-                            let f = PointFn { nlp: self, t, div_weight, mu: Some(mu) };
+                            let out = &mut values[slot..slot + tri];
+                            slot += tri;
+                            if let Some(c) = cached {
+                                let hs = &c[i * len + ns * npt..(i + 1) * len];
+                                out.fill(0.0);
+                                for (o, hr) in hs.chunks_exact(tri).enumerate() {
+                                    let wgt = if o < ns { mu[o] } else { div_weight };
+                                    for (v, &x) in out.iter_mut().zip(hr) {
+                                        *v += wgt * x;
+                                    }
+                                }
+                                continue;
+                            }
+                            let f = PointFn { div_weight, mu: Some(mu), ..self.point_fn(t, local) };
                             self.hs_point_local(local, off, pl);
                             ad::hessian_into(&f, pl, pg, ph);
+                            let mut q = 0;
                             for r in 0..npt {
                                 for c in 0..=r {
-                                    values[slot] = ph[r + c * npt];
-                                    slot += 1;
+                                    out[q] = ph[r + c * npt];
+                                    q += 1;
                                 }
                             }
                         }
@@ -639,12 +746,49 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
 /// Length of the stack buffers of [`with_buffer`].
 const BUFFER_LEN: usize = 64;
 
-/// Calls `f` with a zeroed buffer of length `len`, on the stack when `len ≤ 64`.
+/// Calls `f` with a zeroed buffer of length `len`, on the stack when `len ≤ 64` (of 8 or 64
+/// entries: only those are zeroed).
 fn with_buffer<R>(len: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
-    if len <= BUFFER_LEN {
+    if len <= 8 {
+        f(&mut [0.0; 8][..len])
+    } else if len <= BUFFER_LEN {
         f(&mut [0.0; BUFFER_LEN][..len])
     } else {
         f(&mut vec![0.0; len])
+    }
+}
+
+/// Calls `f` with a buffer of `len` zeros of `D`, on the stack when `len ≤ STACK_LEN` (of 2,
+/// 4 or 8 entries: a second-order dual number of 8 inputs has 75 words to clear).
+fn with_dual_buffer<D: Scalar, R>(len: usize, f: impl FnOnce(&mut [D]) -> R) -> R {
+    if len <= 2 {
+        f(&mut ad::zeros::<D, 2>()[..len])
+    } else if len <= 4 {
+        f(&mut ad::zeros::<D, 4>()[..len])
+    } else if len <= STACK_LEN {
+        f(&mut ad::zeros::<D, STACK_LEN>()[..len])
+    } else {
+        f(&mut vec![D::from(0.0); len])
+    }
+}
+
+/// The per-point derivatives of the Hermite–Simpson pieces at one variable vector `w`:
+/// for piece k and Lobatto point i, at `(3k + i) · len` (`len` = [`PathNlp::hs_cache_len`]),
+/// the Jacobian of the rate [f; h] in (s_i, θ_d) (ns × npt, column-major), then the packed
+/// lower triangles (row by row) of the Hessians of f, h and, for Onsager–Machlup, div_x f.
+/// Filled by `gradient`, which the solver calls first at each new iterate; `jacobian_values`
+/// and `hessian_values` at the same `w` read it instead of differentiating again.
+#[derive(Debug, Default)]
+struct PointCache {
+    /// The variable vector the cache holds (empty: none).
+    w: Vec<f64>,
+    data: Vec<f64>,
+}
+
+impl PointCache {
+    /// The stored derivatives when they are those at `w`.
+    fn at(&self, w: &[f64]) -> Option<&[f64]> {
+        (!self.w.is_empty() && self.w == w).then_some(&self.data[..])
     }
 }
 
@@ -686,70 +830,91 @@ fn log_det_implicit<S: Sde + ?Sized, D: Scalar>(
     ad::lu_solve_in_place(&mut m, &mut b).unwrap_or(D::from(f64::NAN))
 }
 
-/// A function of one Lobatto point's (s_i, θ_e): as a [`ScalarFn`],
+/// A function of one Lobatto point's (s_i, θ_d) (θ_d: the estimated θ that enter the
+/// dynamics; the other estimated components are taken from `theta_e`): as a [`ScalarFn`],
 /// `div_weight · div_x f + μᵀ [f; h]` (μ = 0 when `None`); as a [`VectorFn`], the rate
-/// `[f; h]` itself.
+/// `[f; h]`, followed by div_x f when `with_div`.
 struct PointFn<'b, 'a, S: Sde + ?Sized, O: Observation + ?Sized> {
     nlp: &'b PathNlp<'a, S, O>,
     t: f64,
+    theta_e: &'b [f64],
+    with_div: bool,
     div_weight: f64,
     mu: Option<&'b [f64]>,
 }
 
 impl<S: Sde + ?Sized, O: Observation + ?Sized> PointFn<'_, '_, S, O> {
-    fn rate<D: Scalar>(&self, w: &[D], out: &mut [D]) {
-        let d = self.nlp.problem.sde.dims();
-        let (ns, nx) = (d.states(), d.noisy);
+    /// Writes the rate [f; h] at the point into `rate` (unless it is empty) and returns
+    /// div_x f when `div` (else 0), building θ once.
+    fn eval_into<D: Scalar>(&self, w: &[D], rate: &mut [D], div: bool) -> D {
+        let p = self.nlp.problem;
+        let d = p.sde.dims();
+        let (ns, nx, nt) = (d.states(), d.noisy, p.theta.len());
         let (x, z) = w[..ns].split_at(nx);
-        let sde = self.nlp.problem.sde;
-        self.nlp.with_theta(&w[ns..], |theta| {
-            sde.drift(D::from(self.t), x, z, theta, &mut out[..nx]);
-            sde.clean_drift(D::from(self.t), x, z, theta, &mut out[nx..]);
-        });
+        let t = D::from(self.t);
+        let fill = |theta: &mut [D]| {
+            for (b, &v) in theta.iter_mut().zip(p.theta) {
+                *b = D::from(v);
+            }
+            for (&i, &v) in p.estimate.iter().zip(self.theta_e) {
+                theta[i] = D::from(v);
+            }
+            for (&j, &v) in self.nlp.point_theta.iter().zip(&w[ns..]) {
+                theta[p.estimate[j]] = v;
+            }
+        };
+        let run = |theta: &[D], rate: &mut [D]| {
+            if !rate.is_empty() {
+                p.sde.drift(t, x, z, theta, &mut rate[..nx]);
+                p.sde.clean_drift(t, x, z, theta, &mut rate[nx..]);
+            }
+            if div {
+                p.sde.divergence(t, x, z, theta)
+            } else {
+                D::from(0.0)
+            }
+        };
+        with_dual_buffer(nt, |theta| {
+            fill(theta);
+            run(theta, rate)
+        })
     }
 }
 
 impl<S: Sde + ?Sized, O: Observation + ?Sized> ScalarFn for PointFn<'_, '_, S, O> {
     fn dim_in(&self) -> usize {
-        self.nlp.problem.sde.dims().states() + self.nlp.problem.estimate.len()
+        self.nlp.hs_point_dim()
     }
     fn eval<D: Scalar>(&self, w: &[D]) -> D {
-        let d = self.nlp.problem.sde.dims();
-        let (ns, nx) = (d.states(), d.noisy);
-        let mut v = D::from(0.0);
-        if self.div_weight != 0.0 {
-            let sde = self.nlp.problem.sde;
-            v += self
-                .nlp
-                .with_theta(&w[ns..], |theta| sde.divergence(D::from(self.t), &w[..nx], &w[nx..ns], theta))
-                * self.div_weight;
-        }
-        if let Some(mu) = self.mu {
-            let mut dot = |r: &mut [D]| {
-                self.rate(w, r);
+        let ns = self.nlp.problem.sde.dims().states();
+        let div = self.div_weight != 0.0;
+        match self.mu {
+            Some(mu) => with_dual_buffer(ns, |r| {
+                let mut v = self.eval_into(w, r, div) * self.div_weight;
                 for (ri, &m) in r.iter().zip(mu) {
                     v += *ri * m;
                 }
-            };
-            if ns <= STACK_LEN {
-                dot(&mut [D::from(0.0); STACK_LEN][..ns]);
-            } else {
-                dot(&mut vec![D::from(0.0); ns]);
-            }
+                v
+            }),
+            None => self.eval_into(w, &mut [], div) * self.div_weight,
         }
-        v
     }
 }
 
 impl<S: Sde + ?Sized, O: Observation + ?Sized> VectorFn for PointFn<'_, '_, S, O> {
     fn dim_in(&self) -> usize {
-        self.nlp.problem.sde.dims().states() + self.nlp.problem.estimate.len()
+        self.nlp.hs_point_dim()
     }
     fn dim_out(&self) -> usize {
-        self.nlp.problem.sde.dims().states()
+        self.nlp.problem.sde.dims().states() + usize::from(self.with_div)
     }
     fn eval<D: Scalar>(&self, w: &[D], out: &mut [D]) {
-        self.rate(w, out);
+        let ns = self.nlp.problem.sde.dims().states();
+        let (rate, rest) = out.split_at_mut(ns);
+        let v = self.eval_into(w, rate, self.with_div);
+        if self.with_div {
+            rest[0] = v;
+        }
     }
 }
 
@@ -836,11 +1001,23 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
 
     fn gradient(&mut self, w: &[f64], grad: &mut [f64]) {
         grad.fill(0.0);
+        let mut cache = std::mem::take(&mut self.cache);
+        cache.w.clear();
+        let len = 3 * self.hs_cache_len();
+        let npt = self.hs_point_dim();
+        let mut ph = Vec::new();
+        if self.transcription == Transcription::HermiteSimpson {
+            cache.data.resize(self.grid.intervals * len, 0.0);
+            ph.resize(self.hs_point_outputs() * npt * npt, 0.0);
+        }
         for b in &self.blocks {
             with_buffer(b.vars.len(), |local| {
                 Self::locals_into(b, w, local);
                 match self.hs_piece(b) {
-                    Some(k) => self.hs_gradient_into(k, b, local, grad),
+                    Some(k) => {
+                        let store = &mut cache.data[k * len..(k + 1) * len];
+                        self.hs_gradient_into(k, b, local, grad, store, &mut ph)
+                    }
                     None => with_buffer(local.len(), |g| {
                         ad::gradient_into(&ObjFn { nlp: self, block: b }, local, g);
                         for (&v, gi) in b.vars.iter().zip(g) {
@@ -850,6 +1027,10 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
                 }
             });
         }
+        if self.transcription == Transcription::HermiteSimpson {
+            cache.w.extend_from_slice(w);
+        }
+        self.cache = cache;
     }
 
     fn constraints(&mut self, w: &[f64], c: &mut [f64]) {
@@ -874,13 +1055,17 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
     }
 
     fn jacobian_values(&mut self, w: &[f64], values: &mut [f64]) {
+        let cached = self.cache.at(w);
+        let len = 3 * self.hs_cache_len();
         for b in self.blocks.iter().filter(|b| b.rows > 0) {
             let nv = b.vars.len();
             let out = &mut values[b.jac0..b.jac0 + b.rows * nv];
             with_buffer(nv, |local| {
                 Self::locals_into(b, w, local);
                 match self.hs_piece(b) {
-                    Some(k) => self.hs_jacobian_into(k, local, out),
+                    Some(k) => {
+                        self.hs_jacobian_into(k, local, out, cached.map(|c| &c[k * len..(k + 1) * len]))
+                    }
                     None => with_buffer(b.rows, |value| {
                         with_buffer(b.rows * nv, |j| {
                             ad::jacobian_into(&ConFn { nlp: self, block: b }, local, value, j);
@@ -913,6 +1098,8 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
     }
 
     fn hessian_values(&mut self, w: &[f64], obj_factor: f64, lambda: &[f64], values: &mut [f64]) {
+        let cached = self.cache.at(w);
+        let len = 3 * self.hs_cache_len();
         for (bi, b) in self.blocks.iter().enumerate() {
             let lam = &lambda[b.row0..b.row0 + b.rows];
             let end = self.blocks.get(bi + 1).map_or(values.len(), |n| n.hess0);
@@ -920,7 +1107,10 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
             with_buffer(b.vars.len(), |local| {
                 Self::locals_into(b, w, local);
                 match self.hs_piece(b) {
-                    Some(k) => self.hs_hessian_into(k, local, obj_factor, lam, out),
+                    Some(k) => {
+                        let c = cached.map(|c| &c[k * len..(k + 1) * len]);
+                        self.hs_hessian_into(k, local, obj_factor, lam, out, c)
+                    }
                     None => {
                         let nv = b.vars.len();
                         let f = LagFn { nlp: self, block: b, obj_factor, lambda: lam };

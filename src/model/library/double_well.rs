@@ -52,6 +52,11 @@ impl Sde for DoubleWell {
         D::from(4.0) - x[0] * x[0] * 12.0
     }
 
+    /// D enters G only.
+    fn drift_uses_param(&self, i: usize) -> bool {
+        i != Self::D
+    }
+
     /// $G = [\sqrt{2D}]$, so that ½GGᵀ = D (`003_d2fc48a470e528fc.txt (0.1)`). Not finite
     /// (hence rejected by [`Sde::diffusion_matrix`]) for D < 0, and singular for D = 0.
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {

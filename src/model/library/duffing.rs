@@ -68,6 +68,11 @@ impl Sde for Duffing {
         -theta[Self::D]
     }
 
+    /// Σ_D enters G only, Σ_y the measurements only.
+    fn drift_uses_param(&self, i: usize) -> bool {
+        i != Self::SIGMA_D && i != Self::SIGMA_Y
+    }
+
     /// $G = [\sigma_D]$.
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
         out[0] = theta[Self::SIGMA_D];

@@ -74,6 +74,11 @@ impl Sde for HolmesRand {
         -(theta[Self::A] + theta[Self::GAMMA] * z[0] * z[0])
     }
 
+    /// Σ_D enters G only, Σ_y the measurements only.
+    fn drift_uses_param(&self, i: usize) -> bool {
+        i != Self::SIGMA_D && i != Self::SIGMA_Y
+    }
+
     /// $G = [\sigma_D]$.
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
         out[0] = theta[Self::SIGMA_D];

@@ -58,6 +58,11 @@ impl Sde for Lorenz63 {
         -(theta[Self::SIGMA] + theta[Self::BETA] + 1.0)
     }
 
+    /// Σ_w enters G only.
+    fn drift_uses_param(&self, i: usize) -> bool {
+        i != Self::SIGMA_W
+    }
+
     /// $G = \sigma_w I_3$ (column-major).
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
         let s = theta[Self::SIGMA_W];

@@ -130,6 +130,10 @@ impl Sde for BuiltinModel {
         delegate!(self, m => m.diffusion(theta, out))
     }
 
+    fn drift_uses_param(&self, i: usize) -> bool {
+        delegate!(self, m => m.drift_uses_param(i))
+    }
+
     fn divergence<D: Scalar>(&self, t: D, x: &[D], z: &[D], theta: &[D]) -> D {
         delegate!(self, m => m.divergence(t, x, z, theta))
     }

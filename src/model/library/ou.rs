@@ -52,6 +52,11 @@ impl Sde for Ou {
         -theta[Self::THETA]
     }
 
+    /// Σ enters G only.
+    fn drift_uses_param(&self, i: usize) -> bool {
+        i != Self::SIGMA
+    }
+
     /// $G = [\sigma]$.
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
         out[0] = theta[Self::SIGMA];

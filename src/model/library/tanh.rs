@@ -47,6 +47,11 @@ impl Sde for Tanh {
         D::from(1.0) - th * th
     }
 
+    /// Σ enters G only.
+    fn drift_uses_param(&self, i: usize) -> bool {
+        i != Self::SIGMA
+    }
+
     /// $G = [\sigma]$.
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
         out[0] = theta[Self::SIGMA];

@@ -184,6 +184,26 @@ fn divergence_derivatives_match_central_differences() {
     });
 }
 
+/// A parameter that a model declares absent from its dynamics ([`Sde::drift_uses_param`]
+/// false) has zero derivatives of f, h and div_x f at random points.
+#[test]
+fn parameters_outside_the_dynamics_have_zero_drift_derivatives() {
+    for_every_model(|p, pt| {
+        let d = p.dims();
+        let f = p.model.drift_jacobians(pt.t, &pt.x, &pt.z, &pt.theta);
+        let h = p.model.clean_drift_jacobians(pt.t, &pt.x, &pt.z, &pt.theta);
+        let div = p.model.divergence_derivatives(pt.t, &pt.x, &pt.z, &pt.theta);
+        for i in (0..d.params).filter(|&i| !p.model.drift_uses_param(i)) {
+            let zero = f.dtheta.column(i).iter().chain(h.dtheta.column(i).iter()).all(|&v| v == 0.0);
+            assert!(zero, "{}: the drifts depend on θ_{i}", p.name);
+            assert_eq!(div.gradient[d.states() + i], 0.0, "{}: div_x f depends on θ_{i}", p.name);
+        }
+    });
+    let duffing = preset("duffing").unwrap();
+    let used: Vec<bool> = (0..6).map(|i| duffing.model.drift_uses_param(i)).collect();
+    assert_eq!(used, [true, true, true, true, false, false]);
+}
+
 /// ½|G⁻¹(ẋ − f)|² computed independently with nalgebra's LU (the definition,
 /// `000_74b95e149527c64e.txt (2.60)`).
 fn energy_reference(p: &Preset, t: f64, xdot: &[f64], x: &[f64], z: &[f64], theta: &[f64]) -> f64 {

@@ -53,6 +53,11 @@ impl Sde for VanDerPol {
         theta[Self::MU] * (D::from(1.0) - x[0] * x[0])
     }
 
+    /// Σ enters G only.
+    fn drift_uses_param(&self, i: usize) -> bool {
+        i != Self::SIGMA
+    }
+
     /// $G = \sigma I_2$ (column-major).
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
         let s = theta[Self::SIGMA];
