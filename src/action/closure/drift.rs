@@ -16,7 +16,7 @@
 //!   ∂π_k/∂λ = π_k(M_k − μ) gives ∂V/∂λ = Cov(L*M, M) and ∂C/∂λ = the third cumulant
 //!   (`(II.43)`) in closed form.
 
-use num_dual::{Dual64, HyperDual64};
+use num_dual::{Dual2SVec64, Dual64, DualSVec64, HyperDual64};
 use onsager_closures::{cholesky, cholesky_solve_in_place, dot, Exponential, Gaussian, TrialFamily};
 
 use crate::model::{Scalar, Sde};
@@ -209,21 +209,9 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
     }
 }
 
-impl<S: Sde + ?Sized> ClosureDrift for GaussianDrift<'_, S> {
-    fn n_params(&self) -> usize {
-        self.family.n_moments()
-    }
-
-    fn state_dim(&self) -> usize {
-        self.family.dim()
-    }
-
-    fn w(&self, t: f64, lambda: &[f64], out: &mut [f64]) -> std::result::Result<(), Unrealizable> {
-        self.w_generic(t, lambda, out)
-    }
-
-    /// ∂W/∂λ by one dual-number pass per column, through the moving nodes.
-    fn w_jacobian(
+impl<S: Sde + ?Sized> GaussianDrift<'_, S> {
+    /// W and ∂W/∂λ by one dual-number pass per column (any R).
+    fn w_jacobian_columns(
         &self,
         t: f64,
         lambda: &[f64],
@@ -245,8 +233,8 @@ impl<S: Sde + ?Sized> ClosureDrift for GaussianDrift<'_, S> {
         Ok(())
     }
 
-    /// One hyper-dual pass per pair a ≤ b through the moving nodes.
-    fn w_second(
+    /// W, ∂W/∂λ and ∇²(κᵀW) by one hyper-dual pass per pair a ≤ b (any R).
+    fn w_second_pairs(
         &self,
         t: f64,
         lambda: &[f64],
@@ -279,6 +267,110 @@ impl<S: Sde + ?Sized> ClosureDrift for GaussianDrift<'_, S> {
         Ok(())
     }
 
+    /// W and ∂W/∂λ in one pass of [`DualSVec64`] (R = N).
+    fn w_jacobian_fixed<const N: usize>(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        let ld: [DualSVec64<N>; N] =
+            std::array::from_fn(|i| DualSVec64::<N>::from_re(lambda[i]).derivative(i));
+        let mut out = [DualSVec64::<N>::from_re(0.0); N];
+        self.w_generic(t, &ld, &mut out)?;
+        for (a, o) in out.iter().enumerate() {
+            w[a] = o.re;
+            let row = &mut jac[a * N..(a + 1) * N];
+            match &o.eps.0 {
+                Some(g) => row.copy_from_slice(g.as_slice()),
+                None => row.fill(0.0),
+            }
+        }
+        Ok(())
+    }
+
+    /// W, ∂W/∂λ and ∇²(κᵀW) in one pass of [`Dual2SVec64`] (R = N).
+    fn w_second_fixed<const N: usize>(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        kappa: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+        hess: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        let ld: [Dual2SVec64<N>; N] =
+            std::array::from_fn(|i| Dual2SVec64::<N>::from_re(lambda[i]).derivative(i));
+        let mut out = [Dual2SVec64::<N>::from_re(0.0); N];
+        self.w_generic(t, &ld, &mut out)?;
+        hess[..N * N].fill(0.0);
+        for (a, o) in out.iter().enumerate() {
+            w[a] = o.re;
+            let row = &mut jac[a * N..(a + 1) * N];
+            match &o.v1.0 {
+                Some(g) => row.copy_from_slice(g.as_slice()),
+                None => row.fill(0.0),
+            }
+            // The Hessian of a scalar is symmetric, so its column-major storage is also row-major.
+            if let Some(h) = &o.v2.0 {
+                for (hij, &v) in hess.iter_mut().zip(h.as_slice()) {
+                    *hij += kappa[a] * v;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+impl<S: Sde + ?Sized> ClosureDrift for GaussianDrift<'_, S> {
+    fn n_params(&self) -> usize {
+        self.family.n_moments()
+    }
+
+    fn state_dim(&self) -> usize {
+        self.family.dim()
+    }
+
+    fn w(&self, t: f64, lambda: &[f64], out: &mut [f64]) -> std::result::Result<(), Unrealizable> {
+        self.w_generic(t, lambda, out)
+    }
+
+    /// ∂W/∂λ through the moving nodes: one pass of fixed-size vector dual numbers for state
+    /// dimensions 1–3 (R = 2, 5, 9), otherwise one dual-number pass per column.
+    fn w_jacobian(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        match lambda.len() {
+            2 => self.w_jacobian_fixed::<2>(t, lambda, w, jac),
+            5 => self.w_jacobian_fixed::<5>(t, lambda, w, jac),
+            9 => self.w_jacobian_fixed::<9>(t, lambda, w, jac),
+            _ => self.w_jacobian_columns(t, lambda, w, jac),
+        }
+    }
+
+    /// Through the moving nodes: one pass of fixed-size second-order vector dual numbers for
+    /// state dimensions 1–3 (R = 2, 5, 9), otherwise one hyper-dual pass per pair a ≤ b.
+    fn w_second(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        kappa: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+        hess: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        match lambda.len() {
+            2 => self.w_second_fixed::<2>(t, lambda, kappa, w, jac, hess),
+            5 => self.w_second_fixed::<5>(t, lambda, kappa, w, jac, hess),
+            9 => self.w_second_fixed::<9>(t, lambda, kappa, w, jac, hess),
+            _ => self.w_second_pairs(t, lambda, kappa, w, jac, hess),
+        }
+    }
     fn moments(&self, lambda: &[f64]) -> std::result::Result<FamilyMoments, Unrealizable> {
         let c = self.family.cumulants(lambda).map_err(unrealizable)?;
         Ok(FamilyMoments { log_partition: c.log_partition, mean: c.mean, covariance: c.covariance })
@@ -655,7 +747,7 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::library::{DoubleWell, Ou};
+    use crate::model::library::{DoubleWell, Ou, VanDerPol};
     use approx::assert_relative_eq;
 
     fn fd_jacobian<Dr: ClosureDrift>(dr: &Dr, t: f64, lambda: &[f64]) -> Vec<f64> {
@@ -752,6 +844,49 @@ mod tests {
                 assert_relative_eq!(hess[i * r + j], hess[j * r + i], epsilon = 1e-12, max_relative = 1e-10);
             }
         }
+    }
+
+    /// The one-pass fixed-size vector duals (R = 2, 5) give what one dual pass per column and
+    /// one hyper-dual pass per pair give (two evaluations of the same derivatives).
+    #[test]
+    fn fixed_size_gaussian_derivatives_equal_the_per_direction_passes() {
+        fn compare<S: Sde>(g: &GaussianDrift<'_, S>, lambda: &[f64], kappa: &[f64]) {
+            let r = lambda.len();
+            let z = || (vec![0.0; r], vec![0.0; r * r], vec![0.0; r * r]);
+            let ((mut w1, mut j1, _), (mut w2, mut j2, _)) = (z(), z());
+            g.w_jacobian(0.3, lambda, &mut w1, &mut j1).unwrap();
+            g.w_jacobian_columns(0.3, lambda, &mut w2, &mut j2).unwrap();
+            let ((mut w3, mut j3, mut h3), (mut w4, mut j4, mut h4)) = (z(), z());
+            g.w_second(0.3, lambda, kappa, &mut w3, &mut j3, &mut h3).unwrap();
+            g.w_second_pairs(0.3, lambda, kappa, &mut w4, &mut j4, &mut h4).unwrap();
+            for (a, b) in w1
+                .iter()
+                .chain(&j1)
+                .chain(&w3)
+                .chain(&j3)
+                .chain(&h3)
+                .zip(w2.iter().chain(&j2).chain(&w4).chain(&j4).chain(&h4))
+            {
+                assert_relative_eq!(*a, *b, epsilon = 1e-12, max_relative = 1e-12);
+            }
+        }
+        let dw = GaussianDrift::try_new(&DoubleWell, &[0.5]).unwrap();
+        compare(&dw, &[0.4 / 0.3, -0.5 / 0.3], &[0.7, -1.3]);
+        // Van der Pol, N(m, Σ) with m = (0.3, −0.5), Σ = [[0.2, 0.05], [0.05, 0.1]]:
+        // P = Σ⁻¹, a = Pm, b_ii = −½P_ii, b_01 = −P_01.
+        let vdp = GaussianDrift::try_new(&VanDerPol, &VanDerPol::NOMINAL).unwrap();
+        let det = 0.2 * 0.1 - 0.05 * 0.05;
+        let p = [0.1 / det, -0.05 / det, -0.05 / det, 0.2 / det];
+        let m = [0.3, -0.5];
+        let mut lambda = vec![0.0; 5];
+        for i in 0..2 {
+            lambda[i] = p[i * 2] * m[0] + p[i * 2 + 1] * m[1];
+        }
+        let q = |i, j| vdp.family().quadratic_index(i, j).unwrap();
+        lambda[q(0, 0)] = -0.5 * p[0];
+        lambda[q(1, 1)] = -0.5 * p[3];
+        lambda[q(0, 1)] = -p[1];
+        compare(&vdp, &lambda, &[0.7, -1.3, 0.2, 0.4, -0.6]);
     }
 
     #[test]
