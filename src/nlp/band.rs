@@ -405,21 +405,27 @@ impl KktSolver for BandLdlt {
             return None; // `analyse` was not called
         }
         scatter_values(&mut self.values, &self.hess_map, &self.jac_map, &self.diag_map, n, m, v);
-        // max |K_ij| and the row sums of |K| (∞-norm of the symmetric matrix), in one pass
-        // without branches: a non-finite entry makes the total non-finite
+        // max |K_ij| and the row sums of |K| (∞-norm of the symmetric matrix) in one pass, which
+        // also copies the matrix into the factor's storage; a non-finite entry makes the total
+        // non-finite (the comparisons below skip NaN, the sums do not)
         let mut max_abs = 0.0f64;
         let mut total = 0.0f64;
         let mut row_sums = std::mem::take(&mut self.work_r);
         for p in 0..dim {
-            let (f, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1] - 1);
-            let mut s = self.values[end].abs();
-            max_abs = max_abs.max(s);
-            for (rk, &a) in row_sums[f..p].iter_mut().zip(&self.values[start..end]) {
+            let (f, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1]);
+            let (src, dst) = (&self.values[start..end], &mut self.factor[start..end]);
+            let (&diag, offdiag) = src.split_last().expect("a row holds its diagonal");
+            let mut s = diag.abs();
+            let mut row_max = s;
+            for ((rk, &a), out) in row_sums[f..p].iter_mut().zip(offdiag).zip(dst.iter_mut()) {
+                *out = a;
                 let a = a.abs();
-                max_abs = max_abs.max(a);
+                row_max = if a > row_max { a } else { row_max };
                 *rk += a;
                 s += a;
             }
+            dst[p - f] = diag;
+            max_abs = if row_max > max_abs { row_max } else { max_abs };
             // row p's own sum is complete once its stored part is added: later rows only add
             // to columns before their diagonal
             row_sums[p] = s;
@@ -429,30 +435,30 @@ impl KktSolver for BandLdlt {
             self.work_r = row_sums;
             return None;
         }
-        self.norm_k = row_sums.iter().fold(0.0f64, |a, &b| a.max(b));
+        self.norm_k = row_sums.iter().fold(0.0f64, |a, &b| if b > a { b } else { a });
         self.work_r = row_sums;
         let scale = if max_abs > 0.0 { max_abs } else { 1.0 };
         let (eps, delta) = (1e-30 * scale, super::kkt::REGULARIZATION_DELTA * scale);
         let mut regularized = 0usize;
         let mut inertia = Inertia::default();
-        self.factor.copy_from_slice(&self.values);
+        let (first, row_ptr) = (&self.first, &self.row_ptr);
         for p in 0..dim {
-            let (fp, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1] - 1);
+            let (fp, start, end) = (first[p], row_ptr[p], row_ptr[p + 1]);
             let (done, rest) = self.factor.split_at_mut(start);
-            let row = &mut rest[..end - start + 1];
-            // u_pj = a_pj − Σ_k u_pk l_jk  (row p holds u_p· for the columns already done)
-            let (first, row_ptr) = (&self.first[fp..p], &self.row_ptr[fp..p + 1]);
-            for (jj, (&fj, ptr)) in first.iter().zip(row_ptr.windows(2)).enumerate() {
-                // column j = fp + jj; row j is stored at ptr[0]..ptr[1] (diagonal last); the
-                // sum runs over k0..j, empty when row j starts at its diagonal
-                let k0 = fp.max(fj);
-                if k0 < fp + jj {
-                    let rj = &done[ptr[0] + (k0 - fj)..ptr[1] - 1];
-                    let (head, tail) = row.split_at_mut(jj);
-                    tail[0] -= dot(&head[k0 - fp..], rj);
-                }
+            // row[jj] is column fp + jj, row[p − fp] the diagonal
+            let row = &mut rest[..end - start];
+            let w = p - fp;
+            // u_pj = a_pj − Σ_k u_pk l_jk over k = max(fp, f_j) .. j − 1: the last `len` entries
+            // before the diagonal of row j (stored at row_ptr[j + 1] − 1) against the entries of
+            // row p before column j (row p holds u_p· for the columns already done)
+            for jj in 1..w {
+                let j = fp + jj;
+                let dj = row_ptr[j + 1] - 1;
+                let len = jj.min(j - first[j]);
+                let s = dot(&row[jj - len..jj], &done[dj - len..dj]);
+                row[jj] -= s;
             }
-            let (offdiag, diag) = row.split_at_mut(p - fp);
+            let (offdiag, diag) = row.split_at_mut(w);
             let mut d = diag[0];
             for (u, &inv) in offdiag.iter_mut().zip(&self.inv_d[fp..p]) {
                 let l = *u * inv;

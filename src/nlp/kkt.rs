@@ -546,12 +546,20 @@ pub(crate) fn refine(
     let mut last_residual = f64::INFINITY;
     for step in 0..=max_steps {
         matvec(x, r);
-        let mut r_norm = 0.0f64;
-        for p in 0..dim {
-            r[p] = b[p] - r[p];
-            r_norm = r_norm.max(r[p].abs());
+        // r = b − K x and the max norms of r and x in one pass (the comparisons skip NaN, which
+        // then reaches `backward` through the sum below)
+        let (mut r_norm, mut x_norm, mut nan_check) = (0.0f64, 0.0f64, 0.0f64);
+        for ((rp, &bp), &xp) in r.iter_mut().zip(b).zip(x.iter()) {
+            let v = bp - *rp;
+            *rp = v;
+            let (va, xa) = (v.abs(), xp.abs());
+            r_norm = if va > r_norm { va } else { r_norm };
+            x_norm = if xa > x_norm { xa } else { x_norm };
+            #[allow(clippy::eq_op)] // 0 for finite v, NaN otherwise
+            let zero = v - v;
+            nan_check += zero;
         }
-        let x_norm = x.iter().fold(0.0f64, |a, &v| a.max(v.abs()));
+        let r_norm = r_norm + nan_check;
         let denom = b_norm + norm_k * x_norm;
         let backward = if denom > 0.0 { r_norm / denom } else { 0.0 };
         // NaN counts as no improvement
@@ -768,17 +776,19 @@ pub(crate) fn scatter_values(
     m: usize,
     v: &KktValues<'_>,
 ) {
+    debug_assert!(hess_map.len() == v.hessian.len() && jac_map.len() == v.jacobian.len());
+    debug_assert!(diag_map.len() == n + m && v.primal_diagonal.len() == n);
     values.fill(0.0);
-    for (k, &s) in hess_map.iter().enumerate() {
-        values[s] += v.hessian[k];
+    for (&s, &h) in hess_map.iter().zip(v.hessian) {
+        values[s] += h;
     }
-    for (k, &s) in jac_map.iter().enumerate() {
-        values[s] += v.jacobian[k];
+    for (&s, &a) in jac_map.iter().zip(v.jacobian) {
+        values[s] += a;
     }
-    for i in 0..n {
-        values[diag_map[i]] += v.primal_diagonal[i] + v.delta_w;
+    for (&s, &d) in diag_map[..n].iter().zip(v.primal_diagonal) {
+        values[s] += d + v.delta_w;
     }
-    for r in 0..m {
-        values[diag_map[n + r]] -= v.delta_c;
+    for &s in &diag_map[n..n + m] {
+        values[s] -= v.delta_c;
     }
 }
