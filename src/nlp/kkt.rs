@@ -546,8 +546,8 @@ pub(crate) fn refine(
     let mut last_residual = f64::INFINITY;
     for step in 0..=max_steps {
         matvec(x, r);
-        // r = b − K x and the max norms of r and x in one pass (the comparisons skip NaN, which
-        // then reaches `backward` through the sum below)
+        // r = b − K x and the max norms of r and x in one pass (the comparisons skip NaN and ±∞,
+        // which the sum below catches: a non-finite residual counts as infinite)
         let (mut r_norm, mut x_norm, mut nan_check) = (0.0f64, 0.0f64, 0.0f64);
         for ((rp, &bp), &xp) in r.iter_mut().zip(b).zip(x.iter()) {
             let v = bp - *rp;
@@ -559,7 +559,7 @@ pub(crate) fn refine(
             let zero = v - v;
             nan_check += zero;
         }
-        let r_norm = r_norm + nan_check;
+        let r_norm = if nan_check == 0.0 { r_norm } else { f64::INFINITY };
         let denom = b_norm + norm_k * x_norm;
         let backward = if denom > 0.0 { r_norm / denom } else { 0.0 };
         // NaN counts as no improvement

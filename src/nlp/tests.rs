@@ -1172,3 +1172,19 @@ fn band_ordering_is_a_permutation() {
         assert!(band.envelope_size() <= (n + m) * (n + m + 1) / 2);
     }
 }
+
+/// A residual with a non-finite entry is reported as +∞, never NaN, so that every
+/// "residual ≤ tolerance" test rejects the solve (here K = I with a product that overflows).
+#[test]
+fn refinement_reports_a_non_finite_residual_as_infinite() {
+    let b = [1.0, 2.0];
+    for bad in [f64::INFINITY, f64::NEG_INFINITY, f64::NAN] {
+        let (mut x, mut r, mut prev) = ([0.0; 2], [0.0; 2], [0.0; 2]);
+        let matvec = |x: &[f64], y: &mut [f64]| {
+            y.copy_from_slice(x);
+            y[1] = bad;
+        };
+        let residual = super::kkt::refine(&b, &mut x, &mut r, &mut prev, 1.0, 3, false, matvec, |_| {});
+        assert_eq!(residual, f64::INFINITY, "product entry {bad}");
+    }
+}

@@ -571,15 +571,10 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
                                 sj[r + j * ns] = jr[r + j * nout];
                             }
                         }
-                        let mut q = 0;
+                        let packed = npt * (npt + 1) / 2;
                         for o in 0..nout {
                             let ho = &ph[o * npt * npt..(o + 1) * npt * npt];
-                            for r in 0..npt {
-                                for c in 0..=r {
-                                    sh[q] = ho[r + c * npt];
-                                    q += 1;
-                                }
-                            }
+                            pack_lower(ho, npt, &mut sh[o * packed..(o + 1) * packed]);
                         }
                     }
                 })
@@ -717,13 +712,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
                             let f = PointFn { div_weight, mu: Some(mu), ..self.point_fn(t, local) };
                             self.hs_point_local(local, off, pl);
                             ad::hessian_into(&f, pl, pg, ph);
-                            let mut q = 0;
-                            for r in 0..npt {
-                                for c in 0..=r {
-                                    out[q] = ph[r + c * npt];
-                                    q += 1;
-                                }
-                            }
+                            pack_lower(ph, npt, out);
                         }
                     })
                 })
@@ -745,6 +734,18 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
 
 /// Length of the stack buffers of [`with_buffer`].
 const BUFFER_LEN: usize = 64;
+
+/// The lower triangle of the column-major n × n matrix `h`, row by row (entries (r, c), c ≤ r),
+/// into the first n(n + 1)/2 entries of `out`: the packed order of the Hessian blocks.
+fn pack_lower(h: &[f64], n: usize, out: &mut [f64]) {
+    let mut q = 0;
+    for r in 0..n {
+        for c in 0..=r {
+            out[q] = h[r + c * n];
+            q += 1;
+        }
+    }
+}
 
 /// Calls `f` with a zeroed buffer of length `len`, on the stack when `len ≤ 64` (of 8 or 64
 /// entries: only those are zeroed).
@@ -788,7 +789,8 @@ struct PointCache {
 impl PointCache {
     /// The stored derivatives when they are those at `w`.
     fn at(&self, w: &[f64]) -> Option<&[f64]> {
-        (!self.w.is_empty() && self.w == w).then_some(&self.data[..])
+        let same = self.w.len() == w.len() && self.w.iter().zip(w).all(|(a, b)| a.to_bits() == b.to_bits());
+        (!self.w.is_empty() && same).then_some(&self.data[..])
     }
 }
 
@@ -1117,13 +1119,7 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
                         with_buffer(nv, |g| {
                             with_buffer(nv * nv, |h| {
                                 ad::hessian_into(&f, local, g, h);
-                                let mut slot = 0;
-                                for i in 0..nv {
-                                    for j in 0..=i {
-                                        out[slot] = h[i + j * nv];
-                                        slot += 1;
-                                    }
-                                }
+                                pack_lower(h, nv, out);
                             })
                         })
                     }

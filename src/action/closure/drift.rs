@@ -747,7 +747,7 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::library::{DoubleWell, Ou, VanDerPol};
+    use crate::model::library::{DoubleWell, Lorenz63, Ou, VanDerPol};
     use approx::assert_relative_eq;
 
     fn fd_jacobian<Dr: ClosureDrift>(dr: &Dr, t: f64, lambda: &[f64]) -> Vec<f64> {
@@ -887,6 +887,20 @@ mod tests {
         lambda[q(1, 1)] = -0.5 * p[3];
         lambda[q(0, 1)] = -p[1];
         compare(&vdp, &lambda, &[0.7, -1.3, 0.2, 0.4, -0.6]);
+        // Lorenz-63 (R = 9): precision P = [[5, 1, 0], [1, 4, 0.5], [0, 0.5, 3]] (diagonally
+        // dominant, so positive definite), a = P m with m = (0.3, −0.5, 1.0).
+        let l63 = GaussianDrift::try_new(&Lorenz63, &Lorenz63::NOMINAL).unwrap();
+        let p = [5.0, 1.0, 0.0, 1.0, 4.0, 0.5, 0.0, 0.5, 3.0];
+        let m = [0.3, -0.5, 1.0];
+        let mut lambda = vec![0.0; 9];
+        for i in 0..3 {
+            lambda[i] = (0..3).map(|j| p[i * 3 + j] * m[j]).sum();
+            for j in i..3 {
+                let q = l63.family().quadratic_index(i, j).unwrap();
+                lambda[q] = if i == j { -0.5 * p[i * 3 + i] } else { -p[i * 3 + j] };
+            }
+        }
+        compare(&l63, &lambda, &[0.7, -1.3, 0.2, 0.4, -0.6, 0.1, 0.9, -0.2, 0.5]);
     }
 
     #[test]

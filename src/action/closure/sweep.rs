@@ -522,10 +522,13 @@ impl<D: ClosureDrift> ClosureAction<D> {
             }
         };
         let (fw, g, derivs, restore) = match kept {
-            Some((l, fw, g0)) => {
-                let (g, derivs) = self.backward(events, &fw, true)?;
-                (fw, g, derivs, Some((l, g0)))
-            }
+            Some((l, fw, g0)) => match self.backward(events, &fw, true) {
+                Ok((g, derivs)) => (fw, g, derivs, Some((l, g0))),
+                Err(e) => {
+                    self.cache = Some((l, fw, g0));
+                    return Err(e);
+                }
+            },
             None => {
                 let (fw, g, derivs) = self.value(events, lambda, true)?;
                 (fw, g, derivs, None)
@@ -652,8 +655,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
 
     /// One step of the tangent-linear Runge–Kutta sweep on the first `ncol` columns of
     /// δy (R × nm): the stage tangents δY_i into `dys` (6 R × nm blocks), δy advanced in place;
-    /// `dks` is a workspace. Only the first `ncol` columns of `dys` are written (the others are
-    /// zero tangents, which no caller reads).
+    /// `dks` is a workspace. Only the first `ncol` columns of `dys` and `dks` are written; the
+    /// others hold stale values of earlier calls, and callers read only columns < `ncol`.
     fn tangent_step(
         d: &StepDerivs,
         r: usize,
