@@ -23,7 +23,7 @@
 //!   `nlp::solve` (0.892 × 10⁹ before the caching, 3.37 × 10⁹ before the band solver and the
 //!   allocation-free derivatives), of which derivatives (gradient + Jacobian + Hessian)
 //!   0.228 × 10⁹ (0.240 × 10⁹ before), trial objective and constraints 0.045 × 10⁹, the band
-//!   factorisation 0.155 × 10⁹. Criterion at
+//!   factorisation 0.197 × 10⁹ (with the calls it makes; at 484887c, see docs/map.md). Criterion at
 //!   a770b22: band 154 ms median, faer 192 ms, band kept across solves 109 ms (same run).
 //! - `path_duffing_joint_36k`: 5 iterations, 5 numeric factorisations (plus one); native
 //!   `examples/duffing_large.rs` under that load: `solve_seconds` 9.9 s against 12.3 s before
