@@ -55,7 +55,7 @@ pub(super) fn laplace_variances<P: NlpProblem, K: KktSolver + ?Sized>(
         rhs[i] = 1.0;
         let residual = solver.solve_in_place(&mut rhs);
         let v = rhs[i];
-        if !v.is_finite() || (regularized && !(residual <= 1e-8)) {
+        if !v.is_finite() || (regularized && (residual.is_nan() || residual > 1e-8)) {
             return None;
         }
         out.push(v.max(0.0));
