@@ -216,7 +216,7 @@ pub fn jacobian_into<F: VectorFn + ?Sized>(f: &F, w: &[f64], value: &mut [f64], 
     fn fixed<const N: usize, F: VectorFn + ?Sized>(f: &F, w: &[f64], value: &mut [f64], jac: &mut [f64]) {
         let m = value.len();
         let x: [DualSVec64<N>; N] = std::array::from_fn(|i| DualSVec64::<N>::from_re(w[i]).derivative(i));
-        with_outputs(m, |out: &mut [DualSVec64<N>]| {
+        with_zeros(m, |out: &mut [DualSVec64<N>]| {
             f.eval(&x, out);
             for (i, o) in out.iter().enumerate() {
                 value[i] = o.re;
@@ -271,7 +271,7 @@ pub fn hessians_into<F: VectorFn + ?Sized>(
     ) {
         let m = value.len();
         let x: [Dual2SVec64<N>; N] = std::array::from_fn(|i| Dual2SVec64::<N>::from_re(w[i]).derivative(i));
-        with_outputs(m, |out: &mut [Dual2SVec64<N>]| {
+        with_zeros(m, |out: &mut [Dual2SVec64<N>]| {
             f.eval(&x, out);
             for (r, o) in out.iter().enumerate() {
                 value[r] = o.re;
@@ -333,13 +333,16 @@ impl<F: VectorFn + ?Sized> ScalarFn for Component<'_, F> {
     }
 }
 
-/// Calls `f` with `m ≤ MAX_FIXED_OUT` zeros of `D` on the stack (in an array of 4 or
-/// `MAX_FIXED_OUT`: only those are cleared).
-fn with_outputs<D: Scalar, R>(m: usize, f: impl FnOnce(&mut [D]) -> R) -> R {
-    if m <= 4 {
-        f(&mut zeros::<D, 4>()[..m])
-    } else {
-        f(&mut zeros::<D, MAX_FIXED_OUT>()[..m])
+/// Calls `f` with a buffer of `len` zeros of `D`: on the stack in an array of 2, 4, 8 or 16
+/// entries (the smallest that fits, so that few are cleared: a second-order dual number of 8
+/// inputs has 75 words), on the heap beyond 16.
+pub fn with_zeros<D: Scalar, R>(len: usize, f: impl FnOnce(&mut [D]) -> R) -> R {
+    match len {
+        0..=2 => f(&mut zeros::<D, 2>()[..len]),
+        3..=4 => f(&mut zeros::<D, 4>()[..len]),
+        5..=8 => f(&mut zeros::<D, 8>()[..len]),
+        9..=16 => f(&mut zeros::<D, 16>()[..len]),
+        _ => f(&mut vec![D::from(0.0); len]),
     }
 }
 

@@ -295,7 +295,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
     /// Calls `f` with the full θ (fixed values with the estimated ones `est` put in), held on
     /// the stack when θ is short, so the per-point AD evaluations do not allocate.
     fn with_theta<D: Scalar, R>(&self, est: &[D], f: impl FnOnce(&[D]) -> R) -> R {
-        with_dual_buffer(self.problem.theta.len(), |buf| {
+        ad::with_zeros(self.problem.theta.len(), |buf| {
             for (b, &v) in buf.iter_mut().zip(self.problem.theta.iter()) {
                 *b = D::from(v);
             }
@@ -759,20 +759,6 @@ fn with_buffer<R>(len: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
     }
 }
 
-/// Calls `f` with a buffer of `len` zeros of `D`, on the stack when `len ≤ STACK_LEN` (of 2,
-/// 4 or 8 entries: a second-order dual number of 8 inputs has 75 words to clear).
-fn with_dual_buffer<D: Scalar, R>(len: usize, f: impl FnOnce(&mut [D]) -> R) -> R {
-    if len <= 2 {
-        f(&mut ad::zeros::<D, 2>()[..len])
-    } else if len <= 4 {
-        f(&mut ad::zeros::<D, 4>()[..len])
-    } else if len <= STACK_LEN {
-        f(&mut ad::zeros::<D, STACK_LEN>()[..len])
-    } else {
-        f(&mut vec![D::from(0.0); len])
-    }
-}
-
 /// The per-point derivatives of the Hermite–Simpson pieces at one variable vector `w`:
 /// for piece k and Lobatto point i, at `(3k + i) · len` (`len` = [`PathNlp::hs_cache_len`]),
 /// the Jacobian of the rate [f; h] in (s_i, θ_d) (ns × npt, column-major), then the packed
@@ -876,7 +862,7 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> PointFn<'_, '_, S, O> {
                 D::from(0.0)
             }
         };
-        with_dual_buffer(nt, |theta| {
+        ad::with_zeros(nt, |theta| {
             fill(theta);
             run(theta, rate)
         })
@@ -891,7 +877,7 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> ScalarFn for PointFn<'_, '_, S, O
         let ns = self.nlp.problem.sde.dims().states();
         let div = self.div_weight != 0.0;
         match self.mu {
-            Some(mu) => with_dual_buffer(ns, |r| {
+            Some(mu) => ad::with_zeros(ns, |r| {
                 let mut v = self.eval_into(w, r, div) * self.div_weight;
                 for (ri, &m) in r.iter().zip(mu) {
                     v += *ri * m;

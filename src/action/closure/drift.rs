@@ -277,7 +277,7 @@ impl<S: Sde + ?Sized> GaussianDrift<'_, S> {
     ) -> std::result::Result<(), Unrealizable> {
         let ld: [DualSVec64<N>; N] =
             std::array::from_fn(|i| DualSVec64::<N>::from_re(lambda[i]).derivative(i));
-        let mut out = [DualSVec64::<N>::from_re(0.0); N];
+        let mut out: [DualSVec64<N>; N] = crate::model::ad::zeros();
         self.w_generic(t, &ld, &mut out)?;
         for (a, o) in out.iter().enumerate() {
             w[a] = o.re;
@@ -302,7 +302,7 @@ impl<S: Sde + ?Sized> GaussianDrift<'_, S> {
     ) -> std::result::Result<(), Unrealizable> {
         let ld: [Dual2SVec64<N>; N] =
             std::array::from_fn(|i| Dual2SVec64::<N>::from_re(lambda[i]).derivative(i));
-        let mut out = [Dual2SVec64::<N>::from_re(0.0); N];
+        let mut out: [Dual2SVec64<N>; N] = crate::model::ad::zeros();
         self.w_generic(t, &ld, &mut out)?;
         hess[..N * N].fill(0.0);
         for (a, o) in out.iter().enumerate() {
