@@ -96,6 +96,25 @@ pub trait Sde {
         true
     }
 
+    /// The first and second derivatives of f, h and div_x f at (t, x, z, θ) in closed form,
+    /// written into `out` (see [`DriftDerivatives`]; outputs numbered f, then h, then div_x f,
+    /// inputs w = (x, z, θ)). Returns `false`, writing nothing, when the model has no closed
+    /// form (the default): a caller then differentiates [`Sde::drift`], [`Sde::clean_drift`]
+    /// and [`Sde::divergence`] automatically. The built-in models override it (the
+    /// transcriptions' per-point derivatives, `000_74b95e149527c64e.txt (2.49)`), tested against
+    /// that automatic differentiation.
+    fn drift_derivatives(
+        &self,
+        t: f64,
+        x: &[f64],
+        z: &[f64],
+        theta: &[f64],
+        out: &mut DriftDerivatives,
+    ) -> bool {
+        let _ = (t, x, z, theta, out);
+        false
+    }
+
     // ----- provided methods -------------------------------------------------------------
 
     /// Names of all states: noisy then clean.
@@ -204,6 +223,59 @@ pub trait Sde {
         self.noise_energy(t, xdot, x, z, theta)?;
         let (value, gradient, hessian) = ad::hessian(&EnergyFn { sde: self, t, dims: d }, &w);
         Some(SecondOrder { value, gradient, hessian })
+    }
+}
+
+/// The derivatives written by [`Sde::drift_derivatives`]: for the outputs o = 0..ns of the
+/// state drift [f; h] and o = ns of div_x f, the first derivatives ∂o/∂w_i and the second
+/// derivatives ∂²o/∂w_i∂w_j with respect to the inputs w = (x, z, θ) (θ in full). The caller
+/// keeps a subset of the inputs (the others are dropped on writing) and of the outputs (the
+/// first `outputs`), and zeroes the buffers before the call, so that a model adds only its
+/// nonzero derivatives.
+#[derive(Debug)]
+pub struct DriftDerivatives<'a> {
+    /// For each input of w, its column among the kept inputs, or [`DriftDerivatives::DROPPED`].
+    cols: &'a [usize],
+    /// Number of kept inputs n.
+    n: usize,
+    /// Number of kept outputs.
+    outputs: usize,
+    /// First derivatives, outputs × n, column-major.
+    jac: &'a mut [f64],
+    /// Second derivatives: per output, the packed lower triangle (row by row) of its n × n
+    /// Hessian.
+    hess: &'a mut [f64],
+}
+
+impl<'a> DriftDerivatives<'a> {
+    /// The column of an input that is not kept.
+    pub const DROPPED: usize = usize::MAX;
+
+    /// Derivatives into `jac` (`outputs × n`, column-major) and `hess` (`outputs` packed lower
+    /// triangles of n(n + 1)/2 entries, row by row), both zeroed by the caller; `cols` maps
+    /// each input of w = (x, z, θ) to its column 0..n or to [`Self::DROPPED`].
+    pub fn new(cols: &'a [usize], n: usize, outputs: usize, jac: &'a mut [f64], hess: &'a mut [f64]) -> Self {
+        debug_assert!(jac.len() >= outputs * n && hess.len() >= outputs * n * (n + 1) / 2);
+        DriftDerivatives { cols, n, outputs, jac, hess }
+    }
+
+    /// Adds `v` to ∂(output o)/∂w_i.
+    #[inline]
+    pub fn first(&mut self, o: usize, i: usize, v: f64) {
+        let c = self.cols[i];
+        if o < self.outputs && c != Self::DROPPED {
+            self.jac[o + c * self.outputs] += v;
+        }
+    }
+
+    /// Adds `v` to ∂²(output o)/∂w_i∂w_j (i and j in either order; the entry is stored once).
+    #[inline]
+    pub fn second(&mut self, o: usize, i: usize, j: usize, v: f64) {
+        let (a, b) = (self.cols[i], self.cols[j]);
+        if o < self.outputs && a != Self::DROPPED && b != Self::DROPPED {
+            let (r, c) = (a.max(b), a.min(b));
+            self.hess[o * self.n * (self.n + 1) / 2 + r * (r + 1) / 2 + c] += v;
+        }
     }
 }
 

@@ -17,7 +17,7 @@ use num_dual::Dual;
 use super::{Grid, Merit, Transcription};
 use crate::estimate::EstimationProblem;
 use crate::model::ad::{self, ScalarFn, VectorFn};
-use crate::model::{Observation, Scalar, Sde};
+use crate::model::{DriftDerivatives, Observation, Scalar, Sde};
 use crate::nlp::NlpProblem;
 
 /// Length of the stack buffers of the per-point AD evaluations (θ, the rate); longer vectors
@@ -106,6 +106,12 @@ pub struct PathNlp<'a, S: Sde + ?Sized, O: Observation + ?Sized> {
     /// Positions in `problem.estimate` of the estimated θ that may enter the dynamics
     /// ([`Sde::drift_uses_param`]): the θ part of a Lobatto point's local vector.
     point_theta: Vec<usize>,
+    /// For each Lobatto point i of a Hermite–Simpson piece, the position in the piece's local
+    /// vector of each entry of the point's (s_i, θ_d).
+    point_index: [Vec<usize>; 3],
+    /// For each input of w = (x, z, θ) of [`Sde::drift_derivatives`], its position in a
+    /// point's (s_i, θ_d), or [`DriftDerivatives::DROPPED`].
+    point_cols: Vec<usize>,
     /// Hermite–Simpson per-point derivatives, computed by `gradient` and reused by
     /// `jacobian_values` and `hessian_values` at the same variable vector.
     cache: PointCache,
@@ -182,6 +188,18 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         let point_theta: Vec<usize> =
             (0..ne).filter(|&j| problem.sde.drift_uses_param(problem.estimate[j])).collect();
         let npt = ns + point_theta.len();
+        // piece-local vector: s0, sm, s1, (a, b), estimated θ
+        let nv_piece = 3 * ns + 2 * nx + ne;
+        let point_index = [0, ns, 2 * ns].map(|off| {
+            let mut idx: Vec<usize> = (off..off + ns).collect();
+            idx.extend(point_theta.iter().map(|&j| nv_piece - ne + j));
+            idx
+        });
+        let mut point_cols: Vec<usize> = (0..ns).collect();
+        point_cols.extend((0..d.params).map(|i| {
+            let pos = point_theta.iter().position(|&j| problem.estimate[j] == i);
+            pos.map_or(DriftDerivatives::DROPPED, |j| ns + j)
+        }));
         for b in &mut blocks {
             b.jac0 = jac;
             b.hess0 = hess;
@@ -235,6 +253,8 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
             n_hess: hess,
             g_fixed,
             point_theta,
+            point_index,
+            point_cols,
             cache: PointCache::default(),
             initial,
             lower,
@@ -484,17 +504,6 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         }
     }
 
-    /// Scatters a point-local (s_i, θ_d) index into the piece-local vector.
-    fn hs_point_index(&self, nv: usize, off: usize, j: usize) -> usize {
-        let ns = self.problem.sde.dims().states();
-        let ne = self.problem.estimate.len();
-        if j < ns {
-            off + j
-        } else {
-            nv - ne + self.point_theta[j - ns]
-        }
-    }
-
     /// Number of inputs of a Lobatto point's functions, (s_i, θ_d).
     fn hs_point_dim(&self) -> usize {
         self.problem.sde.dims().states() + self.point_theta.len()
@@ -529,7 +538,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
     /// Adds the gradient of −merit of a Hermite–Simpson piece to `grad` (global), point by
     /// point: the energy h(½|a|² + |b|²/24) and, for Onsager–Machlup,
     /// (h/12) Σ α_i div_x f(t_i, s_i). Each point's outputs (the rate and div_x f) are
-    /// differentiated twice in one pass ([`ad::hessians_into`]) and the rate Jacobian and the
+    /// differentiated twice ([`Self::hs_point_derivatives`]) and the rate Jacobian and the
     /// Hessians are stored in `store` (the piece's slice of [`PointCache`]); `ph` is scratch
     /// for the Hessians (length outputs · npt²).
     fn hs_gradient_into(
@@ -544,7 +553,6 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         let d = self.problem.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
         let h = self.grid.step;
-        let nv = local.len();
         for i in 0..nx {
             grad[b.vars[3 * ns + i]] += h * local[3 * ns + i];
             grad[b.vars[3 * ns + nx + i]] += h * local[3 * ns + nx + i] / 12.0;
@@ -552,34 +560,63 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         let om = self.merit == Merit::OnsagerMachlup;
         let (npt, nout, len) = (self.hs_point_dim(), self.hs_point_outputs(), self.hs_cache_len());
         with_buffer(npt, |pl| {
-            with_buffer(nout, |value| {
-                with_buffer(nout * npt, |jr| {
-                    for (i, (t, off, alpha, _, _)) in self.hs_points(k).into_iter().enumerate() {
-                        let f = PointFn { with_div: om, ..self.point_fn(t, local) };
-                        self.hs_point_local(local, off, pl);
-                        ad::hessians_into(&f, pl, value, jr, ph);
-                        if om {
-                            for j in 0..npt {
-                                grad[b.vars[self.hs_point_index(nv, off, j)]] +=
-                                    alpha * h / 12.0 * jr[ns + j * nout];
-                            }
-                        }
-                        let st = &mut store[i * len..(i + 1) * len];
-                        let (sj, sh) = st.split_at_mut(ns * npt);
-                        for j in 0..npt {
-                            for r in 0..ns {
-                                sj[r + j * ns] = jr[r + j * nout];
-                            }
-                        }
-                        let packed = npt * (npt + 1) / 2;
-                        for o in 0..nout {
-                            let ho = &ph[o * npt * npt..(o + 1) * npt * npt];
-                            pack_lower(ho, npt, &mut sh[o * packed..(o + 1) * packed]);
+            with_buffer(nout * npt, |jr| {
+                for (i, (t, off, alpha, _, _)) in self.hs_points(k).into_iter().enumerate() {
+                    let st = &mut store[i * len..(i + 1) * len];
+                    let (sj, sh) = st.split_at_mut(ns * npt);
+                    self.hs_point_derivatives(t, local, off, pl, jr, sh, ph);
+                    if om {
+                        let wgt = alpha * h / 12.0;
+                        for (&li, &g) in self.point_index[i].iter().zip(jr[ns..].iter().step_by(nout)) {
+                            grad[b.vars[li]] += wgt * g;
                         }
                     }
-                })
+                    for (sc, jc) in sj.chunks_exact_mut(ns).zip(jr.chunks_exact(nout)) {
+                        sc.copy_from_slice(&jc[..ns]);
+                    }
+                }
             })
         });
+    }
+
+    /// The first and second derivatives of the outputs of Lobatto point `off` of a piece
+    /// (the rate [f; h] and, for Onsager–Machlup, div_x f) in the point's (s_i, θ_d): the
+    /// Jacobian into `jr` (outputs × npt, column-major), the packed lower triangles of the
+    /// Hessians into `packed`. From the model's closed form ([`Sde::drift_derivatives`]) when it
+    /// has one, else one [`ad::hessians_into`] pass (`pl`, `ph`: scratch of npt and
+    /// outputs · npt² entries).
+    #[allow(clippy::too_many_arguments)]
+    fn hs_point_derivatives(
+        &self,
+        t: f64,
+        local: &[f64],
+        off: usize,
+        pl: &mut [f64],
+        jr: &mut [f64],
+        packed: &mut [f64],
+        ph: &mut [f64],
+    ) {
+        let p = self.problem;
+        let d = p.sde.dims();
+        let (ns, nx) = (d.states(), d.noisy);
+        let (npt, nout) = (self.hs_point_dim(), self.hs_point_outputs());
+        let s = &local[off..off + ns];
+        let closed = self.with_theta(&local[local.len() - p.estimate.len()..], |theta| {
+            jr.fill(0.0);
+            packed.fill(0.0);
+            let mut out = DriftDerivatives::new(&self.point_cols, npt, nout, jr, packed);
+            p.sde.drift_derivatives(t, &s[..nx], &s[nx..], theta, &mut out)
+        });
+        if closed {
+            return;
+        }
+        let f = PointFn { with_div: self.merit == Merit::OnsagerMachlup, ..self.point_fn(t, local) };
+        self.hs_point_local(local, off, pl);
+        with_buffer(nout, |value| ad::hessians_into(&f, pl, value, jr, ph));
+        let tri = npt * (npt + 1) / 2;
+        for (o, ho) in ph.chunks_exact(npt * npt).take(nout).enumerate() {
+            pack_lower(ho, npt, &mut packed[o * tri..(o + 1) * tri]);
+        }
     }
 
     /// Writes the constraint Jacobian of a Hermite–Simpson piece (rows × nv, row-major) into
@@ -616,10 +653,8 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
                                 jr
                             }
                         };
-                        for j in 0..npt {
-                            let c = self.hs_point_index(nv, off, j);
-                            for r in 0..ns {
-                                let v = jr[r + j * ns];
+                        for (&c, jc) in self.point_index[i].iter().zip(jr.chunks_exact(ns)) {
+                            for (r, &v) in jc.iter().enumerate() {
                                 jac[r * nv + c] += w1 * v;
                                 jac[(ns + r) * nv + c] += w2 * v;
                             }
@@ -646,13 +681,11 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
     fn hs_hessian_structure(&self, b: &Block, out: &mut Vec<(usize, usize)>) {
         let d = self.problem.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
-        let nv = b.vars.len();
-        let npt = self.hs_point_dim();
-        for off in [0, ns, 2 * ns] {
-            for r in 0..npt {
-                let vr = b.vars[self.hs_point_index(nv, off, r)];
-                for c in 0..=r {
-                    let vc = b.vars[self.hs_point_index(nv, off, c)];
+        for idx in &self.point_index {
+            for (r, &lr) in idx.iter().enumerate() {
+                let vr = b.vars[lr];
+                for &lc in &idx[..=r] {
+                    let vc = b.vars[lc];
                     out.push((vr.max(vc), vr.min(vc)));
                 }
             }

@@ -1,7 +1,7 @@
 //! A bistable (double-well) diffusion in Eyink's notation, `003_d2fc48a470e528fc.txt (0.1)`.
 
 use super::names;
-use crate::model::{Dims, Scalar, Sde};
+use crate::model::{Dims, DriftDerivatives, Scalar, Sde};
 
 /// Gradient dynamics in the quartic double-well potential V(x) = x⁴ − 2x², written with
 /// Eyink's diffusion coefficient D (`003_d2fc48a470e528fc.txt (0.1)`,
@@ -50,6 +50,24 @@ impl Sde for DoubleWell {
     /// $\operatorname{div} f = 4 - 12 x^2$, in closed form.
     fn divergence<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], _theta: &[D]) -> D {
         D::from(4.0) - x[0] * x[0] * 12.0
+    }
+
+    /// f = 4x − 4x³ and div f = 4 − 12x² with their derivatives in closed form:
+    /// f′ = 4 − 12x², f″ = −24x, (div f)′ = −24x, (div f)″ = −24.
+    fn drift_derivatives(
+        &self,
+        _t: f64,
+        x: &[f64],
+        _z: &[f64],
+        _theta: &[f64],
+        out: &mut DriftDerivatives,
+    ) -> bool {
+        let x = x[0];
+        out.first(0, 0, 4.0 - 12.0 * x * x);
+        out.second(0, 0, 0, -24.0 * x);
+        out.first(1, 0, -24.0 * x);
+        out.second(1, 0, 0, -24.0);
+        true
     }
 
     /// D enters G only.

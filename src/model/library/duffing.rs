@@ -1,7 +1,7 @@
 //! The stochastic Duffing oscillator of `000_74b95e149527c64e.txt` Sec. 4.1.1.
 
 use super::names;
-use crate::model::{Dims, Scalar, Sde};
+use crate::model::{Dims, DriftDerivatives, Scalar, Sde};
 
 /// The forced stochastic Duffing oscillator, `000_74b95e149527c64e.txt (4.2)`, `(4.6)`:
 ///
@@ -66,6 +66,36 @@ impl Sde for Duffing {
     /// $\operatorname{div}_x f = -d$ (`000_74b95e149527c64e.txt (4.6)`), in closed form.
     fn divergence<D: Scalar>(&self, _t: D, _x: &[D], _z: &[D], theta: &[D]) -> D {
         -theta[Self::D]
+    }
+
+    /// f, h, div_x f and their derivatives in (x, z, θ) in closed form:
+    /// ∂f/∂(x, z, a, b, d, γ) = (−d, −3az² − b, −z³, −z, −x, cos t), ∂²f/∂z² = −6az,
+    /// ∂²f/∂z∂a = −3z², ∂²f/∂z∂b = −1, ∂²f/∂x∂d = −1; ∂h/∂x = 1; ∂(div_x f)/∂d = −1.
+    fn drift_derivatives(
+        &self,
+        t: f64,
+        x: &[f64],
+        z: &[f64],
+        theta: &[f64],
+        out: &mut DriftDerivatives,
+    ) -> bool {
+        const X: usize = 0;
+        const Z: usize = 1;
+        let th = |i: usize| 2 + i;
+        let (a, b, d, zz) = (theta[Self::A], theta[Self::B], theta[Self::D], z[0]);
+        out.first(0, X, -d);
+        out.first(0, Z, -3.0 * a * zz * zz - b);
+        out.first(0, th(Self::A), -zz * zz * zz);
+        out.first(0, th(Self::B), -zz);
+        out.first(0, th(Self::D), -x[0]);
+        out.first(0, th(Self::GAMMA), t.cos());
+        out.second(0, Z, Z, -6.0 * a * zz);
+        out.second(0, Z, th(Self::A), -3.0 * zz * zz);
+        out.second(0, Z, th(Self::B), -1.0);
+        out.second(0, X, th(Self::D), -1.0);
+        out.first(1, X, 1.0);
+        out.first(2, th(Self::D), -1.0);
+        true
     }
 
     /// Σ_D enters G only, Σ_y the measurements only.

@@ -1,7 +1,7 @@
 //! The stochastic Holmes–Rand oscillator of `000_74b95e149527c64e.txt` Sec. 4.1.3.
 
 use super::names;
-use crate::model::{Dims, Scalar, Sde};
+use crate::model::{Dims, DriftDerivatives, Scalar, Sde};
 
 /// The forced stochastic Holmes–Rand oscillator, `000_74b95e149527c64e.txt (4.8)`
 /// (Sec. 4.1.3), which contains the Duffing and Van der Pol oscillators as special cases:
@@ -72,6 +72,47 @@ impl Sde for HolmesRand {
     /// $\operatorname{div}_x f = -(a + \gamma z^2)$ (`000_74b95e149527c64e.txt (4.8a)`), in closed form.
     fn divergence<D: Scalar>(&self, _t: D, _x: &[D], z: &[D], theta: &[D]) -> D {
         -(theta[Self::A] + theta[Self::GAMMA] * z[0] * z[0])
+    }
+
+    /// f, h, div_x f and their derivatives in (x, z, θ) in closed form:
+    /// ∂f/∂(x, z, a, b, γ, d, φ) = (−(a + γz²), −2γzx − b − 3dz², −x, −z, −z²x, −z³, cos t),
+    /// ∂²f/∂x∂z = −2γz, ∂²f/∂x∂a = −1, ∂²f/∂x∂γ = −z², ∂²f/∂z² = −2γx − 6dz, ∂²f/∂z∂b = −1,
+    /// ∂²f/∂z∂γ = −2zx, ∂²f/∂z∂d = −3z²; ∂h/∂x = 1; ∂(div_x f)/∂(z, a, γ) = (−2γz, −1, −z²),
+    /// ∂²(div_x f)/∂z² = −2γ, ∂²(div_x f)/∂z∂γ = −2z.
+    fn drift_derivatives(
+        &self,
+        t: f64,
+        x: &[f64],
+        z: &[f64],
+        theta: &[f64],
+        out: &mut DriftDerivatives,
+    ) -> bool {
+        const X: usize = 0;
+        const Z: usize = 1;
+        let th = |i: usize| 2 + i;
+        let (a, b, gamma, d) = (theta[Self::A], theta[Self::B], theta[Self::GAMMA], theta[Self::D]);
+        let (x, z) = (x[0], z[0]);
+        out.first(0, X, -(a + gamma * z * z));
+        out.first(0, Z, -2.0 * gamma * z * x - b - 3.0 * d * z * z);
+        out.first(0, th(Self::A), -x);
+        out.first(0, th(Self::B), -z);
+        out.first(0, th(Self::GAMMA), -z * z * x);
+        out.first(0, th(Self::D), -z * z * z);
+        out.first(0, th(Self::PHI), t.cos());
+        out.second(0, X, Z, -2.0 * gamma * z);
+        out.second(0, X, th(Self::A), -1.0);
+        out.second(0, X, th(Self::GAMMA), -z * z);
+        out.second(0, Z, Z, -2.0 * gamma * x - 6.0 * d * z);
+        out.second(0, Z, th(Self::B), -1.0);
+        out.second(0, Z, th(Self::GAMMA), -2.0 * z * x);
+        out.second(0, Z, th(Self::D), -3.0 * z * z);
+        out.first(1, X, 1.0);
+        out.first(2, Z, -2.0 * gamma * z);
+        out.first(2, th(Self::A), -1.0);
+        out.first(2, th(Self::GAMMA), -z * z);
+        out.second(2, Z, Z, -2.0 * gamma);
+        out.second(2, Z, th(Self::GAMMA), -2.0 * z);
+        true
     }
 
     /// Σ_D enters G only, Σ_y the measurements only.

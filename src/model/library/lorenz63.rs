@@ -1,7 +1,7 @@
 //! The Lorenz-63 system with additive noise.
 
 use super::names;
-use crate::model::{Dims, Scalar, Sde};
+use crate::model::{Dims, DriftDerivatives, Scalar, Sde};
 
 /// The stochastic Lorenz-63 system with additive isotropic noise (Lorenz, *Deterministic
 /// nonperiodic flow*, J. Atmos. Sci. 20, 1963, for the drift):
@@ -56,6 +56,44 @@ impl Sde for Lorenz63 {
     /// $\operatorname{div} f = -s - 1 - b$, in closed form.
     fn divergence<D: Scalar>(&self, _t: D, _x: &[D], _z: &[D], theta: &[D]) -> D {
         -(theta[Self::SIGMA] + theta[Self::BETA] + 1.0)
+    }
+
+    /// f, div f and their derivatives in (x₁, x₂, x₃, θ) in closed form (f is quadratic: its
+    /// second derivatives are the constants ∂²f₁/∂x₁∂s = −1, ∂²f₁/∂x₂∂s = 1,
+    /// ∂²f₂/∂x₁∂x₃ = −1, ∂²f₂/∂x₁∂ρ = 1, ∂²f₃/∂x₁∂x₂ = 1, ∂²f₃/∂x₃∂β = −1); div f = −s − 1 − β.
+    fn drift_derivatives(
+        &self,
+        _t: f64,
+        x: &[f64],
+        _z: &[f64],
+        theta: &[f64],
+        out: &mut DriftDerivatives,
+    ) -> bool {
+        const S: usize = 3 + Lorenz63::SIGMA;
+        const R: usize = 3 + Lorenz63::RHO;
+        const B: usize = 3 + Lorenz63::BETA;
+        let (s, r, b) = (theta[Self::SIGMA], theta[Self::RHO], theta[Self::BETA]);
+        let (x1, x2, x3) = (x[0], x[1], x[2]);
+        out.first(0, 0, -s);
+        out.first(0, 1, s);
+        out.first(0, S, x2 - x1);
+        out.second(0, 0, S, -1.0);
+        out.second(0, 1, S, 1.0);
+        out.first(1, 0, r - x3);
+        out.first(1, 1, -1.0);
+        out.first(1, 2, -x1);
+        out.first(1, R, x1);
+        out.second(1, 0, 2, -1.0);
+        out.second(1, 0, R, 1.0);
+        out.first(2, 0, x2);
+        out.first(2, 1, x1);
+        out.first(2, 2, -b);
+        out.first(2, B, -x3);
+        out.second(2, 0, 1, 1.0);
+        out.second(2, 2, B, -1.0);
+        out.first(3, S, -1.0);
+        out.first(3, B, -1.0);
+        true
     }
 
     /// Σ_w enters G only.

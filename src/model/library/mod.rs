@@ -37,7 +37,7 @@ pub use van_der_pol::VanDerPol;
 
 use super::observation::{Noise, StateMeasurement};
 use super::prior::Prior;
-use super::{check_len, Dims, Param, Scalar, Sde};
+use super::{check_len, Dims, DriftDerivatives, Param, Scalar, Sde};
 use crate::data::Dataset;
 use crate::estimate::EstimationProblem;
 use crate::{Error, Result};
@@ -136,6 +136,17 @@ impl Sde for BuiltinModel {
 
     fn divergence<D: Scalar>(&self, t: D, x: &[D], z: &[D], theta: &[D]) -> D {
         delegate!(self, m => m.divergence(t, x, z, theta))
+    }
+
+    fn drift_derivatives(
+        &self,
+        t: f64,
+        x: &[f64],
+        z: &[f64],
+        theta: &[f64],
+        out: &mut DriftDerivatives,
+    ) -> bool {
+        delegate!(self, m => m.drift_derivatives(t, x, z, theta, out))
     }
 }
 

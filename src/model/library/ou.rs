@@ -1,7 +1,7 @@
 //! The Ornstein–Uhlenbeck process, the linear-Gaussian reference model.
 
 use super::names;
-use crate::model::{Dims, Scalar, Sde};
+use crate::model::{Dims, DriftDerivatives, Scalar, Sde};
 
 /// The Ornstein–Uhlenbeck process
 ///
@@ -50,6 +50,24 @@ impl Sde for Ou {
     /// $\operatorname{div} f = -\theta$, in closed form.
     fn divergence<D: Scalar>(&self, _t: D, _x: &[D], _z: &[D], theta: &[D]) -> D {
         -theta[Self::THETA]
+    }
+
+    /// f = −θx and div f = −θ with their derivatives in (x, θ, σ) in closed form:
+    /// ∂f/∂(x, θ) = (−θ, −x), ∂²f/∂x∂θ = −1, ∂(div f)/∂θ = −1.
+    fn drift_derivatives(
+        &self,
+        _t: f64,
+        x: &[f64],
+        _z: &[f64],
+        theta: &[f64],
+        out: &mut DriftDerivatives,
+    ) -> bool {
+        const TH: usize = 1 + Ou::THETA;
+        out.first(0, 0, -theta[Self::THETA]);
+        out.first(0, TH, -x[0]);
+        out.second(0, 0, TH, -1.0);
+        out.first(1, TH, -1.0);
+        true
     }
 
     /// Σ enters G only.

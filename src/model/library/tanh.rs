@@ -1,7 +1,7 @@
 //! The tanh motivating example of `001_8aefdf0570c96f51.txt` Sec. 2.
 
 use super::names;
-use crate::model::{Dims, Scalar, Sde};
+use crate::model::{Dims, DriftDerivatives, Scalar, Sde};
 
 /// The scalar SDE of the motivating example, `001_8aefdf0570c96f51.txt` Sec. 2 (Fig. 1):
 ///
@@ -45,6 +45,25 @@ impl Sde for Tanh {
     fn divergence<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], _theta: &[D]) -> D {
         let th = x[0].tanh();
         D::from(1.0) - th * th
+    }
+
+    /// f = tanh x and div f = 1 − tanh² x with their derivatives in closed form: with
+    /// τ = tanh x, f′ = 1 − τ², f″ = −2τ(1 − τ²), (div f)″ = (6τ² − 2)(1 − τ²).
+    fn drift_derivatives(
+        &self,
+        _t: f64,
+        x: &[f64],
+        _z: &[f64],
+        _theta: &[f64],
+        out: &mut DriftDerivatives,
+    ) -> bool {
+        let tau = x[0].tanh();
+        let q = 1.0 - tau * tau;
+        out.first(0, 0, q);
+        out.second(0, 0, 0, -2.0 * tau * q);
+        out.first(1, 0, -2.0 * tau * q);
+        out.second(1, 0, 0, (6.0 * tau * tau - 2.0) * q);
+        true
     }
 
     /// Σ enters G only.

@@ -487,3 +487,81 @@ fn validate_rejects_bad_settings() {
     p.observation.states = vec![2];
     assert!(matches!(p.validate(), Err(Error::InvalidOption { .. })));
 }
+
+/// [f; h; div_x f] of a model as a function of w = (x, z, θ) at a fixed t: the automatic-
+/// differentiation reference of the closed-form `drift_derivatives`.
+struct PointOutputs<'a> {
+    p: &'a Preset,
+    t: f64,
+}
+
+impl crate::model::ad::VectorFn for PointOutputs<'_> {
+    fn dim_in(&self) -> usize {
+        self.p.dims().states() + self.p.dims().params
+    }
+    fn dim_out(&self) -> usize {
+        self.p.dims().states() + 1
+    }
+    fn eval<D: Scalar>(&self, w: &[D], out: &mut [D]) {
+        let d = self.p.dims();
+        let (n, c) = (d.noisy, d.clean);
+        let (x, z, th) = (&w[..n], &w[n..n + c], &w[n + c..]);
+        let t = D::from(self.t);
+        self.p.model.drift(t, x, z, th, &mut out[..n]);
+        self.p.model.clean_drift(t, x, z, th, &mut out[n..n + c]);
+        out[n + c] = self.p.model.divergence(t, x, z, th);
+    }
+}
+
+/// Every built-in model's closed-form `drift_derivatives` (first and second derivatives of f,
+/// h and div_x f) equals the automatic derivatives of `drift`, `clean_drift` and `divergence`
+/// on random points, with every input kept and with every other input dropped (the
+/// transcription keeps the states and some of θ); with only the first outputs kept, the
+/// others are not written.
+#[test]
+fn closed_form_drift_derivatives_equal_automatic_differentiation() {
+    use crate::model::ad::hessians_into;
+    use crate::model::DriftDerivatives;
+    for_every_model(|p, pt| {
+        let d = p.dims();
+        let (ns, n) = (d.states(), d.states() + d.params);
+        let m = ns + 1;
+        let w = concat(&[&pt.x, &pt.z, &pt.theta]);
+        let (mut value, mut jac, mut hess) = (vec![0.0; m], vec![0.0; m * n], vec![0.0; m * n * n]);
+        hessians_into(&PointOutputs { p, t: pt.t }, &w, &mut value, &mut jac, &mut hess);
+        let all: Vec<usize> = (0..n).collect();
+        let odd: Vec<usize> =
+            (0..n).map(|i| if i % 2 == 0 { i / 2 } else { DriftDerivatives::DROPPED }).collect();
+        for (cols, outputs) in [(&all, m), (&odd, m), (&all, ns)] {
+            let kept: Vec<usize> = (0..n).filter(|&i| cols[i] != DriftDerivatives::DROPPED).collect();
+            let k = kept.len();
+            let tri = k * (k + 1) / 2;
+            let (mut cj, mut ch) = (vec![0.0; outputs * k], vec![0.0; m * tri]);
+            let mut out = DriftDerivatives::new(cols, k, outputs, &mut cj, &mut ch);
+            assert!(p.model.drift_derivatives(pt.t, &pt.x, &pt.z, &pt.theta, &mut out), "{}", p.name);
+            for o in 0..outputs {
+                for (a, &i) in kept.iter().enumerate() {
+                    let (u, v) = (cj[o + a * outputs], jac[o + i * m]);
+                    assert!(
+                        relative_eq!(u, v, epsilon = 1e-12, max_relative = 1e-12),
+                        "{} d{o}/d{i}: {u} vs {v}",
+                        p.name
+                    );
+                    for (b, &j) in kept.iter().enumerate().take(a + 1) {
+                        let (u, v) = (ch[o * tri + a * (a + 1) / 2 + b], hess[o * n * n + i + j * n]);
+                        assert!(
+                            relative_eq!(u, v, epsilon = 1e-12, max_relative = 1e-12),
+                            "{} d2{o}/d{i}d{j}: {u} vs {v}",
+                            p.name
+                        );
+                    }
+                }
+            }
+            assert!(
+                ch[outputs * tri..].iter().all(|&v| v == 0.0),
+                "{}: an output not kept was written",
+                p.name
+            );
+        }
+    });
+}

@@ -1,7 +1,7 @@
 //! The stochastic Van der Pol oscillator of `001_8aefdf0570c96f51.txt` Sec. 9.
 
 use super::names;
-use crate::model::{Dims, Scalar, Sde};
+use crate::model::{Dims, DriftDerivatives, Scalar, Sde};
 
 /// The stochastic Van der Pol oscillator, `001_8aefdf0570c96f51.txt` Sec. 9, with states
 /// x = (u, v):
@@ -51,6 +51,37 @@ impl Sde for VanDerPol {
     /// $\operatorname{div} f = \mu (1 - u^2)$ (`001_8aefdf0570c96f51.txt` Sec. 9), in closed form.
     fn divergence<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], theta: &[D]) -> D {
         theta[Self::MU] * (D::from(1.0) - x[0] * x[0])
+    }
+
+    /// f, div f and their derivatives in (u, v, μ, σ) in closed form: ∂f₂/∂(u, v, μ) =
+    /// (−1 − 2μuv, μ(1 − u²), (1 − u²)v), ∂²f₂/∂u² = −2μv, ∂²f₂/∂u∂v = −2μu,
+    /// ∂²f₂/∂u∂μ = −2uv, ∂²f₂/∂v∂μ = 1 − u²; div f = μ(1 − u²).
+    fn drift_derivatives(
+        &self,
+        _t: f64,
+        x: &[f64],
+        _z: &[f64],
+        theta: &[f64],
+        out: &mut DriftDerivatives,
+    ) -> bool {
+        const U: usize = 0;
+        const V: usize = 1;
+        const MU: usize = 2 + VanDerPol::MU;
+        let (u, v, mu) = (x[0], x[1], theta[Self::MU]);
+        let q = 1.0 - u * u;
+        out.first(0, V, 1.0);
+        out.first(1, U, -1.0 - 2.0 * mu * u * v);
+        out.first(1, V, mu * q);
+        out.first(1, MU, q * v);
+        out.second(1, U, U, -2.0 * mu * v);
+        out.second(1, U, V, -2.0 * mu * u);
+        out.second(1, U, MU, -2.0 * u * v);
+        out.second(1, V, MU, q);
+        out.first(2, U, -2.0 * mu * u);
+        out.first(2, MU, q);
+        out.second(2, U, U, -2.0 * mu);
+        out.second(2, U, MU, -2.0 * u);
+        true
     }
 
     /// Σ enters G only.
