@@ -229,9 +229,11 @@ pub trait Sde {
 /// The derivatives written by [`Sde::drift_derivatives`]: for the outputs o = 0..ns of the
 /// state drift [f; h] and o = ns of div_x f, the first derivatives ∂o/∂w_i and the second
 /// derivatives ∂²o/∂w_i∂w_j with respect to the inputs w = (x, z, θ) (θ in full). The caller
-/// keeps a subset of the inputs (the others are dropped on writing) and of the outputs (the
-/// first `outputs`), and zeroes the buffers before the call, so that a model adds only its
-/// nonzero derivatives.
+/// keeps a subset of the inputs (the others are dropped on writing), of the outputs (the first
+/// `outputs`) and of their Hessians ([`Self::with_hessian_slots`]), and zeroes the buffers
+/// before the call, so that a model adds only its nonzero derivatives; the outputs whose
+/// second derivatives a model writes are recorded ([`Self::second_outputs`]), so that a
+/// caller can leave out the Hessians of outputs that are linear.
 #[derive(Debug)]
 pub struct DriftDerivatives<'a> {
     /// For each input of w, its column among the kept inputs, or [`DriftDerivatives::DROPPED`].
@@ -240,23 +242,35 @@ pub struct DriftDerivatives<'a> {
     n: usize,
     /// Number of kept outputs.
     outputs: usize,
+    /// For each kept output, the position of its Hessian in `hess` or
+    /// [`DriftDerivatives::DROPPED`]; `None`: output o at position o.
+    slots: Option<&'a [usize]>,
     /// First derivatives, outputs × n, column-major.
     jac: &'a mut [f64],
-    /// Second derivatives: per output, the packed lower triangle (row by row) of its n × n
-    /// Hessian.
+    /// Second derivatives: per stored output, the packed lower triangle (row by row) of its
+    /// n × n Hessian.
     hess: &'a mut [f64],
+    /// Bit o set: a second derivative of output o (o < 64) in the kept inputs was written.
+    seconds: u64,
 }
 
 impl<'a> DriftDerivatives<'a> {
-    /// The column of an input that is not kept.
+    /// The column of an input (or the position of a Hessian) that is not kept.
     pub const DROPPED: usize = usize::MAX;
 
     /// Derivatives into `jac` (`outputs × n`, column-major) and `hess` (`outputs` packed lower
     /// triangles of n(n + 1)/2 entries, row by row), both zeroed by the caller; `cols` maps
     /// each input of w = (x, z, θ) to its column 0..n or to [`Self::DROPPED`].
     pub fn new(cols: &'a [usize], n: usize, outputs: usize, jac: &'a mut [f64], hess: &'a mut [f64]) -> Self {
-        debug_assert!(jac.len() >= outputs * n && hess.len() >= outputs * n * (n + 1) / 2);
-        DriftDerivatives { cols, n, outputs, jac, hess }
+        debug_assert!(jac.len() >= outputs * n);
+        DriftDerivatives { cols, n, outputs, slots: None, jac, hess, seconds: 0 }
+    }
+
+    /// Stores the Hessian of output o at position `slots[o]` of `hess` (its packed triangle at
+    /// `slots[o] · n(n + 1)/2`), or nowhere when `slots[o]` is [`Self::DROPPED`].
+    pub fn with_hessian_slots(mut self, slots: &'a [usize]) -> Self {
+        self.slots = Some(slots);
+        self
     }
 
     /// Adds `v` to ∂(output o)/∂w_i.
@@ -272,10 +286,23 @@ impl<'a> DriftDerivatives<'a> {
     #[inline]
     pub fn second(&mut self, o: usize, i: usize, j: usize, v: f64) {
         let (a, b) = (self.cols[i], self.cols[j]);
-        if o < self.outputs && a != Self::DROPPED && b != Self::DROPPED {
-            let (r, c) = (a.max(b), a.min(b));
-            self.hess[o * self.n * (self.n + 1) / 2 + r * (r + 1) / 2 + c] += v;
+        if o >= self.outputs || a == Self::DROPPED || b == Self::DROPPED {
+            return;
         }
+        if o < 64 {
+            self.seconds |= 1 << o;
+        }
+        let slot = self.slots.map_or(o, |s| s[o]);
+        if slot != Self::DROPPED {
+            let (r, c) = (a.max(b), a.min(b));
+            self.hess[slot * self.n * (self.n + 1) / 2 + r * (r + 1) / 2 + c] += v;
+        }
+    }
+
+    /// The kept outputs (bit o for output o < 64) of which a second derivative in the kept
+    /// inputs was written, whether or not its Hessian is stored.
+    pub fn second_outputs(&self) -> u64 {
+        self.seconds
     }
 }
 

@@ -412,3 +412,92 @@ fn kept_kkt_solver_reuses_its_analysis() {
     let sd = other.estimate.path.sd.as_ref().expect("Laplace sd");
     assert!(sd.iter().flatten().all(|v| v.is_finite() && *v > 0.0));
 }
+
+/// A built-in model without its closed-form `drift_derivatives`: the transcription then
+/// differentiates the drifts automatically.
+struct WithoutClosedForm<'a>(&'a crate::model::library::BuiltinModel);
+
+impl crate::model::Sde for WithoutClosedForm<'_> {
+    fn dims(&self) -> crate::model::Dims {
+        self.0.dims()
+    }
+    fn noisy_names(&self) -> Vec<String> {
+        self.0.noisy_names()
+    }
+    fn clean_names(&self) -> Vec<String> {
+        self.0.clean_names()
+    }
+    fn param_names(&self) -> Vec<String> {
+        self.0.param_names()
+    }
+    fn drift<D: crate::model::Scalar>(&self, t: D, x: &[D], z: &[D], theta: &[D], out: &mut [D]) {
+        self.0.drift(t, x, z, theta, out)
+    }
+    fn clean_drift<D: crate::model::Scalar>(&self, t: D, x: &[D], z: &[D], theta: &[D], out: &mut [D]) {
+        self.0.clean_drift(t, x, z, theta, out)
+    }
+    fn diffusion<D: crate::model::Scalar>(&self, theta: &[D], out: &mut [D]) {
+        self.0.diffusion(theta, out)
+    }
+    fn drift_uses_param(&self, i: usize) -> bool {
+        self.0.drift_uses_param(i)
+    }
+    fn divergence<D: crate::model::Scalar>(&self, t: D, x: &[D], z: &[D], theta: &[D]) -> D {
+        self.0.divergence(t, x, z, theta)
+    }
+}
+
+/// The gradient, the constraint Jacobian values and the Hessian values (σ_f = 0.7) at `w`.
+fn all_derivatives<P: NlpProblem>(nlp: &mut P, w: &[f64], lambda: &[f64]) -> [Vec<f64>; 3] {
+    let (nj, nh) = (nlp.jacobian_structure().len(), nlp.hessian_structure().len());
+    let (mut g, mut jv, mut hv) = (vec![0.0; w.len()], vec![0.0; nj], vec![0.0; nh]);
+    nlp.gradient(w, &mut g);
+    nlp.jacobian_values(w, &mut jv);
+    nlp.hessian_values(w, 0.7, lambda, &mut hv);
+    [g, jv, hv]
+}
+
+/// The Hermite–Simpson gradient, Jacobian and Hessian from the models' closed-form
+/// `drift_derivatives` equal those from automatic differentiation of the drifts (Duffing with
+/// three estimated parameters in the dynamics and one outside, Van der Pol with μ estimated),
+/// both merits, at two successive points (the second reuses the first's stored outputs).
+#[test]
+fn closed_form_point_derivatives_equal_automatic_ones() {
+    for (name, estimate) in [("duffing", vec![0, 1, 2, 5]), ("van-der-pol", vec![0])] {
+        let p = preset(name).unwrap();
+        let data = data_for(&p, &[0.0, 0.3, 0.6]);
+        let plain = WithoutClosedForm(&p.model);
+        for merit in [Merit::OnsagerMachlup, Merit::Energy] {
+            let closed = p.problem(&data, &estimate);
+            let automatic = EstimationProblem {
+                sde: &plain,
+                observation: closed.observation,
+                theta: closed.theta,
+                theta_prior: closed.theta_prior,
+                estimate: &estimate,
+                x0_prior: closed.x0_prior,
+                z0_prior: closed.z0_prior,
+                data: &data,
+            };
+            let options = PathOptions::new(merit, Transcription::HermiteSimpson).with_step(0.15);
+            let mut a = build_nlp(&closed, &options).unwrap();
+            let mut b = build_nlp(&automatic, &options).unwrap();
+            let (n, m) = (a.num_variables(), a.num_constraints());
+            assert_eq!(a.hessian_structure(), b.hessian_structure());
+            let mut w = vec![0.0; n];
+            a.initial_point(&mut w);
+            let lambda: Vec<f64> = (0..m).map(|r| ((r as f64) * 1.3).cos()).collect();
+            for step in 0..2 {
+                for (i, wi) in w.iter_mut().enumerate() {
+                    *wi += 0.1 * ((i as f64) * 0.7 + step as f64).sin();
+                }
+                let (x, y) = (all_derivatives(&mut a, &w, &lambda), all_derivatives(&mut b, &w, &lambda));
+                for (u, v) in x.iter().zip(&y) {
+                    for (s, t) in u.iter().zip(v) {
+                        assert_relative_eq!(s, t, epsilon = 1e-12, max_relative = 1e-12);
+                    }
+                }
+            }
+        }
+    }
+}

@@ -20,10 +20,6 @@ use crate::model::ad::{self, ScalarFn, VectorFn};
 use crate::model::{DriftDerivatives, Observation, Scalar, Sde};
 use crate::nlp::NlpProblem;
 
-/// Length of the stack buffers of the per-point AD evaluations (θ, the rate); longer vectors
-/// fall back to the heap.
-const STACK_LEN: usize = 8;
-
 /// The four parts of the log-merit of a path (all are log-densities, to be maximised).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct MeritParts<D = f64> {
@@ -112,6 +108,9 @@ pub struct PathNlp<'a, S: Sde + ?Sized, O: Observation + ?Sized> {
     /// For each input of w = (x, z, θ) of [`Sde::drift_derivatives`], its position in a
     /// point's (s_i, θ_d), or [`DriftDerivatives::DROPPED`].
     point_cols: Vec<usize>,
+    /// The constant part of a Hermite–Simpson piece's constraint Jacobian
+    /// ([`hs_jacobian_constant`]; empty for the other transcriptions).
+    hs_jac_constant: Vec<f64>,
     /// Hermite–Simpson per-point derivatives, computed by `gradient` and reused by
     /// `jacobian_values` and `hessian_values` at the same variable vector.
     cache: PointCache,
@@ -211,9 +210,11 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
             };
         }
         let mut g_fixed = vec![0.0; nx * nx];
+        let mut hs_jac_constant = Vec::new();
         if hs {
             // G does not depend on an estimated θ for Hermite–Simpson (checked by the caller)
             problem.sde.diffusion(problem.theta, &mut g_fixed);
+            hs_jac_constant = hs_jacobian_constant(ns, nx, nv_piece, grid.step, &g_fixed);
         }
 
         let mut initial = vec![0.0; n_vars];
@@ -255,6 +256,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
             point_theta,
             point_index,
             point_cols,
+            hs_jac_constant,
             cache: PointCache::default(),
             initial,
             lower,
@@ -295,7 +297,13 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
     /// The parts of the log-merit at `w` (see [`MeritParts`]).
     pub fn merit_parts(&self, w: &[f64]) -> MeritParts<f64> {
         let mut parts = MeritParts::zero();
+        if self.transcription == Transcription::HermiteSimpson {
+            self.hs_merit_parts(w, &mut parts);
+        }
         for b in &self.blocks {
+            if self.hs_piece(b).is_some() {
+                continue;
+            }
             parts += with_buffer(b.vars.len(), |local| {
                 Self::locals_into(b, w, local);
                 self.block_merit(b, local)
@@ -382,23 +390,8 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
                             None => D::from(f64::NAN),
                         };
                     }
-                    Transcription::HermiteSimpson => {
-                        // Linear-in-time noise per piece: w(σ) = a + (σ − ½) b. Simpson's rule
-                        // integrates ½|w|² exactly: h (½|a|² + |b|²/24).
-                        let off = 3 * ns;
-                        let (a, bb) = (&w[off..off + nx], &w[off + nx..off + 2 * nx]);
-                        let sa: D = a.iter().map(|&v| v * v).sum();
-                        let sb: D = bb.iter().map(|&v| v * v).sum();
-                        out.energy = -(sa * 0.5 + sb / 24.0) * h;
-                        if self.merit == Merit::OnsagerMachlup {
-                            let tm = 0.5 * (t0 + t1);
-                            let (s0, sm, s1) = (&w[..ns], &w[ns..2 * ns], &w[2 * ns..3 * ns]);
-                            let div =
-                                |t: f64, s: &[D]| p.sde.divergence(D::from(t), &s[..nx], &s[nx..], theta);
-                            // −½ ∫ div_x f dt by Simpson's rule, 000 (2.49).
-                            out.divergence = -(div(t0, s0) + div(tm, sm) * 4.0 + div(t1, s1)) * (h / 12.0);
-                        }
-                    }
+                    // evaluated for all pieces at once by `hs_merit_parts`
+                    Transcription::HermiteSimpson => {}
                 }
             }
         }
@@ -435,43 +428,94 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
                     out[i] = s1[nx + i] - s0[nx + i] - h0[i] * h;
                 }
             }
-            Transcription::HermiteSimpson => {
-                let tm = 0.5 * (t0 + t1);
-                let (s0, sm, s1) = (&w[..ns], &w[ns..2 * ns], &w[2 * ns..3 * ns]);
-                let off = 3 * ns;
+            // evaluated for all pieces at once by `hs_constraints`
+            Transcription::HermiteSimpson => {}
+        }
+    }
+
+    /// The Hermite–Simpson parts of the log-merit, added to `parts` piece by piece: the energy
+    /// −h(½|a|² + |b|²/24) (Simpson's rule integrates ½|w|² of the linear-in-time noise
+    /// w(σ) = a + (σ − ½) b of a piece exactly) and, for Onsager–Machlup, −½∫div_x f dt by
+    /// Simpson's rule (000 (2.49)), div_x f at each node evaluated once (the end point of piece
+    /// k is the start point of piece k + 1).
+    fn hs_merit_parts(&self, w: &[f64], parts: &mut MeritParts<f64>) {
+        let p = self.problem;
+        let d = p.sde.dims();
+        let (ns, nx, n) = (d.states(), d.noisy, self.grid.intervals);
+        let h = self.grid.step;
+        let (mid0, noise0) = ((n + 1) * ns, (2 * n + 1) * ns);
+        let om = self.merit == Merit::OnsagerMachlup;
+        self.with_theta(&w[self.n_vars - p.estimate.len()..], |theta| {
+            let div =
+                |t: f64, s: &[f64]| if om { p.sde.divergence(t, &s[..nx], &s[nx..], theta) } else { 0.0 };
+            let mut div0 = div(self.grid.time(0), &w[..ns]);
+            for k in 0..n {
+                let (t0, t1) = (self.grid.time(k), self.grid.time(k + 1));
+                let off = noise0 + k * 2 * nx;
                 let (a, bb) = (&w[off..off + nx], &w[off + nx..off + 2 * nx]);
-                // G does not depend on an estimated θ for Hermite–Simpson (checked by the caller)
-                let g = &self.g_fixed;
-                // ṡ = [f + G w; h] at the three Lobatto points, w = a + (σ − ½) b.
-                let rate = |t: f64, s: &[D], sigma: f64, v: &mut [D]| {
-                    p.sde.drift(D::from(t), &s[..nx], &s[nx..], theta, &mut v[..nx]);
-                    p.sde.clean_drift(D::from(t), &s[..nx], &s[nx..], theta, &mut v[nx..]);
-                    for i in 0..nx {
-                        for j in 0..nx {
-                            v[i] += (a[j] + bb[j] * (sigma - 0.5)) * g[i + j * nx];
-                        }
-                    }
-                };
-                let mut heap = Vec::new();
-                let mut stack: [D; 3 * STACK_LEN] = ad::zeros();
-                let r = if ns <= STACK_LEN {
-                    &mut stack[..3 * ns]
-                } else {
-                    heap.resize(3 * ns, D::from(0.0));
-                    &mut heap[..]
-                };
+                let sa: f64 = a.iter().map(|&v| v * v).sum();
+                let sb: f64 = bb.iter().map(|&v| v * v).sum();
+                let mut piece = MeritParts::zero();
+                piece.energy = -(sa * 0.5 + sb / 24.0) * h;
+                if om {
+                    let divm = div(0.5 * (t0 + t1), &w[mid0 + k * ns..mid0 + (k + 1) * ns]);
+                    let div1 = div(t1, &w[(k + 1) * ns..(k + 2) * ns]);
+                    piece.divergence = -(div0 + divm * 4.0 + div1) * (h / 12.0);
+                    div0 = div1;
+                }
+                *parts += piece;
+            }
+        })
+    }
+
+    /// The Hermite–Simpson defects of every piece into `c` (piece k's 2ns rows from 2ns·k):
+    /// with the rates ṡ = [f + G w; h] at the three Lobatto points, w = a + (σ − ½) b, Simpson's
+    /// quadrature s1 − s0 − (h/6)(ṡ0 + 4ṡm + ṡ1) and the Hermite midpoint
+    /// sm − ½(s0 + s1) − (h/8)(ṡ0 − ṡ1) (000 Ch. 4). The drifts at each node are evaluated once
+    /// (the end point of piece k is the start point of piece k + 1).
+    fn hs_constraints(&self, w: &[f64], c: &mut [f64]) {
+        let p = self.problem;
+        let d = p.sde.dims();
+        let (ns, nx, n) = (d.states(), d.noisy, self.grid.intervals);
+        let h = self.grid.step;
+        let (mid0, noise0) = ((n + 1) * ns, (2 * n + 1) * ns);
+        // G does not depend on an estimated θ for Hermite–Simpson (checked by the caller)
+        let g = &self.g_fixed;
+        let [(_, _, sg0), (_, _, sgm), (_, _, sg1)] = HS_WEIGHTS;
+        self.with_theta(&w[self.n_vars - p.estimate.len()..], |theta| {
+            let drift = |t: f64, s: &[f64], v: &mut [f64]| {
+                p.sde.drift(t, &s[..nx], &s[nx..], theta, &mut v[..nx]);
+                p.sde.clean_drift(t, &s[..nx], &s[nx..], theta, &mut v[nx..]);
+            };
+            with_buffer(3 * ns, |r| {
                 let (r0, rest) = r.split_at_mut(ns);
                 let (rm, r1) = rest.split_at_mut(ns);
-                rate(t0, s0, 0.0, r0);
-                rate(tm, sm, 0.5, rm);
-                rate(t1, s1, 1.0, r1);
-                // Hermite–Simpson defects (000 Ch. 4): Simpson quadrature and Hermite midpoint.
-                for i in 0..ns {
-                    out[i] = s1[i] - s0[i] - (r0[i] + rm[i] * 4.0 + r1[i]) * (h / 6.0);
-                    out[ns + i] = sm[i] - (s0[i] + s1[i]) * 0.5 - (r0[i] - r1[i]) * (h / 8.0);
+                drift(self.grid.time(0), &w[..ns], r0);
+                for (k, out) in c.chunks_exact_mut(2 * ns).enumerate().take(n) {
+                    let (t0, t1) = (self.grid.time(k), self.grid.time(k + 1));
+                    let (s0, s1) = (&w[k * ns..(k + 1) * ns], &w[(k + 1) * ns..(k + 2) * ns]);
+                    let sm = &w[mid0 + k * ns..mid0 + (k + 1) * ns];
+                    let off = noise0 + k * 2 * nx;
+                    let (a, bb) = (&w[off..off + nx], &w[off + nx..off + 2 * nx]);
+                    drift(0.5 * (t0 + t1), sm, rm);
+                    drift(t1, s1, r1);
+                    for i in 0..ns {
+                        let (mut v0, mut vm, mut v1) = (r0[i], rm[i], r1[i]);
+                        if i < nx {
+                            for j in 0..nx {
+                                let gv = g[i + j * nx];
+                                v0 += (a[j] + bb[j] * sg0) * gv;
+                                vm += (a[j] + bb[j] * sgm) * gv;
+                                v1 += (a[j] + bb[j] * sg1) * gv;
+                            }
+                        }
+                        out[i] = s1[i] - s0[i] - (v0 + vm * 4.0 + v1) * (h / 6.0);
+                        out[ns + i] = sm[i] - (s0[i] + s1[i]) * 0.5 - (v0 - v1) * (h / 8.0);
+                    }
+                    r0.copy_from_slice(r1);
                 }
-            }
-        }
+            })
+        })
     }
 
     /// The piece index of a Hermite–Simpson interval block (`None` for every other block).
@@ -489,7 +533,8 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         let ns = self.problem.sde.dims().states();
         let (t0, t1) = (self.grid.time(k), self.grid.time(k + 1));
         // (t, offset, α, β, σ − ½)
-        [(t0, 0, 1.0, 1.0, -0.5), (0.5 * (t0 + t1), ns, 4.0, 0.0, 0.0), (t1, 2 * ns, 1.0, -1.0, 0.5)]
+        let [(a0, b0, s0), (am, bm, sm), (a1, b1, s1)] = HS_WEIGHTS;
+        [(t0, 0, a0, b0, s0), (0.5 * (t0 + t1), ns, am, bm, sm), (t1, 2 * ns, a1, b1, s1)]
     }
 
     /// The point-local vector (s_i, θ_d) of Lobatto point `off` of a piece's local vector,
@@ -515,13 +560,6 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         self.problem.sde.dims().states() + usize::from(self.merit == Merit::OnsagerMachlup)
     }
 
-    /// Length of one Lobatto point's entry in [`PointCache`]: the rate Jacobian (ns × npt),
-    /// then the packed lower triangles of the Hessians of the point's outputs.
-    fn hs_cache_len(&self) -> usize {
-        let (ns, npt) = (self.problem.sde.dims().states(), self.hs_point_dim());
-        ns * npt + self.hs_point_outputs() * npt * (npt + 1) / 2
-    }
-
     /// A Lobatto point's function at time `t` for a piece's local vector.
     fn point_fn<'b>(&'b self, t: f64, local: &'b [f64]) -> PointFn<'b, 'a, S, O> {
         let ne = self.problem.estimate.len();
@@ -535,144 +573,193 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         }
     }
 
-    /// Adds the gradient of −merit of a Hermite–Simpson piece to `grad` (global), point by
-    /// point: the energy h(½|a|² + |b|²/24) and, for Onsager–Machlup,
-    /// (h/12) Σ α_i div_x f(t_i, s_i). Each point's outputs (the rate and div_x f) are
-    /// differentiated twice ([`Self::hs_point_derivatives`]) and the rate Jacobian and the
-    /// Hessians are stored in `store` (the piece's slice of [`PointCache`]); `ph` is scratch
-    /// for the Hessians (length outputs · npt²).
-    fn hs_gradient_into(
-        &self,
-        k: usize,
-        b: &Block,
-        local: &[f64],
-        grad: &mut [f64],
-        store: &mut [f64],
-        ph: &mut [f64],
-    ) {
+    /// The [`PointCache`] entry of Lobatto point i of piece k: the nodes come first (the end
+    /// point of piece k is the start point of piece k + 1, so the two share one entry), then
+    /// the midpoints.
+    fn hs_entry(&self, k: usize, i: usize) -> usize {
+        match i {
+            0 => k,
+            1 => self.grid.intervals + 1 + k,
+            _ => k + 1,
+        }
+    }
+
+    /// Fills `cache` (see [`PointCache`]) with the derivatives of the Lobatto points' outputs
+    /// at the variable vector `w`: each grid node and each midpoint once
+    /// ([`Self::hs_point_derivatives`]). The Hessians of the outputs that no point has shown
+    /// second derivatives for are left out; when a point shows one (at the first call, or for
+    /// a model whose second derivatives depend on the point), its output is added and the
+    /// points are differentiated again.
+    fn hs_points_into(&self, w: &[f64], cache: &mut PointCache) {
+        let ns = self.problem.sde.dims().states();
+        let n = self.grid.intervals;
+        let (npt, nout) = (self.hs_point_dim(), self.hs_point_outputs());
+        let theta_e = &w[self.n_vars - self.problem.estimate.len()..];
+        if cache.slots.len() != nout {
+            // up to 64 outputs are tracked; more are all stored
+            cache.stored = if nout > 64 { (0..nout).collect() } else { Vec::new() };
+            cache.slots = (0..nout).map(|o| if nout > 64 { o } else { DriftDerivatives::DROPPED }).collect();
+        }
+        let mut ph = vec![0.0; nout * npt * npt];
+        loop {
+            cache.len = nout * npt + cache.stored.len() * npt * (npt + 1) / 2;
+            let stored: u64 = cache.stored.iter().filter(|&&o| o < 64).fold(0, |m, &o| m | 1 << o);
+            let PointCache { data, slots, len, .. } = cache;
+            data.resize((2 * n + 1) * *len, 0.0);
+            let missing = with_buffer(npt, |pl| {
+                for (q, entry) in data.chunks_exact_mut(*len).enumerate() {
+                    // node q, or the midpoint of piece q − N − 1 (states after the nodes' in w)
+                    let t = if q <= n {
+                        self.grid.time(q)
+                    } else {
+                        0.5 * (self.grid.time(q - n - 1) + self.grid.time(q - n))
+                    };
+                    let (jr, packed) = entry.split_at_mut(nout * npt);
+                    let s = &w[q * ns..(q + 1) * ns];
+                    let seconds = self.hs_point_derivatives(t, s, theta_e, slots, pl, jr, packed, &mut ph);
+                    if seconds & !stored != 0 {
+                        return seconds & !stored;
+                    }
+                }
+                0
+            });
+            if missing == 0 {
+                return;
+            }
+            cache.stored.extend((0..nout).filter(|&o| missing >> o & 1 == 1));
+            cache.stored.sort_unstable();
+            for (j, &o) in cache.stored.iter().enumerate() {
+                cache.slots[o] = j;
+            }
+        }
+    }
+
+    /// Adds the gradient of −merit of a Hermite–Simpson piece to `grad` (global): the energy
+    /// h(½|a|² + |b|²/24) and, for Onsager–Machlup, (h/12) Σ α_i div_x f(t_i, s_i), whose
+    /// gradients at the three points are read from `cache` (filled by
+    /// [`Self::hs_points_into`] at `w`).
+    fn hs_gradient_into(&self, k: usize, b: &Block, w: &[f64], grad: &mut [f64], cache: &PointCache) {
         let d = self.problem.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
         let h = self.grid.step;
-        for i in 0..nx {
-            grad[b.vars[3 * ns + i]] += h * local[3 * ns + i];
-            grad[b.vars[3 * ns + nx + i]] += h * local[3 * ns + nx + i] / 12.0;
+        for &v in &b.vars[3 * ns..3 * ns + nx] {
+            grad[v] += h * w[v];
         }
-        let om = self.merit == Merit::OnsagerMachlup;
-        let (npt, nout, len) = (self.hs_point_dim(), self.hs_point_outputs(), self.hs_cache_len());
-        with_buffer(npt, |pl| {
-            with_buffer(nout * npt, |jr| {
-                for (i, (t, off, alpha, _, _)) in self.hs_points(k).into_iter().enumerate() {
-                    let st = &mut store[i * len..(i + 1) * len];
-                    let (sj, sh) = st.split_at_mut(ns * npt);
-                    self.hs_point_derivatives(t, local, off, pl, jr, sh, ph);
-                    if om {
-                        let wgt = alpha * h / 12.0;
-                        for (&li, &g) in self.point_index[i].iter().zip(jr[ns..].iter().step_by(nout)) {
-                            grad[b.vars[li]] += wgt * g;
-                        }
-                    }
-                    for (sc, jc) in sj.chunks_exact_mut(ns).zip(jr.chunks_exact(nout)) {
-                        sc.copy_from_slice(&jc[..ns]);
-                    }
-                }
-            })
-        });
+        for &v in &b.vars[3 * ns + nx..3 * ns + 2 * nx] {
+            grad[v] += h * w[v] / 12.0;
+        }
+        if self.merit != Merit::OnsagerMachlup {
+            return;
+        }
+        let nout = self.hs_point_outputs();
+        for (i, (_, _, alpha, _, _)) in self.hs_points(k).into_iter().enumerate() {
+            let e = self.hs_entry(k, i) * cache.len;
+            let wgt = alpha * h / 12.0;
+            for (&li, &g) in self.point_index[i].iter().zip(cache.data[e + ns..].iter().step_by(nout)) {
+                grad[b.vars[li]] += wgt * g;
+            }
+        }
     }
 
-    /// The first and second derivatives of the outputs of Lobatto point `off` of a piece
-    /// (the rate [f; h] and, for Onsager–Machlup, div_x f) in the point's (s_i, θ_d): the
-    /// Jacobian into `jr` (outputs × npt, column-major), the packed lower triangles of the
-    /// Hessians into `packed`. From the model's closed form ([`Sde::drift_derivatives`]) when it
-    /// has one, else one [`ad::hessians_into`] pass (`pl`, `ph`: scratch of npt and
-    /// outputs · npt² entries).
+    /// The first and second derivatives of the outputs of a Lobatto point at time `t` with
+    /// states `s` (the rate [f; h] and, for Onsager–Machlup, div_x f) in the point's
+    /// (s, θ_d), `theta_e` the estimated θ: the Jacobian into `jr` (outputs × npt,
+    /// column-major), the packed lower triangles of the Hessians of the outputs o with
+    /// `slots[o]` ≠ [`DriftDerivatives::DROPPED`] into `packed` (at `slots[o]`). From the
+    /// model's closed form ([`Sde::drift_derivatives`]) when it has one, else one
+    /// [`ad::hessians_into`] pass (`pl`, `ph`: scratch of npt and outputs · npt² entries).
+    /// Returns the outputs (bit o) with second derivatives: those the closed form wrote, or
+    /// all of them.
     #[allow(clippy::too_many_arguments)]
     fn hs_point_derivatives(
         &self,
         t: f64,
-        local: &[f64],
-        off: usize,
+        s: &[f64],
+        theta_e: &[f64],
+        slots: &[usize],
         pl: &mut [f64],
         jr: &mut [f64],
         packed: &mut [f64],
         ph: &mut [f64],
-    ) {
+    ) -> u64 {
         let p = self.problem;
         let d = p.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
         let (npt, nout) = (self.hs_point_dim(), self.hs_point_outputs());
-        let s = &local[off..off + ns];
-        let closed = self.with_theta(&local[local.len() - p.estimate.len()..], |theta| {
+        let closed = self.with_theta(theta_e, |theta| {
             jr.fill(0.0);
             packed.fill(0.0);
-            let mut out = DriftDerivatives::new(&self.point_cols, npt, nout, jr, packed);
-            p.sde.drift_derivatives(t, &s[..nx], &s[nx..], theta, &mut out)
+            let mut out =
+                DriftDerivatives::new(&self.point_cols, npt, nout, jr, packed).with_hessian_slots(slots);
+            p.sde.drift_derivatives(t, &s[..nx], &s[nx..], theta, &mut out).then(|| out.second_outputs())
         });
-        if closed {
-            return;
+        if let Some(seconds) = closed {
+            return seconds;
         }
-        let f = PointFn { with_div: self.merit == Merit::OnsagerMachlup, ..self.point_fn(t, local) };
-        self.hs_point_local(local, off, pl);
+        let om = self.merit == Merit::OnsagerMachlup;
+        let f = PointFn { nlp: self, t, theta_e, with_div: om, div_weight: 0.0, mu: None };
+        pl[..ns].copy_from_slice(s);
+        for (o, &j) in pl[ns..].iter_mut().zip(&self.point_theta) {
+            *o = theta_e[j];
+        }
         with_buffer(nout, |value| ad::hessians_into(&f, pl, value, jr, ph));
         let tri = npt * (npt + 1) / 2;
-        for (o, ho) in ph.chunks_exact(npt * npt).take(nout).enumerate() {
-            pack_lower(ho, npt, &mut packed[o * tri..(o + 1) * tri]);
+        for (&j, ho) in slots.iter().zip(ph.chunks_exact(npt * npt)) {
+            if j != DriftDerivatives::DROPPED {
+                pack_lower(ho, npt, &mut packed[j * tri..(j + 1) * tri]);
+            }
+        }
+        if nout >= 64 {
+            u64::MAX
+        } else {
+            (1 << nout) - 1
         }
     }
 
     /// Writes the constraint Jacobian of a Hermite–Simpson piece (rows × nv, row-major) into
-    /// `jac`, from the rate Jacobians at its three points (see [`Self::block_constraints`] for
-    /// the defects).
-    /// `cached`: the piece's slice of [`PointCache`] when it holds the current point.
-    fn hs_jacobian_into(&self, k: usize, local: &[f64], jac: &mut [f64], cached: Option<&[f64]>) {
-        let p = self.problem;
-        let d = p.sde.dims();
-        let (ns, nx) = (d.states(), d.noisy);
-        let h = self.grid.step;
-        let nv = local.len();
-        let npt = self.hs_point_dim();
-        let len = self.hs_cache_len();
-        let gm = &self.g_fixed;
-        jac.fill(0.0);
-        for i in 0..ns {
-            jac[i * nv + i] -= 1.0; // c1 = s1 − s0 − …
-            jac[i * nv + 2 * ns + i] += 1.0;
-            jac[(ns + i) * nv + ns + i] += 1.0; // c2 = sm − ½(s0 + s1) − …
-            jac[(ns + i) * nv + i] -= 0.5;
-            jac[(ns + i) * nv + 2 * ns + i] -= 0.5;
+    /// `jac`: its constant part ([`hs_jacobian_constant`]) plus the rate Jacobians at its three
+    /// points (see [`Self::block_constraints`] for the defects), read from `cached` (the
+    /// [`PointCache`] when it holds the current point; `local`, the piece's local vector, is
+    /// then not read) or differentiated.
+    fn hs_jacobian_into(&self, k: usize, local: &[f64], jac: &mut [f64], cached: Option<&PointCache>) {
+        let ns = self.problem.sde.dims().states();
+        let (npt, nout) = (self.hs_point_dim(), self.hs_point_outputs());
+        jac.copy_from_slice(&self.hs_jac_constant);
+        if let Some(c) = cached {
+            for i in 0..3 {
+                let e = self.hs_entry(k, i) * c.len;
+                self.hs_add_rate_jacobian(k, i, &c.data[e..e + nout * npt], nout, jac);
+            }
+            return;
         }
         with_buffer(npt, |pl| {
             with_buffer(ns, |value| {
                 with_buffer(ns * npt, |jr| {
-                    for (i, (t, off, alpha, beta, sigma)) in self.hs_points(k).into_iter().enumerate() {
-                        let (w1, w2) = (-alpha * h / 6.0, -beta * h / 8.0);
-                        let jr: &[f64] = match cached {
-                            Some(c) => &c[i * len..i * len + ns * npt],
-                            None => {
-                                self.hs_point_local(local, off, pl);
-                                ad::jacobian_into(&self.point_fn(t, local), pl, value, jr);
-                                jr
-                            }
-                        };
-                        for (&c, jc) in self.point_index[i].iter().zip(jr.chunks_exact(ns)) {
-                            for (r, &v) in jc.iter().enumerate() {
-                                jac[r * nv + c] += w1 * v;
-                                jac[(ns + r) * nv + c] += w2 * v;
-                            }
-                        }
-                        // ∂r_i/∂a = G, ∂r_i/∂b = (σ_i − ½) G on the noisy rows.
-                        for r in 0..nx {
-                            for j in 0..nx {
-                                let gv = gm[r + j * nx];
-                                jac[r * nv + 3 * ns + j] += w1 * gv;
-                                jac[(ns + r) * nv + 3 * ns + j] += w2 * gv;
-                                jac[r * nv + 3 * ns + nx + j] += w1 * sigma * gv;
-                                jac[(ns + r) * nv + 3 * ns + nx + j] += w2 * sigma * gv;
-                            }
-                        }
+                    for (i, (t, off, ..)) in self.hs_points(k).into_iter().enumerate() {
+                        self.hs_point_local(local, off, pl);
+                        ad::jacobian_into(&self.point_fn(t, local), pl, value, jr);
+                        self.hs_add_rate_jacobian(k, i, jr, ns, jac);
                     }
                 })
             })
         });
+    }
+
+    /// Adds the part of Lobatto point i of piece k to the piece's constraint Jacobian `jac`
+    /// (row-major): −(h/6) α_i and −(h/8) β_i times the rate Jacobian `jr` (its columns
+    /// `stride` apart, the rate in the first ns entries of each).
+    fn hs_add_rate_jacobian(&self, k: usize, i: usize, jr: &[f64], stride: usize, jac: &mut [f64]) {
+        let ns = self.problem.sde.dims().states();
+        let nv = jac.len() / (2 * ns);
+        let (_, _, alpha, beta, _) = self.hs_points(k)[i];
+        let h = self.grid.step;
+        let (w1, w2) = (-alpha * h / 6.0, -beta * h / 8.0);
+        for (&c, jc) in self.point_index[i].iter().zip(jr.chunks_exact(stride)) {
+            for (r, &v) in jc[..ns].iter().enumerate() {
+                jac[r * nv + c] += w1 * v;
+                jac[(ns + r) * nv + c] += w2 * v;
+            }
+        }
     }
 
     /// The Hessian pattern of a Hermite–Simpson piece, in the order of
@@ -700,9 +787,10 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
     /// block's slots, see [`Self::hs_hessian_structure`]): at each Lobatto point the Hessian in
     /// (s_i, θ_d) of σ_f (h/12) α_i div_x f + μ_iᵀ [f; h], μ_i = −(h/6) α_i λ₁ − (h/8) β_i λ₂,
     /// then the energy's constant diagonal on (a, b). The noise term G(a + (σ − ½)b) is linear
-    /// (G does not depend on an estimated θ for Hermite–Simpson). With `cached` (the piece's
-    /// slice of [`PointCache`] at the current point) the point Hessians are combinations of the
-    /// stored output Hessians; otherwise one second-order pass of the combination per point.
+    /// (G does not depend on an estimated θ for Hermite–Simpson). With `cached` (the data of
+    /// [`PointCache`] at the current point) the point Hessians are combinations of the
+    /// stored output Hessians (and `local`, the piece's local vector, is not read); otherwise
+    /// one second-order pass of the combination per point.
     fn hs_hessian_into(
         &self,
         k: usize,
@@ -710,50 +798,61 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         obj_factor: f64,
         lambda: &[f64],
         values: &mut [f64],
-        cached: Option<&[f64]>,
+        cached: Option<&PointCache>,
     ) {
         let d = self.problem.sde.dims();
-        let (ns, nx) = (d.states(), d.noisy);
-        let h = self.grid.step;
+        let ns = d.states();
         let npt = self.hs_point_dim();
         let tri = npt * (npt + 1) / 2;
-        let len = self.hs_cache_len();
-        let om = self.merit == Merit::OnsagerMachlup;
-        let mut slot = 0;
+        let nout = self.hs_point_outputs();
+        let (points, noise) = values.split_at_mut(3 * tri);
         with_buffer(ns, |mu| {
-            with_buffer(npt, |pl| {
-                with_buffer(npt, |pg| {
-                    with_buffer(npt * npt, |ph| {
-                        for (i, (t, off, alpha, beta, _)) in self.hs_points(k).into_iter().enumerate() {
-                            for r in 0..ns {
-                                mu[r] = -alpha * h / 6.0 * lambda[r] - beta * h / 8.0 * lambda[ns + r];
-                            }
-                            let div_weight = if om { obj_factor * alpha * h / 12.0 } else { 0.0 };
-                            let out = &mut values[slot..slot + tri];
-                            slot += tri;
-                            if let Some(c) = cached {
-                                let hs = &c[i * len + ns * npt..(i + 1) * len];
-                                out.fill(0.0);
-                                for (o, hr) in hs.chunks_exact(tri).enumerate() {
-                                    let wgt = if o < ns { mu[o] } else { div_weight };
-                                    for (v, &x) in out.iter_mut().zip(hr) {
-                                        *v += wgt * x;
-                                    }
-                                }
-                                continue;
-                            }
-                            let f = PointFn { div_weight, mu: Some(mu), ..self.point_fn(t, local) };
+            for (i, out) in points.chunks_exact_mut(tri).enumerate() {
+                let div_weight = self.hs_point_weights(k, i, obj_factor, lambda, mu);
+                if let Some(c) = cached {
+                    let e = self.hs_entry(k, i) * c.len;
+                    let hs = &c.data[e + nout * npt..e + c.len];
+                    out.fill(0.0);
+                    for (&o, hr) in c.stored.iter().zip(hs.chunks_exact(tri)) {
+                        let wgt = if o < ns { mu[o] } else { div_weight };
+                        for (v, &x) in out.iter_mut().zip(hr) {
+                            *v += wgt * x;
+                        }
+                    }
+                    continue;
+                }
+                let (t, off, ..) = self.hs_points(k)[i];
+                let f = PointFn { div_weight, mu: Some(mu), ..self.point_fn(t, local) };
+                with_buffer(npt, |pl| {
+                    with_buffer(npt, |pg| {
+                        with_buffer(npt * npt, |ph| {
                             self.hs_point_local(local, off, pl);
                             ad::hessian_into(&f, pl, pg, ph);
                             pack_lower(ph, npt, out);
-                        }
+                        })
                     })
-                })
-            })
+                });
+            }
         });
-        for i in 0..nx {
-            values[slot + i] = obj_factor * h;
-            values[slot + nx + i] = obj_factor * h / 12.0;
+        let (h, nx) = (self.grid.step, d.noisy);
+        noise[..nx].fill(obj_factor * h);
+        noise[nx..2 * nx].fill(obj_factor * h / 12.0);
+    }
+
+    /// The weights of Lobatto point i of piece k in the Hessian of the Lagrangian: μ_i =
+    /// −(h/6) α_i λ₁ − (h/8) β_i λ₂ of the rate [f; h] (into `mu`), and, returned, σ_f (h/12) α_i of
+    /// div_x f for Onsager–Machlup (0 for the energy merit).
+    fn hs_point_weights(&self, k: usize, i: usize, obj_factor: f64, lambda: &[f64], mu: &mut [f64]) -> f64 {
+        let (_, _, alpha, beta, _) = self.hs_points(k)[i];
+        let h = self.grid.step;
+        let ns = mu.len();
+        for (r, m) in mu.iter_mut().enumerate() {
+            *m = -alpha * h / 6.0 * lambda[r] - beta * h / 8.0 * lambda[ns + r];
+        }
+        if self.merit == Merit::OnsagerMachlup {
+            obj_factor * alpha * h / 12.0
+        } else {
+            0.0
         }
     }
 
@@ -763,6 +862,41 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
             *o = w[v];
         }
     }
+}
+
+/// The weights (α, β, σ − ½) of the three Lobatto points of a Hermite–Simpson piece: Simpson's
+/// α = (1, 4, 1), the Hermite midpoint's β = (1, 0, −1) (000 Ch. 4) and the noise coefficient
+/// of b in w = a + (σ − ½) b.
+const HS_WEIGHTS: [(f64, f64, f64); 3] = [(1.0, 1.0, -0.5), (4.0, 0.0, 0.0), (1.0, -1.0, 0.5)];
+
+/// The part of a Hermite–Simpson piece's constraint Jacobian (2ns rows × nv, row-major, nv the
+/// length of the piece's local vector (s0, sm, s1, a, b, θ)) that does not depend on the point:
+/// the derivatives of s1 − s0 and sm − ½(s0 + s1) and, through the noise term
+/// G(a + (σ_i − ½) b) of the rate at the Lobatto points (weights −(h/6)(1, 4, 1) and
+/// −(h/8)(1, 0, −1), see `PathNlp::block_constraints`), ∂/∂a = G and ∂/∂b = (σ_i − ½) G on
+/// the noisy rows.
+fn hs_jacobian_constant(ns: usize, nx: usize, nv: usize, h: f64, g: &[f64]) -> Vec<f64> {
+    let mut jac = vec![0.0; 2 * ns * nv];
+    for i in 0..ns {
+        jac[i * nv + i] -= 1.0; // c1 = s1 − s0 − …
+        jac[i * nv + 2 * ns + i] += 1.0;
+        jac[(ns + i) * nv + ns + i] += 1.0; // c2 = sm − ½(s0 + s1) − …
+        jac[(ns + i) * nv + i] -= 0.5;
+        jac[(ns + i) * nv + 2 * ns + i] -= 0.5;
+    }
+    for (alpha, beta, sigma) in HS_WEIGHTS {
+        let (w1, w2) = (-alpha * h / 6.0, -beta * h / 8.0);
+        for r in 0..nx {
+            for j in 0..nx {
+                let gv = g[r + j * nx];
+                jac[r * nv + 3 * ns + j] += w1 * gv;
+                jac[(ns + r) * nv + 3 * ns + j] += w2 * gv;
+                jac[r * nv + 3 * ns + nx + j] += w1 * sigma * gv;
+                jac[(ns + r) * nv + 3 * ns + nx + j] += w2 * sigma * gv;
+            }
+        }
+    }
+    jac
 }
 
 /// Length of the stack buffers of [`with_buffer`].
@@ -792,10 +926,12 @@ fn with_buffer<R>(len: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
     }
 }
 
-/// The per-point derivatives of the Hermite–Simpson pieces at one variable vector `w`:
-/// for piece k and Lobatto point i, at `(3k + i) · len` (`len` = [`PathNlp::hs_cache_len`]),
-/// the Jacobian of the rate [f; h] in (s_i, θ_d) (ns × npt, column-major), then the packed
-/// lower triangles (row by row) of the Hessians of f, h and, for Onsager–Machlup, div_x f.
+/// The per-point derivatives of the Hermite–Simpson pieces at one variable vector `w`: for
+/// each Lobatto point, once per grid node (shared by the two pieces that meet there) and once
+/// per midpoint, at `e · len` (entry e = [`PathNlp::hs_entry`]), the Jacobian of the outputs
+/// [f; h] and, for Onsager–Machlup, div_x f in (s_i, θ_d) (outputs × npt, column-major), then
+/// the packed lower triangles (row by row) of the Hessians of the `stored` outputs: the others
+/// (h = x and div_x f = −d for Duffing) are linear at every point seen so far.
 /// Filled by `gradient`, which the solver calls first at each new iterate; `jacobian_values`
 /// and `hessian_values` at the same `w` read it instead of differentiating again.
 #[derive(Debug, Default)]
@@ -803,13 +939,20 @@ struct PointCache {
     /// The variable vector the cache holds (empty: none).
     w: Vec<f64>,
     data: Vec<f64>,
+    /// Length of one point's entry.
+    len: usize,
+    /// The outputs whose Hessians are stored, ascending.
+    stored: Vec<usize>,
+    /// For each output, the position of its Hessian in an entry (after the Jacobian), or
+    /// [`DriftDerivatives::DROPPED`].
+    slots: Vec<usize>,
 }
 
 impl PointCache {
     /// The stored derivatives when they are those at `w`.
-    fn at(&self, w: &[f64]) -> Option<&[f64]> {
+    fn at(&self, w: &[f64]) -> Option<&PointCache> {
         let same = self.w.len() == w.len() && self.w.iter().zip(w).all(|(a, b)| a.to_bits() == b.to_bits());
-        (!self.w.is_empty() && same).then_some(&self.data[..])
+        (!self.w.is_empty() && same).then_some(self)
     }
 }
 
@@ -1024,28 +1167,22 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
         grad.fill(0.0);
         let mut cache = std::mem::take(&mut self.cache);
         cache.w.clear();
-        let len = 3 * self.hs_cache_len();
-        let npt = self.hs_point_dim();
-        let mut ph = Vec::new();
         if self.transcription == Transcription::HermiteSimpson {
-            cache.data.resize(self.grid.intervals * len, 0.0);
-            ph.resize(self.hs_point_outputs() * npt * npt, 0.0);
+            self.hs_points_into(w, &mut cache);
         }
         for b in &self.blocks {
+            if let Some(k) = self.hs_piece(b) {
+                self.hs_gradient_into(k, b, w, grad, &cache);
+                continue;
+            }
             with_buffer(b.vars.len(), |local| {
                 Self::locals_into(b, w, local);
-                match self.hs_piece(b) {
-                    Some(k) => {
-                        let store = &mut cache.data[k * len..(k + 1) * len];
-                        self.hs_gradient_into(k, b, local, grad, store, &mut ph)
+                with_buffer(local.len(), |g| {
+                    ad::gradient_into(&ObjFn { nlp: self, block: b }, local, g);
+                    for (&v, gi) in b.vars.iter().zip(g) {
+                        grad[v] += *gi;
                     }
-                    None => with_buffer(local.len(), |g| {
-                        ad::gradient_into(&ObjFn { nlp: self, block: b }, local, g);
-                        for (&v, gi) in b.vars.iter().zip(g) {
-                            grad[v] += *gi;
-                        }
-                    }),
-                }
+                })
             });
         }
         if self.transcription == Transcription::HermiteSimpson {
@@ -1055,6 +1192,10 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
     }
 
     fn constraints(&mut self, w: &[f64], c: &mut [f64]) {
+        if self.transcription == Transcription::HermiteSimpson {
+            // only the pieces have constraints
+            return self.hs_constraints(w, c);
+        }
         for b in self.blocks.iter().filter(|b| b.rows > 0) {
             with_buffer(b.vars.len(), |local| {
                 Self::locals_into(b, w, local);
@@ -1077,16 +1218,17 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
 
     fn jacobian_values(&mut self, w: &[f64], values: &mut [f64]) {
         let cached = self.cache.at(w);
-        let len = 3 * self.hs_cache_len();
         for b in self.blocks.iter().filter(|b| b.rows > 0) {
             let nv = b.vars.len();
             let out = &mut values[b.jac0..b.jac0 + b.rows * nv];
+            if let (Some(k), Some(_)) = (self.hs_piece(b), cached) {
+                self.hs_jacobian_into(k, &[], out, cached);
+                continue;
+            }
             with_buffer(nv, |local| {
                 Self::locals_into(b, w, local);
                 match self.hs_piece(b) {
-                    Some(k) => {
-                        self.hs_jacobian_into(k, local, out, cached.map(|c| &c[k * len..(k + 1) * len]))
-                    }
+                    Some(k) => self.hs_jacobian_into(k, local, out, cached),
                     None => with_buffer(b.rows, |value| {
                         with_buffer(b.rows * nv, |j| {
                             ad::jacobian_into(&ConFn { nlp: self, block: b }, local, value, j);
@@ -1120,18 +1262,19 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
 
     fn hessian_values(&mut self, w: &[f64], obj_factor: f64, lambda: &[f64], values: &mut [f64]) {
         let cached = self.cache.at(w);
-        let len = 3 * self.hs_cache_len();
         for (bi, b) in self.blocks.iter().enumerate() {
             let lam = &lambda[b.row0..b.row0 + b.rows];
             let end = self.blocks.get(bi + 1).map_or(values.len(), |n| n.hess0);
             let out = &mut values[b.hess0..end];
+            if let (Some(k), Some(_)) = (self.hs_piece(b), cached) {
+                // the cached path does not read the local vector
+                self.hs_hessian_into(k, &[], obj_factor, lam, out, cached);
+                continue;
+            }
             with_buffer(b.vars.len(), |local| {
                 Self::locals_into(b, w, local);
                 match self.hs_piece(b) {
-                    Some(k) => {
-                        let c = cached.map(|c| &c[k * len..(k + 1) * len]);
-                        self.hs_hessian_into(k, local, obj_factor, lam, out, c)
-                    }
+                    Some(k) => self.hs_hessian_into(k, local, obj_factor, lam, out, cached),
                     None => {
                         let nv = b.vars.len();
                         let f = LagFn { nlp: self, block: b, obj_factor, lambda: lam };
