@@ -48,34 +48,62 @@ const B: [f64; 6] = [35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 /
 const E: [f64; 7] =
     [71.0 / 57600.0, 0.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253.0 / 339200.0, 22.0 / 525.0, -1.0 / 40.0];
 
-/// One accepted Runge–Kutta step: start time, size, the six stage arguments Y_i and the stage
-/// Jacobians J_i = ∂W/∂λ(Y_i) (R × R row-major each), formed with W in the forward sweep so
-/// that the adjoint sweep need not evaluate the drift again.
-#[derive(Debug, Clone)]
-struct Step {
-    t: f64,
-    h: f64,
+/// The accepted Runge–Kutta steps of one sweep, flat: start time and size of step s, its six
+/// stage arguments Y_i (6R values from `6Rs`) and stage Jacobians J_i = ∂W/∂λ(Y_i) (6 R × R
+/// row-major blocks from `6R²s`), formed with W in the forward sweep so that the adjoint sweep
+/// need not evaluate the drift again. The steps of the interval between events e and e + 1 are
+/// `start[e]..start[e + 1]`.
+#[derive(Debug, Clone, Default)]
+struct Steps {
+    t: Vec<f64>,
+    h: Vec<f64>,
     stages: Vec<f64>,
     jac: Vec<f64>,
+    start: Vec<usize>,
 }
 
-/// What a Dormand–Prince step returns: the new state, the error norm, the stage arguments and
-/// Jacobians of the step, and W and ∂W/∂λ at the new state (the seventh stage, first-same-as-
-/// last).
-struct RkStep {
-    y: Vec<f64>,
-    err: f64,
-    stages: Vec<f64>,
+impl Steps {
+    fn len(&self) -> usize {
+        self.h.len()
+    }
+
+    /// The steps of interval `e` (between events e and e + 1).
+    fn interval(&self, e: usize) -> std::ops::Range<usize> {
+        self.start[e]..self.start[e + 1]
+    }
+}
+
+/// The workspace of [`ClosureAction::rk_step`], reused across the steps of a sweep: the seven
+/// stage slopes K_i (7R), their Jacobians (7 R × R), the stage arguments Y_1..Y_6 (6R) and the
+/// current argument (R; the fifth-order solution after the step). On entry K_1 and its Jacobian
+/// hold W and ∂W/∂λ at the step's start; after an accepted step the seventh (first-same-as-last)
+/// slope is moved there. `k1_time`: the time at which K_1 holds W at the current state (`None`
+/// after a jump or before the first evaluation).
+struct RkWork {
+    k: Vec<f64>,
     jac: Vec<f64>,
-    k7: Vec<f64>,
-    j7: Vec<f64>,
+    stages: Vec<f64>,
+    arg: Vec<f64>,
+    k1_time: Option<f64>,
+}
+
+impl RkWork {
+    fn new(r: usize) -> Self {
+        RkWork {
+            k: vec![0.0; 7 * r],
+            jac: vec![0.0; 7 * r * r],
+            stages: vec![0.0; 6 * r],
+            arg: vec![0.0; r],
+            k1_time: None,
+        }
+    }
 }
 
 /// A stored forward sweep.
 #[derive(Debug, Clone)]
 struct Forward {
-    /// Steps of each interval between consecutive events.
-    steps: Vec<Vec<Step>>,
+    /// The accepted steps, by interval between consecutive events.
+    steps: Steps,
     /// λ at every event before the jump (= after it at other events).
     lambda_minus: Vec<Vec<f64>>,
     /// μ(t_k−) and μ(t_k+), per measurement.
@@ -90,12 +118,11 @@ struct Forward {
     f: f64,
 }
 
-/// The stage derivatives of one accepted step that the tangent sweeps need: its size, the
-/// stage Jacobians J_i = ∂W/∂λ(Y_i) and the Hessians H_i = ∇²(k̄_iᵀW)(Y_i) of the stage
-/// adjoints' contractions (6 R × R blocks each, row-major).
-#[derive(Debug, Clone)]
+/// The stage derivatives of the accepted steps that the tangent sweeps need, indexed as
+/// [`Steps`]: the stage Jacobians J_i = ∂W/∂λ(Y_i) and the Hessians H_i = ∇²(k̄_iᵀW)(Y_i) of the
+/// stage adjoints' contractions (6 R × R blocks per step each, row-major).
+#[derive(Debug, Clone, Default)]
 struct StepDerivs {
-    h: f64,
     jac: Vec<f64>,
     hess: Vec<f64>,
 }
@@ -103,8 +130,8 @@ struct StepDerivs {
 /// How the forward sweep picks the multiplier of measurement k from λ(t_k−).
 type Choose<'c> = dyn FnMut(usize, &[f64]) -> std::result::Result<Vec<f64>, SweepFailure> + 'c;
 
-/// γ at every event and the stage derivatives of every step (`[interval][step]`).
-type Adjoint = (Vec<Vec<f64>>, Vec<Vec<StepDerivs>>);
+/// γ at every event and the stage derivatives of every step.
+type Adjoint = (Vec<Vec<f64>>, StepDerivs);
 
 /// m(t) at every event and its derivatives ∂m/∂λ_j (`[j][event][moment]`).
 type Tangents = Vec<Vec<Vec<f64>>>;
@@ -245,31 +272,27 @@ impl<D: ClosureDrift> ClosureAction<D> {
         Ok(())
     }
 
-    /// One Dormand–Prince step from (t, y) of size h, given k_1 = W(t, y) and j_1 = ∂W/∂λ(t, y);
-    /// `None` when a stage is not realizable.
-    fn rk_step(&self, t: f64, y: &[f64], h: f64, k1: &[f64], j1: &[f64]) -> Option<RkStep> {
+    /// One Dormand–Prince step from (t, y) of size h, with K_1 = W(t, y) and its Jacobian in
+    /// `work` (see [`RkWork`]): the stages, slopes and Jacobians into `work`, the new state into
+    /// `work.arg`; returns the error norm, `None` when a stage is not realizable.
+    fn rk_step(&self, t: f64, y: &[f64], h: f64, work: &mut RkWork) -> Option<f64> {
         let r = y.len();
         let rr = r * r;
-        let mut k = vec![0.0; 7 * r];
-        k[..r].copy_from_slice(k1);
-        let mut jac = vec![0.0; 7 * rr];
-        jac[..rr].copy_from_slice(j1);
-        let mut stages = vec![0.0; 6 * r];
+        let RkWork { k, jac, stages, arg, .. } = work;
         stages[..r].copy_from_slice(y);
-        let mut arg = vec![0.0; r];
         for i in 1..7 {
             for a in 0..r {
                 arg[a] = y[a] + h * (0..i).map(|j| A[i][j] * k[j * r + a]).sum::<f64>();
             }
             if i < 6 {
-                stages[i * r..(i + 1) * r].copy_from_slice(&arg);
+                stages[i * r..(i + 1) * r].copy_from_slice(arg);
             }
             let (ki, _) = k.split_at_mut((i + 1) * r);
             let (ji, _) = jac.split_at_mut((i + 1) * rr);
-            self.drift.w_jacobian(t + C[i] * h, &arg, &mut ki[i * r..], &mut ji[i * rr..]).ok()?;
+            self.drift.w_jacobian(t + C[i] * h, arg, &mut ki[i * r..], &mut ji[i * rr..]).ok()?;
         }
         // The seventh stage argument is the fifth-order solution (FSAL).
-        let y_new = arg;
+        let y_new = &*arg;
         let mut err = 0.0;
         for a in 0..r {
             let e = h * (0..7).map(|i| E[i] * k[i * r + a]).sum::<f64>();
@@ -280,18 +303,20 @@ impl<D: ClosureDrift> ClosureAction<D> {
         if !err.is_finite() || y_new.iter().any(|v| !v.is_finite()) {
             return None;
         }
-        let j7 = jac.split_off(6 * rr);
-        Some(RkStep { y: y_new, err, stages, jac, k7: k[6 * r..].to_vec(), j7 })
+        Some(err)
     }
 
-    /// Integrates from `t` to `t_end` with error control, pushing the accepted steps.
+    /// Integrates from `t` to `t_end` with error control, pushing the accepted steps. W and
+    /// ∂W/∂λ at (t, y) are evaluated unless `work` holds them already (the seventh stage of the
+    /// last step, ending exactly at t, with no jump since: an output time between measurements).
     fn integrate(
         &self,
         t: f64,
         t_end: f64,
-        y: &mut Vec<f64>,
+        y: &mut [f64],
         h_guess: &mut f64,
-        steps: &mut Vec<Step>,
+        steps: &mut Steps,
+        work: &mut RkWork,
     ) -> std::result::Result<(), SweepFailure> {
         let span = t_end - t;
         if span <= 0.0 {
@@ -301,26 +326,32 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let mut h = h_guess.min(span);
         let mut rejections = 0usize;
         let r = y.len();
-        let mut k1 = vec![0.0; r];
-        let mut j1 = vec![0.0; r * r];
-        self.drift.w_jacobian(tc, y, &mut k1, &mut j1).map_err(|_| SweepFailure)?;
+        let rr = r * r;
+        if work.k1_time != Some(tc) {
+            work.k1_time = None;
+            self.drift.w_jacobian(tc, y, &mut work.k[..r], &mut work.jac[..rr]).map_err(|_| SweepFailure)?;
+            work.k1_time = Some(tc);
+        }
         while tc < t_end {
             let last = tc + h >= t_end - 1e-12 * span.max(1.0);
             let hh = if last { t_end - tc } else { h };
-            match self.rk_step(tc, y, hh, &k1, &j1) {
-                Some(st) if st.err <= 1.0 => {
-                    let err = st.err;
-                    steps.push(Step { t: tc, h: hh, stages: st.stages, jac: st.jac });
-                    *y = st.y;
-                    k1 = st.k7;
-                    j1 = st.j7;
+            match self.rk_step(tc, y, hh, work) {
+                Some(err) if err <= 1.0 => {
+                    steps.t.push(tc);
+                    steps.h.push(hh);
+                    steps.stages.extend_from_slice(&work.stages);
+                    steps.jac.extend_from_slice(&work.jac[..6 * rr]);
+                    y.copy_from_slice(&work.arg);
+                    work.k.copy_within(6 * r..7 * r, 0);
+                    work.jac.copy_within(6 * rr..7 * rr, 0);
+                    work.k1_time = Some(tc + C[6] * hh);
                     tc = if last { t_end } else { tc + hh };
                     let fac = if err == 0.0 { 5.0 } else { (0.9 * err.powf(-0.2)).clamp(0.2, 5.0) };
                     h = hh * fac;
                     *h_guess = h;
                 }
-                Some(st) => {
-                    h = hh * (0.9 * st.err.powf(-0.2)).clamp(0.1, 0.9);
+                Some(err) => {
+                    h = hh * (0.9 * err.powf(-0.2)).clamp(0.1, 0.9);
                     rejections += 1;
                 }
                 None => {
@@ -350,7 +381,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let span = events.times[ne - 1] - events.times[0];
         let mut h = if span > 0.0 { 1e-3 * span } else { 1.0 };
         let mut out = Forward {
-            steps: Vec::with_capacity(ne.saturating_sub(1)),
+            steps: Steps { start: vec![0], ..Steps::default() },
             lambda_minus: Vec::with_capacity(ne),
             mu_minus: Vec::new(),
             mu_plus: Vec::new(),
@@ -360,11 +391,18 @@ impl<D: ClosureDrift> ClosureAction<D> {
             f: 0.0,
         };
         let mut y = self.lambda0.clone();
+        let mut work = RkWork::new(y.len());
         for e in 0..ne {
             if e > 0 {
-                let mut steps = Vec::new();
-                self.integrate(events.times[e - 1], events.times[e], &mut y, &mut h, &mut steps)?;
-                out.steps.push(steps);
+                self.integrate(
+                    events.times[e - 1],
+                    events.times[e],
+                    &mut y,
+                    &mut h,
+                    &mut out.steps,
+                    &mut work,
+                )?;
+                out.steps.start.push(out.steps.len());
             }
             out.lambda_minus.push(y.clone());
             let mut m = self.drift.moments(&y).map_err(|_| SweepFailure)?;
@@ -374,6 +412,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 for (b, &a) in self.measured.iter().enumerate() {
                     y[a] += lk[b];
                 }
+                work.k1_time = None;
                 m = self.drift.moments(&y).map_err(|_| SweepFailure)?;
                 out.f += m.log_partition - before.log_partition;
                 out.mu_minus.push(before.mean);
@@ -404,11 +443,11 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let mut gamma = vec![0.0; r];
         let mut out = vec![Vec::new(); ne];
         let mut w = vec![0.0; r];
-        let mut derivs: Vec<Vec<StepDerivs>> = vec![Vec::new(); ne.saturating_sub(1)];
+        let steps = &fw.steps;
+        let ns = if second { steps.len() } else { 0 };
+        let mut derivs = StepDerivs { jac: vec![0.0; 6 * rr * ns], hess: vec![0.0; 6 * rr * ns] };
         let mut kbar = vec![0.0; 6 * r];
         let mut ybar = vec![0.0; r];
-        let mut jac = vec![0.0; 6 * rr];
-        let mut hess = vec![0.0; if second { 6 * rr } else { 0 }];
         for e in (0..ne).rev() {
             out[e] = gamma.clone();
             if let Some(k) = events.meas[e] {
@@ -419,23 +458,25 @@ impl<D: ClosureDrift> ClosureAction<D> {
             if e == 0 {
                 break;
             }
-            for step in fw.steps[e - 1].iter().rev() {
-                let h = step.h;
+            for s in steps.interval(e - 1).rev() {
+                let h = steps.h[s];
                 for i in 0..6 {
                     for a in 0..r {
                         kbar[i * r + a] = h * B[i] * gamma[a];
                     }
                 }
+                let stages = &steps.stages[6 * r * s..6 * r * (s + 1)];
                 for i in (0..6).rev() {
-                    let (ti, yi) = (step.t + C[i] * h, &step.stages[i * r..(i + 1) * r]);
-                    let ji = &mut jac[i * rr..(i + 1) * rr];
-                    if second {
+                    let (ti, yi) = (steps.t[s] + C[i] * h, &stages[i * r..(i + 1) * r]);
+                    let block = (6 * s + i) * rr..(6 * s + i + 1) * rr;
+                    let ji = if second {
                         let ki = &kbar[i * r..(i + 1) * r];
-                        let hi = &mut hess[i * rr..(i + 1) * rr];
+                        let (ji, hi) = (&mut derivs.jac[block.clone()], &mut derivs.hess[block]);
                         self.drift.w_second(ti, yi, ki, &mut w, ji, hi).map_err(|_| SweepFailure)?;
+                        &*ji
                     } else {
-                        ji.copy_from_slice(&step.jac[i * rr..(i + 1) * rr]);
-                    }
+                        &steps.jac[block]
+                    };
                     // Ȳ_i = J_iᵀ k̄_i.
                     for (b, yb) in ybar.iter_mut().enumerate() {
                         *yb = (0..r).map(|a| ji[a * r + b] * kbar[i * r + a]).sum();
@@ -452,11 +493,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                         }
                     }
                 }
-                if second {
-                    derivs[e - 1].push(StepDerivs { h, jac: jac.clone(), hess: hess.clone() });
-                }
             }
-            derivs[e - 1].reverse();
         }
         if out.iter().flatten().any(|v| !v.is_finite()) {
             return Err(SweepFailure);
@@ -483,10 +520,10 @@ impl<D: ClosureDrift> ClosureAction<D> {
         events: &Events,
         lambda: &[f64],
         second: bool,
-    ) -> std::result::Result<(Forward, Vec<Vec<f64>>, Vec<Vec<StepDerivs>>), SweepFailure> {
+    ) -> std::result::Result<(Forward, Vec<Vec<f64>>, StepDerivs), SweepFailure> {
         self.sweeps += 1;
         let fw = self.forward(events, lambda)?;
-        self.steps += fw.steps.iter().map(Vec::len).sum::<usize>();
+        self.steps += fw.steps.len();
         let (g, derivs) = self.backward(events, &fw, second)?;
         Ok((fw, g, derivs))
     }
@@ -550,8 +587,9 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let (mut dys, mut dks) = (Vec::new(), Vec::new());
         for e in 0..ne {
             if e > 0 {
-                for d in &derivs[e - 1] {
-                    Self::tangent_step(d, r, nm, ncol, &mut dl, &mut dys, &mut dks);
+                for st in fw.steps.interval(e - 1) {
+                    let jac = &derivs.jac[6 * rr * st..6 * rr * (st + 1)];
+                    Self::tangent_step(fw.steps.h[st], jac, r, nm, ncol, &mut dl, &mut dys, &mut dks);
                 }
             }
             if let Some(k) = events.meas[e] {
@@ -599,35 +637,44 @@ impl<D: ClosureDrift> ClosureAction<D> {
             let mut y = dl_after[e - 1].clone();
             let block = 6 * r * nm;
             stage_tangents.clear();
-            for d in &derivs[e - 1] {
-                Self::tangent_step(d, r, nm, ncol, &mut y, &mut dys, &mut dks);
+            let interval = fw.steps.interval(e - 1);
+            for st in interval.clone() {
+                let jac = &derivs.jac[6 * rr * st..6 * rr * (st + 1)];
+                Self::tangent_step(fw.steps.h[st], jac, r, nm, ncol, &mut y, &mut dys, &mut dks);
                 stage_tangents.extend_from_slice(&dys);
             }
-            for (d, dy) in derivs[e - 1].iter().zip(stage_tangents.chunks_exact(block)).rev() {
-                let h = d.h;
+            for (st, dy) in interval.zip(stage_tangents.chunks_exact(block)).rev() {
+                let h = fw.steps.h[st];
+                let (jac, hess) = (
+                    &derivs.jac[6 * rr * st..6 * rr * (st + 1)],
+                    &derivs.hess[6 * rr * st..6 * rr * (st + 1)],
+                );
                 for i in 0..6 {
                     for q in 0..r * nm {
                         dk[i * r * nm + q] = h * B[i] * dg[q];
                     }
                 }
                 for i in (0..6).rev() {
-                    let ji = &d.jac[i * rr..(i + 1) * rr];
-                    let hi = &d.hess[i * rr..(i + 1) * rr];
+                    let ji = &jac[i * rr..(i + 1) * rr];
+                    let hi = &hess[i * rr..(i + 1) * rr];
                     let dki = &dk[i * r * nm..(i + 1) * r * nm];
                     let dyi = &dy[i * r * nm..(i + 1) * r * nm];
-                    // δȲ_i = J_iᵀ δk̄_i + H_i δY_i (δY_i vanishes outside the active columns).
+                    // δȲ_i = J_iᵀ δk̄_i + H_i δY_i (δY_i vanishes outside the active columns),
+                    // row by row.
                     for b in 0..r {
-                        for j in 0..nm {
-                            let mut v = 0.0;
-                            for a in 0..r {
-                                v += ji[a * r + b] * dki[a * nm + j];
+                        let row = &mut dyb[b * nm..(b + 1) * nm];
+                        row.fill(0.0);
+                        for a in 0..r {
+                            let c = ji[a * r + b];
+                            for (v, &k) in row.iter_mut().zip(&dki[a * nm..(a + 1) * nm]) {
+                                *v += c * k;
                             }
-                            if j < ncol {
-                                for a in 0..r {
-                                    v += hi[b * r + a] * dyi[a * nm + j];
-                                }
+                        }
+                        for a in 0..r {
+                            let c = hi[b * r + a];
+                            for (v, &y) in row[..ncol].iter_mut().zip(&dyi[a * nm..a * nm + ncol]) {
+                                *v += c * y;
                             }
-                            dyb[b * nm + j] = v;
                         }
                     }
                     for q in 0..r * nm {
@@ -653,12 +700,14 @@ impl<D: ClosureDrift> ClosureAction<D> {
         Ok((base, out))
     }
 
-    /// One step of the tangent-linear Runge–Kutta sweep on the first `ncol` columns of
-    /// δy (R × nm): the stage tangents δY_i into `dys` (6 R × nm blocks), δy advanced in place;
+    /// One step (size `h`, stage Jacobians `jac`: 6 R × R blocks) of the tangent-linear
+    /// Runge–Kutta sweep on the first `ncol` columns of δy (R × nm): the stage tangents δY_i into `dys` (6 R × nm blocks), δy advanced in place;
     /// `dks` is a workspace. Only the first `ncol` columns of `dys` and `dks` are written; the
     /// others hold stale values of earlier calls, and callers read only columns < `ncol`.
+    #[allow(clippy::too_many_arguments)]
     fn tangent_step(
-        d: &StepDerivs,
+        h: f64,
+        jac: &[f64],
         r: usize,
         nm: usize,
         ncol: usize,
@@ -669,27 +718,54 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let rn = r * nm;
         let rr = r * r;
         dys.resize(6 * rn, 0.0);
-        dks.resize(6 * rn, 0.0);
+        // Six stage blocks and one row of Σ_i b_i δK_i.
+        dks.resize(6 * rn + nm, 0.0);
+        // Row by row over the active columns (contiguous, so the loops vectorise); each entry is
+        // summed in the order of the stage formulas.
         for i in 0..6 {
+            let (done, rest) = dks.split_at_mut(i * rn);
+            // δY_i = δy + h Σ_{l<i} a_il δK_l.
             for a in 0..r {
-                for j in 0..ncol {
-                    let mut v = dy[a * nm + j];
-                    for (l, dkl) in dks.chunks_exact(rn).enumerate().take(i) {
-                        v += d.h * A[i][l] * dkl[a * nm + j];
+                let yi = &mut dys[i * rn + a * nm..i * rn + a * nm + ncol];
+                yi.copy_from_slice(&dy[a * nm..a * nm + ncol]);
+                for l in 0..i {
+                    let c = h * A[i][l];
+                    for (v, &k) in yi.iter_mut().zip(&done[l * rn + a * nm..l * rn + a * nm + ncol]) {
+                        *v += c * k;
                     }
-                    dys[i * rn + a * nm + j] = v;
                 }
             }
-            let ji = &d.jac[i * rr..(i + 1) * rr];
+            // δK_i = J_i δY_i.
+            let ji = &jac[i * rr..(i + 1) * rr];
+            let yi = &dys[i * rn..(i + 1) * rn];
             for a in 0..r {
-                for j in 0..ncol {
-                    dks[i * rn + a * nm + j] = (0..r).map(|b| ji[a * r + b] * dys[i * rn + b * nm + j]).sum();
+                let ki = &mut rest[a * nm..a * nm + ncol];
+                let c = ji[a * r];
+                for (v, &y) in ki.iter_mut().zip(&yi[..ncol]) {
+                    *v = c * y;
+                }
+                for b in 1..r {
+                    let c = ji[a * r + b];
+                    for (v, &y) in ki.iter_mut().zip(&yi[b * nm..b * nm + ncol]) {
+                        *v += c * y;
+                    }
                 }
             }
         }
+        // δy += h Σ_i b_i δK_i.
+        let (stages, acc) = dks.split_at_mut(6 * rn);
+        let acc = &mut acc[..ncol];
         for a in 0..r {
-            for j in 0..ncol {
-                dy[a * nm + j] += d.h * (0..6).map(|i| B[i] * dks[i * rn + a * nm + j]).sum::<f64>();
+            for (v, &k) in acc.iter_mut().zip(&stages[a * nm..a * nm + ncol]) {
+                *v = B[0] * k;
+            }
+            for i in 1..6 {
+                for (v, &k) in acc.iter_mut().zip(&stages[i * rn + a * nm..i * rn + a * nm + ncol]) {
+                    *v += B[i] * k;
+                }
+            }
+            for (v, &s) in dy[a * nm..a * nm + ncol].iter_mut().zip(acc.iter()) {
+                *v += h * s;
             }
         }
     }
@@ -750,7 +826,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         };
         self.sweeps += 1;
         let fw = self.forward_with(&events, &mut choose).ok()?;
-        self.steps += fw.steps.iter().map(Vec::len).sum::<usize>();
+        self.steps += fw.steps.len();
         Some(chosen)
     }
 
