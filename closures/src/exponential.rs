@@ -138,6 +138,8 @@ pub struct Exponential {
     n_moments: usize,
     log_base: Vec<f64>,
     table: Vec<f64>,
+    /// `table` moment-major (row a: M_a at every node), for the exponents λᵀM(x_k).
+    table_by_moment: Vec<f64>,
     moments: MomentFn,
     derivatives: Option<MomentDerivativeFn>,
     lower: Vec<f64>,
@@ -298,11 +300,19 @@ impl Exponential {
                 upper[a] = upper[a].max(v);
             }
         }
+        let nodes = log_base.len();
+        let mut table_by_moment = vec![0.0; table.len()];
+        for (k, row) in table.chunks_exact(n_moments).enumerate() {
+            for (a, &v) in row.iter().enumerate() {
+                table_by_moment[a * nodes + k] = v;
+            }
+        }
         Ok(Self {
             grid: Rule::try_new(dim, points, weights)?,
             n_moments,
             log_base,
             table,
+            table_by_moment,
             moments,
             derivatives,
             lower,
@@ -363,21 +373,43 @@ impl Exponential {
         self.probabilities(lambda)
     }
 
-    /// Node probabilities $\pi_k = e^{s_k - F}$ and $F$ (log-sum-exp), the core of every other
-    /// routine (`003_d2fc48a470e528fc.txt (II.36)`–(II.38)).
-    fn probabilities(&self, lambda: &[f64]) -> Result<(Vec<f64>, f64), Error> {
+    /// [`Exponential::node_probabilities`] into reused buffers: $\pi_k$ into `p` and the
+    /// exponents $s_k$ into `s` (both resized to the number of nodes); returns $F$. The form of
+    /// the hot loops of a closure drift, evaluated at every Runge–Kutta stage.
+    ///
+    /// # Errors
+    /// As [`Exponential::node_probabilities`].
+    pub fn node_probabilities_into(
+        &self,
+        lambda: &[f64],
+        s: &mut Vec<f64>,
+        p: &mut Vec<f64>,
+    ) -> Result<f64, Error> {
         check_len("lambda", lambda, self.n_moments)?;
         check_finite("lambda", lambda)?;
-        let r = self.n_moments;
-        let s: Vec<f64> = self
-            .table
-            .chunks_exact(r)
-            .zip(&self.log_base)
-            .map(|(m, b)| b + m.iter().zip(lambda).map(|(m, l)| m * l).sum::<f64>())
-            .collect();
-        let mut p = vec![0.0; s.len()];
-        match normalize_log_weights(&s, &mut p) {
-            Some(f) if !s.iter().any(|v| v.is_nan()) => Ok((p, f)),
+        // s_k = log(w_k p_*(x_k)) + Σ_a λ_a M_a(x_k), the sum in moment order, one moment row at
+        // a time (contiguous, so the loops vectorise).
+        let nodes = self.log_base.len();
+        s.clear();
+        s.resize(nodes, 0.0);
+        for (a, (row, &l)) in self.table_by_moment.chunks_exact(nodes).zip(lambda).enumerate() {
+            if a == 0 {
+                for (v, &m) in s.iter_mut().zip(row) {
+                    *v = m * l;
+                }
+            } else {
+                for (v, &m) in s.iter_mut().zip(row) {
+                    *v += m * l;
+                }
+            }
+        }
+        for (v, &b) in s.iter_mut().zip(&self.log_base) {
+            *v += b;
+        }
+        p.clear();
+        p.resize(s.len(), 0.0);
+        match normalize_log_weights(s, p) {
+            Some(f) if !s.iter().any(|v| v.is_nan()) => Ok(f),
             _ => {
                 let smax = s.iter().copied().fold(f64::NEG_INFINITY, f64::max);
                 Err(Error::NotNormalizable {
@@ -385,6 +417,14 @@ impl Exponential {
                 })
             }
         }
+    }
+
+    /// Node probabilities $\pi_k = e^{s_k - F}$ and $F$ (log-sum-exp), the core of every other
+    /// routine (`003_d2fc48a470e528fc.txt (II.36)`–(II.38)).
+    fn probabilities(&self, lambda: &[f64]) -> Result<(Vec<f64>, f64), Error> {
+        let (mut s, mut p) = (Vec::new(), Vec::new());
+        let f = self.node_probabilities_into(lambda, &mut s, &mut p)?;
+        Ok((p, f))
     }
 
     fn moments_under(&self, p: &[f64]) -> Vec<f64> {

@@ -3,7 +3,9 @@
 use crate::error::{check_finite, check_len, Error};
 use crate::family::{max_abs, Cumulants, LegendreOptions, LegendreSolution, TrialFamily};
 use crate::quadrature::{cubature3, cubature5, gauss_hermite_tensor, Rule};
-use crate::scalar::{cholesky, cholesky_inverse, cholesky_log_det, dot, Scalar};
+use crate::scalar::{
+    cholesky, cholesky_into, cholesky_inverse, cholesky_inverse_into, cholesky_log_det, dot, Scalar,
+};
 
 /// Quadrature used by [`Gaussian`] for expectations: a rule for $N(0, I_n)$ mapped to
 /// $N(m, \Sigma)$ by $x = m + L\xi$, $\Sigma = LL^\top$ (Cholesky).
@@ -219,11 +221,11 @@ impl Gaussian {
         Ok(lambda)
     }
 
-    /// Precision matrix $P$ (row-major) from $\lambda$: $P_{ii} = -2b_{ii}$,
+    /// Precision matrix $P$ (row-major) from $\lambda$ into `p`: $P_{ii} = -2b_{ii}$,
     /// $P_{ij} = -b_{ij}$.
-    fn precision<D: Scalar>(&self, lambda: &[D]) -> Vec<D> {
+    fn precision_into<D: Scalar>(&self, lambda: &[D], p: &mut [D]) {
         let n = self.dim;
-        let mut p = vec![D::zero(); n * n];
+        p.iter_mut().for_each(|v| *v = D::zero());
         for i in 0..n {
             for j in i..n {
                 let b = lambda[self.qidx(i, j)];
@@ -235,7 +237,6 @@ impl Gaussian {
                 }
             }
         }
-        p
     }
 
     fn check_lambda<D: Scalar>(&self, lambda: &[D]) -> Result<(), Error> {
@@ -285,18 +286,59 @@ impl Gaussian {
     #[allow(clippy::type_complexity)]
     fn mean_cov_factor<D: Scalar>(&self, lambda: &[D]) -> Result<(Vec<D>, Vec<D>, Vec<D>, Vec<D>), Error> {
         let n = self.dim;
-        let p = self.precision(lambda);
-        let l = cholesky(&p, n).map_err(|_| Error::NotNormalizable {
+        let (mut mean, mut cov, mut p, mut l) =
+            (vec![D::zero(); n], vec![D::zero(); n * n], vec![D::zero(); n * n], vec![D::zero(); n * n]);
+        self.factor_into(lambda, &mut mean, &mut cov, &mut p, &mut l)?;
+        Ok((mean, cov, p, l))
+    }
+
+    /// [`Gaussian::mean_cov_precision_from_natural`] into caller buffers, without allocating
+    /// (the form of a closure drift's hot loop): $m$ into `mean` (length $n$), $\Sigma$, $P$ and
+    /// the Cholesky factor $L$ of $P = LL^\top$ into `cov`, `p`, `l` ($n\times n$ each).
+    ///
+    /// # Errors
+    /// As [`Gaussian::mean_cov_from_natural`]; [`Error::DimensionMismatch`] for buffers of the
+    /// wrong length.
+    pub fn mean_cov_precision_into<D: Scalar>(
+        &self,
+        lambda: &[D],
+        mean: &mut [D],
+        cov: &mut [D],
+        p: &mut [D],
+        l: &mut [D],
+    ) -> Result<(), Error> {
+        self.check_lambda(lambda)?;
+        self.factor_into(lambda, mean, cov, p, l)
+    }
+
+    /// $(m, \Sigma, P, L)$ into buffers (see [`Gaussian::mean_cov_precision_into`]).
+    fn factor_into<D: Scalar>(
+        &self,
+        lambda: &[D],
+        mean: &mut [D],
+        cov: &mut [D],
+        p: &mut [D],
+        l: &mut [D],
+    ) -> Result<(), Error> {
+        let n = self.dim;
+        check_len("mean", mean, n)?;
+        check_len("cov", cov, n * n)?;
+        check_len("precision", p, n * n)?;
+        check_len("cholesky factor", l, n * n)?;
+        self.precision_into(lambda, p);
+        cholesky_into(p, n, l).map_err(|_| Error::NotNormalizable {
             reason: "the precision matrix P (P_ii = -2 b_ii, P_ij = -b_ij) is not positive \
                      definite"
                 .into(),
         })?;
-        let cov = cholesky_inverse(&l, n)?;
-        let mean: Vec<D> = (0..n).map(|i| (0..n).map(|j| cov[i * n + j] * lambda[j]).sum()).collect();
-        if mean.iter().chain(&cov).any(|v| !v.re().is_finite()) {
+        cholesky_inverse_into(l, n, cov)?;
+        for (i, mi) in mean.iter_mut().enumerate() {
+            *mi = (0..n).map(|j| cov[i * n + j] * lambda[j]).sum();
+        }
+        if mean.iter().chain(cov.iter()).any(|v| !v.re().is_finite()) {
             return Err(Error::NotNormalizable { reason: "the mean or covariance overflows".into() });
         }
-        Ok((mean, cov, p, l))
+        Ok(())
     }
 
     /// The log-partition function, generic over the scalar:

@@ -84,6 +84,7 @@ pub use family::{legendre_newton, Cumulants, LegendreOptions, LegendreSolution, 
 pub use gaussian::{Gaussian, GaussianRule};
 pub use quadrature::Rule;
 pub use scalar::{
-    cholesky, cholesky_inverse, cholesky_log_det, cholesky_solve, cholesky_solve_in_place, dot, Scalar,
+    cholesky, cholesky_into, cholesky_inverse, cholesky_inverse_into, cholesky_log_det, cholesky_solve,
+    cholesky_solve_in_place, dot, Scalar,
 };
 pub use weights::normalize_log_weights;

@@ -51,11 +51,23 @@ pub fn dot(a: &[f64], b: &[f64]) -> f64 {
 /// [`Error::DimensionMismatch`] if `a.len() != n * n`, [`Error::NonFinite`] for a non-finite
 /// entry, [`Error::NotPositiveDefinite`] if a pivot is not positive.
 pub fn cholesky<D: Scalar>(a: &[D], n: usize) -> Result<Vec<D>, Error> {
+    let mut l = vec![D::zero(); n * n];
+    cholesky_into(a, n, &mut l)?;
+    Ok(l)
+}
+
+/// [`cholesky`] into a caller's buffer `l` ($n\times n$, overwritten), without allocating: the
+/// hot-loop form.
+///
+/// # Errors
+/// As [`cholesky`]; [`Error::DimensionMismatch`] also if `l.len() != n * n`.
+pub fn cholesky_into<D: Scalar>(a: &[D], n: usize, l: &mut [D]) -> Result<(), Error> {
     check_len("matrix", a, n * n)?;
+    check_len("cholesky factor", l, n * n)?;
     if a.iter().any(|v| !v.re().is_finite()) {
         return Err(Error::NonFinite { what: "matrix" });
     }
-    let mut l = vec![D::zero(); n * n];
+    l.iter_mut().for_each(|v| *v = D::zero());
     for j in 0..n {
         let mut d = a[j * n + j];
         for k in 0..j {
@@ -76,7 +88,7 @@ pub fn cholesky<D: Scalar>(a: &[D], n: usize) -> Result<Vec<D>, Error> {
             l[i * n + j] = s / djj;
         }
     }
-    Ok(l)
+    Ok(())
 }
 
 /// Solves $L L^\top x = b$ given the Cholesky factor `l` of [`cholesky`].
@@ -125,9 +137,21 @@ fn solve_in_place<D: Scalar>(l: &[D], y: &mut [D]) {
 /// # Errors
 /// [`Error::DimensionMismatch`] if `l.len() != n * n`.
 pub fn cholesky_inverse<D: Scalar>(l: &[D], n: usize) -> Result<Vec<D>, Error> {
-    check_len("cholesky factor", l, n * n)?;
-    // Row j of the inverse is (LLᵀ)⁻¹e_j (the inverse is symmetric): solved in place.
     let mut inv = vec![D::zero(); n * n];
+    cholesky_inverse_into(l, n, &mut inv)?;
+    Ok(inv)
+}
+
+/// [`cholesky_inverse`] into a caller's buffer `inv` ($n\times n$, overwritten), without
+/// allocating: the hot-loop form.
+///
+/// # Errors
+/// As [`cholesky_inverse`]; [`Error::DimensionMismatch`] also if `inv.len() != n * n`.
+pub fn cholesky_inverse_into<D: Scalar>(l: &[D], n: usize, inv: &mut [D]) -> Result<(), Error> {
+    check_len("cholesky factor", l, n * n)?;
+    check_len("inverse", inv, n * n)?;
+    inv.iter_mut().for_each(|v| *v = D::zero());
+    // Row j of the inverse is (LLᵀ)⁻¹e_j (the inverse is symmetric): solved in place.
     for (j, row) in inv.chunks_exact_mut(n.max(1)).enumerate().take(n) {
         row[j] = D::one();
         solve_in_place(l, row);
@@ -140,7 +164,7 @@ pub fn cholesky_inverse<D: Scalar>(l: &[D], n: usize) -> Result<Vec<D>, Error> {
             inv[j * n + i] = s;
         }
     }
-    Ok(inv)
+    Ok(())
 }
 
 /// $\log\det(L L^\top) = 2\sum_i \log L_{ii}$ from the Cholesky factor `l` of an $n\times n$
@@ -229,5 +253,29 @@ mod tests {
         ));
         // Degenerate size: the empty matrix has the empty factor.
         assert_eq!(cholesky::<f64>(&[], 0).unwrap(), Vec::<f64>::new());
+        // The buffer forms check their output sizes.
+        let mut l = [0.0; 3];
+        assert!(matches!(
+            cholesky_into(&[4.0, 0.0, 0.0, 1.0], 2, &mut l),
+            Err(Error::DimensionMismatch { .. })
+        ));
+        assert!(matches!(
+            cholesky_inverse_into(&[2.0, 0.0, 0.0, 1.0], 2, &mut l),
+            Err(Error::DimensionMismatch { .. })
+        ));
+    }
+
+    #[test]
+    fn buffer_forms_overwrite_stale_buffers_and_match_the_allocating_forms() {
+        let a = [4.0, 1.0, 1.0, 3.0];
+        let (mut l, mut inv) = ([7.0; 4], [-3.0; 4]);
+        cholesky_into(&a, 2, &mut l).unwrap();
+        cholesky_inverse_into(&l, 2, &mut inv).unwrap();
+        assert_eq!(l.to_vec(), cholesky(&a, 2).unwrap());
+        assert_eq!(inv.to_vec(), cholesky_inverse(&cholesky(&a, 2).unwrap(), 2).unwrap());
+        // Identity: the inverse of [[4, 1], [1, 3]] is [[3, −1], [−1, 4]]/11.
+        for (v, e) in inv.iter().zip([3.0, -1.0, -1.0, 4.0]) {
+            assert_relative_eq!(*v, e / 11.0, epsilon = 1e-15);
+        }
     }
 }

@@ -17,7 +17,7 @@
 //!   (`(II.43)`) in closed form.
 
 use num_dual::{Dual2SVec64, Dual64, DualSVec64, HyperDual64};
-use onsager_closures::{cholesky, cholesky_solve_in_place, dot, Exponential, Gaussian, TrialFamily};
+use onsager_closures::{cholesky_into, cholesky_solve_in_place, dot, Exponential, Gaussian, TrialFamily};
 
 use crate::model::{Scalar, Sde};
 use crate::{Error, Result};
@@ -71,6 +71,21 @@ pub trait ClosureDrift {
         jac: &mut [f64],
         hess: &mut [f64],
     ) -> std::result::Result<(), Unrealizable>;
+
+    /// [`ClosureDrift::w_second`] at a point where the caller already has ∂W/∂λ in `jac` (from
+    /// [`ClosureDrift::w_jacobian`] at the same (t, λ)): a family whose Jacobian is the same
+    /// computation in both may skip it and leave `jac` as given; the default recomputes it.
+    fn w_second_with_jacobian(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        kappa: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+        hess: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        self.w_second(t, lambda, kappa, w, jac, hess)
+    }
 
     /// F(λ), μ(λ), C(λ).
     fn moments(&self, lambda: &[f64]) -> std::result::Result<FamilyMoments, Unrealizable>;
@@ -144,12 +159,36 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
         out: &mut [D],
     ) -> std::result::Result<(), Unrealizable> {
         let n = self.family.dim();
-        let (m, s, p) = self.family.mean_cov_precision_from_natural(lambda).map_err(unrealizable)?;
-        // Nodes m + Lξ_k of the family's standard rule, formed one at a time; the work vectors
-        // share one allocation (this runs once per stage and dual direction).
-        let l = cholesky(&s, n).map_err(unrealizable)?;
         let nt = self.theta.len();
-        let mut buf = vec![D::zero(); nt + 4 * n + 4 * n * n];
+        // All work vectors in one buffer of zeros (on the stack for small models: this runs at
+        // every Runge–Kutta stage).
+        crate::model::ad::with_zeros(8 * n * n + 5 * n + nt, |buf: &mut [D]| {
+            let (m, rest) = buf.split_at_mut(n);
+            let (s, rest) = rest.split_at_mut(n * n);
+            let (p, rest) = rest.split_at_mut(n * n);
+            let (lp, rest) = rest.split_at_mut(n * n);
+            let (l, rest) = rest.split_at_mut(n * n);
+            self.family.mean_cov_precision_into(lambda, m, s, p, lp).map_err(unrealizable)?;
+            // Nodes m + Lξ_k of the family's standard rule (Σ = LLᵀ), formed one at a time.
+            cholesky_into(s, n, l).map_err(unrealizable)?;
+            self.w_nodes(t, m, p, l, rest, out)
+        })
+    }
+
+    /// The node averages and the map to natural parameters of [`GaussianDrift::w_generic`],
+    /// given m, P = Σ⁻¹ and the factor L of Σ; `buf` (zeros, length ≥ nθ + 4n + 4n²) holds
+    /// the work vectors.
+    fn w_nodes<D: Scalar>(
+        &self,
+        t: f64,
+        m: &[D],
+        p: &[D],
+        l: &[D],
+        buf: &mut [D],
+        out: &mut [D],
+    ) -> std::result::Result<(), Unrealizable> {
+        let n = self.family.dim();
+        let nt = self.theta.len();
         let (theta, rest) = buf.split_at_mut(nt);
         let (f, rest) = rest.split_at_mut(n);
         let (fbar, rest) = rest.split_at_mut(n);
@@ -408,6 +447,8 @@ pub struct ExponentialDrift<'a, S: Sde + ?Sized> {
     second: Vec<f64>,
     linear: Vec<Option<usize>>,
     square: Vec<Option<usize>>,
+    /// The buffers of one evaluation, reused (the drift is evaluated at every Runge–Kutta stage).
+    work: std::cell::RefCell<ExpWork>,
 }
 
 impl<S: Sde + ?Sized> std::fmt::Debug for ExponentialDrift<'_, S> {
@@ -479,6 +520,7 @@ impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
             second,
             linear,
             square,
+            work: Default::default(),
         })
     }
 
@@ -495,18 +537,24 @@ impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
 
 /// The Jacobi-scaled Cholesky factor of a moment covariance C (entries of very different
 /// sizes): C = S⁻¹LLᵀS⁻¹ with S = diag(1/√C_aa).
+#[derive(Debug, Default)]
 struct SpdFactor {
     scale: Vec<f64>,
+    scaled: Vec<f64>,
     l: Vec<f64>,
 }
 
 impl SpdFactor {
-    fn new(c: &[f64], r: usize) -> std::result::Result<Self, Unrealizable> {
-        let scale: Vec<f64> = (0..r).map(|a| 1.0 / c[a * r + a].max(f64::MIN_POSITIVE).sqrt()).collect();
-        let scaled: Vec<f64> = (0..r * r).map(|ab| c[ab] * scale[ab / r] * scale[ab % r]).collect();
-        let l = cholesky(&scaled, r)
-            .map_err(|_| Unrealizable("the moment covariance C is not positive definite".into()))?;
-        Ok(SpdFactor { scale, l })
+    /// Factors C (row-major R × R) in place of the previous factor.
+    fn factor(&mut self, c: &[f64], r: usize) -> std::result::Result<(), Unrealizable> {
+        self.scale.clear();
+        self.scale.extend((0..r).map(|a| 1.0 / c[a * r + a].max(f64::MIN_POSITIVE).sqrt()));
+        self.scaled.clear();
+        let scale = &self.scale;
+        self.scaled.extend((0..r * r).map(|ab| c[ab] * scale[ab / r] * scale[ab % r]));
+        self.l.resize(r * r, 0.0);
+        cholesky_into(&self.scaled, r, &mut self.l)
+            .map_err(|_| Unrealizable("the moment covariance C is not positive definite".into()))
     }
 
     /// x = C⁻¹b in place.
@@ -524,6 +572,7 @@ impl SpdFactor {
 /// What W and ∂W/∂λ of an exponential closure are made of (see [`ExponentialDrift`]), flat:
 /// node probabilities π, centred moments d = M(x_k) − μ, πd, generator values g_k (each
 /// moment-major: one row of node values per moment; g is 0 where π is), V, the factor of C, W.
+#[derive(Debug, Default)]
 struct FirstOrder {
     p: Vec<f64>,
     d: Vec<f64>,
@@ -534,35 +583,58 @@ struct FirstOrder {
     w: Vec<f64>,
 }
 
+/// The buffers of one evaluation of an [`ExponentialDrift`]: [`FirstOrder`] and the scratch of
+/// the log-weights, the drift at the nodes, C, and the node and moment vectors of ∂W/∂λ and
+/// ∇²(κᵀW).
+#[derive(Debug, Default)]
+struct ExpWork {
+    z: FirstOrder,
+    s: Vec<f64>,
+    fs: Vec<f64>,
+    f: Vec<f64>,
+    cov: Vec<f64>,
+    nodes: [Vec<f64>; 5],
+    col: Vec<f64>,
+    u: Vec<f64>,
+    tm: Vec<f64>,
+    tj: Vec<f64>,
+}
+
 impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
-    /// π, d, g, V, C and W = C⁻¹V at (t, λ).
-    fn zeroth(&self, t: f64, lambda: &[f64]) -> std::result::Result<FirstOrder, Unrealizable> {
+    /// π, d, g, V, C and W = C⁻¹V at (t, λ) into `z`, with the scratch of `work`.
+    fn zeroth(&self, t: f64, lambda: &[f64], work: &mut ExpWork) -> std::result::Result<(), Unrealizable> {
         let n = self.family.dim();
         let r = self.family.n_moments();
-        let (p, _) = self.family.node_probabilities(lambda).map_err(unrealizable)?;
+        let ExpWork { z, s, fs, f, cov, .. } = work;
+        self.family.node_probabilities_into(lambda, s, &mut z.p).map_err(unrealizable)?;
+        let p = &z.p;
         let nodes = p.len();
         // The drift at the nodes that carry mass, state-major.
-        let mut fs = vec![0.0; n * nodes];
-        let mut f = vec![0.0; n];
+        fs.clear();
+        fs.resize(n * nodes, 0.0);
+        f.clear();
+        f.resize(n, 0.0);
         let points = self.family.grid().points();
         for (k, &pk) in p.iter().enumerate() {
             if pk != 0.0 {
-                self.sde.state_drift(t, &points[k * n..(k + 1) * n], &self.theta, &mut f);
+                self.sde.state_drift(t, &points[k * n..(k + 1) * n], &self.theta, f);
                 for i in 0..n {
                     fs[i * nodes + k] = f[i];
                 }
             }
         }
-        // Filled row by row (no zeroing: these are the hot allocations).
         let massless = p.contains(&0.0);
-        let mut d = Vec::with_capacity(r * nodes);
-        let mut pd = Vec::with_capacity(r * nodes);
-        let mut g = self.second.clone();
-        let mut v = vec![0.0; r];
+        let (d, pd, g, v) = (&mut z.d, &mut z.pd, &mut z.g, &mut z.v);
+        d.clear();
+        pd.clear();
+        g.clear();
+        g.extend_from_slice(&self.second);
+        v.clear();
+        v.resize(r, 0.0);
         for (a, va) in v.iter_mut().enumerate() {
             let row = a * nodes..(a + 1) * nodes;
             let ma = &self.table[row.clone()];
-            let mu = dot(&p, ma);
+            let mu = dot(p, ma);
             d.extend(ma.iter().map(|&mk| mk - mu));
             pd.extend(p.iter().zip(&d[row.clone()]).map(|(&pk, &dk)| pk * dk));
             let ga = &mut g[row];
@@ -574,86 +646,127 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
                 }
             }
             if massless {
-                for (gk, &pk) in ga.iter_mut().zip(&p) {
+                for (gk, &pk) in ga.iter_mut().zip(p) {
                     if pk == 0.0 {
                         *gk = 0.0;
                     }
                 }
             }
-            *va = dot(&p, ga);
+            *va = dot(p, ga);
         }
         if !v.iter().all(|x| x.is_finite()) {
             return Err(Unrealizable("the drift is not finite on the family's grid".into()));
         }
-        let mut c = vec![0.0; r * r];
+        cov.clear();
+        cov.resize(r * r, 0.0);
         for a in 0..r {
             for b in a..r {
                 let cab = dot(&pd[a * nodes..(a + 1) * nodes], &d[b * nodes..(b + 1) * nodes]);
-                c[a * r + b] = cab;
-                c[b * r + a] = cab;
+                cov[a * r + b] = cab;
+                cov[b * r + a] = cab;
             }
         }
-        let c = SpdFactor::new(&c, r)?;
-        let mut w = v.clone();
-        c.solve(&mut w);
-        Ok(FirstOrder { p, d, pd, g, v, c, w })
+        z.c.factor(cov, r)?;
+        z.w.clear();
+        z.w.extend_from_slice(v);
+        z.c.solve(&mut z.w);
+        Ok(())
     }
 
-    /// Σ_k s_k d_a(x_k) d_b(x_k) for all a, b (symmetric, row-major r × r) of a node weight s.
-    fn weighted_second_moments(z: &FirstOrder, s: &[f64], out: &mut [f64]) {
+    /// Σ_k s_k d_a(x_k) d_b(x_k) for all a, b (symmetric, row-major r × r) of a node weight s;
+    /// `sd` is scratch.
+    fn weighted_second_moments(z: &FirstOrder, s: &[f64], out: &mut [f64], sd: &mut Vec<f64>) {
         let r = z.w.len();
         let nodes = z.p.len();
-        let mut sd = vec![0.0; nodes];
+        sd.clear();
+        sd.resize(nodes, 0.0);
         for a in 0..r {
             let da = &z.d[a * nodes..(a + 1) * nodes];
             for ((x, &sk), &dk) in sd.iter_mut().zip(s).zip(da) {
                 *x = sk * dk;
             }
             for b in a..r {
-                let v = dot(&sd, &z.d[b * nodes..(b + 1) * nodes]);
+                let v = dot(sd, &z.d[b * nodes..(b + 1) * nodes]);
                 out[a * r + b] = v;
                 out[b * r + a] = v;
             }
         }
     }
 
-    /// Σ_a c_a m_a(x_k) at every node of moment-major rows m.
-    fn project(rows: &[f64], c: &[f64]) -> Vec<f64> {
+    /// Σ_a c_a m_a(x_k) at every node of moment-major rows m, into `out`.
+    fn project(rows: &[f64], c: &[f64], out: &mut Vec<f64>) {
         let nodes = rows.len() / c.len().max(1);
-        let mut out = vec![0.0; nodes];
+        out.clear();
+        out.resize(nodes, 0.0);
         for (row, &ca) in rows.chunks_exact(nodes).zip(c) {
             for (o, &mk) in out.iter_mut().zip(row) {
                 *o += ca * mk;
             }
         }
-        out
     }
 
-    /// ∂W/∂λ = C⁻¹Σπ_k(g_k − (d_k·W)d_k)d_kᵀ into `jac` (row-major).
-    fn jacobian_of(&self, z: &FirstOrder, jac: &mut [f64]) {
+    /// ∂W/∂λ = C⁻¹Σπ_k(g_k − (d_k·W)d_k)d_kᵀ into `jac` (row-major), of `work.z`.
+    fn jacobian_of(work: &mut ExpWork, jac: &mut [f64]) {
+        let ExpWork { z, nodes: [wd, e, ..], col, .. } = work;
         let r = z.w.len();
         let nodes = z.p.len();
-        let wd = Self::project(&z.d, &z.w);
-        let mut e = vec![0.0; nodes];
+        Self::project(&z.d, &z.w, wd);
+        e.clear();
+        e.resize(nodes, 0.0);
         for a in 0..r {
             let row = a * nodes..(a + 1) * nodes;
             for (((ek, &pk), &gk), (&pdk, &u)) in
-                e.iter_mut().zip(&z.p).zip(&z.g[row.clone()]).zip(z.pd[row].iter().zip(&wd))
+                e.iter_mut().zip(&z.p).zip(&z.g[row.clone()]).zip(z.pd[row].iter().zip(wd.iter()))
             {
                 *ek = pk * gk - u * pdk;
             }
             for j in 0..r {
-                jac[a * r + j] = dot(&e, &z.d[j * nodes..(j + 1) * nodes]);
+                jac[a * r + j] = dot(e, &z.d[j * nodes..(j + 1) * nodes]);
             }
         }
-        let mut col = vec![0.0; r];
+        col.clear();
+        col.resize(r, 0.0);
         for j in 0..r {
             for a in 0..r {
                 col[a] = jac[a * r + j];
             }
-            z.c.solve(&mut col);
+            z.c.solve(col);
             for a in 0..r {
                 jac[a * r + j] = col[a];
+            }
+        }
+    }
+
+    /// ∇²(κᵀW) of [`ClosureDrift::w_second`] into `hess`, from the node values of `work.z` and
+    /// J = ∂W/∂λ.
+    fn hessian_of(&self, work: &mut ExpWork, kappa: &[f64], jac: &[f64], hess: &mut [f64]) {
+        let r = self.family.n_moments();
+        let ExpWork { z, nodes: [ud, wd, ug, psi, tu], u, tm, tj, f: sd, .. } = work;
+        u.clear();
+        u.extend_from_slice(kappa);
+        z.c.solve(u);
+        // hess = ⟨ψ d dᵀ⟩, tm = T, with ψ_k = π_k(uᵀg_k − (uᵀd_k)(Wᵀd_k)) and π_k uᵀd_k.
+        Self::project(&z.d, u, ud);
+        Self::project(&z.d, &z.w, wd);
+        Self::project(&z.g, u, ug);
+        psi.clear();
+        psi.extend((0..z.p.len()).map(|k| z.p[k] * (ug[k] - ud[k] * wd[k])));
+        tu.clear();
+        tu.extend(z.p.iter().zip(ud.iter()).map(|(p, u)| p * u));
+        tm.clear();
+        tm.resize(r * r, 0.0);
+        Self::weighted_second_moments(z, psi, hess, sd);
+        Self::weighted_second_moments(z, tu, tm, sd);
+        tj.clear();
+        tj.resize(r * r, 0.0);
+        for a in 0..r {
+            for j in 0..r {
+                tj[a * r + j] = (0..r).map(|b| tm[a * r + b] * jac[b * r + j]).sum();
+            }
+        }
+        for a in 0..r {
+            for j in 0..r {
+                hess[a * r + j] += -tj[a * r + j] - tj[j * r + a] + kappa[a] * z.v[j] + z.v[a] * kappa[j];
             }
         }
     }
@@ -669,8 +782,9 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
     }
 
     fn w(&self, t: f64, lambda: &[f64], out: &mut [f64]) -> std::result::Result<(), Unrealizable> {
-        let z = self.zeroth(t, lambda)?;
-        out.copy_from_slice(&z.w);
+        let work = &mut *self.work.borrow_mut();
+        self.zeroth(t, lambda, work)?;
+        out.copy_from_slice(&work.z.w);
         Ok(())
     }
 
@@ -681,9 +795,10 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
         w: &mut [f64],
         jac: &mut [f64],
     ) -> std::result::Result<(), Unrealizable> {
-        let z = self.zeroth(t, lambda)?;
-        self.jacobian_of(&z, jac);
-        w.copy_from_slice(&z.w);
+        let work = &mut *self.work.borrow_mut();
+        self.zeroth(t, lambda, work)?;
+        Self::jacobian_of(work, jac);
+        w.copy_from_slice(&work.z.w);
         Ok(())
     }
 
@@ -703,30 +818,29 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
         jac: &mut [f64],
         hess: &mut [f64],
     ) -> std::result::Result<(), Unrealizable> {
-        let r = self.family.n_moments();
-        let z = self.zeroth(t, lambda)?;
-        self.jacobian_of(&z, jac);
-        let mut u = kappa.to_vec();
-        z.c.solve(&mut u);
-        // hess = ⟨ψ d dᵀ⟩, tm = T, with ψ_k = π_k(uᵀg_k − (uᵀd_k)(Wᵀd_k)) and π_k uᵀd_k.
-        let (ud, wd, ug) = (Self::project(&z.d, &u), Self::project(&z.d, &z.w), Self::project(&z.g, &u));
-        let psi: Vec<f64> = (0..z.p.len()).map(|k| z.p[k] * (ug[k] - ud[k] * wd[k])).collect();
-        let tu: Vec<f64> = z.p.iter().zip(&ud).map(|(p, u)| p * u).collect();
-        let mut tm = vec![0.0; r * r];
-        Self::weighted_second_moments(&z, &psi, hess);
-        Self::weighted_second_moments(&z, &tu, &mut tm);
-        let mut tj = vec![0.0; r * r];
-        for a in 0..r {
-            for j in 0..r {
-                tj[a * r + j] = (0..r).map(|b| tm[a * r + b] * jac[b * r + j]).sum();
-            }
-        }
-        for a in 0..r {
-            for j in 0..r {
-                hess[a * r + j] += -tj[a * r + j] - tj[j * r + a] + kappa[a] * z.v[j] + z.v[a] * kappa[j];
-            }
-        }
-        w.copy_from_slice(&z.w);
+        let work = &mut *self.work.borrow_mut();
+        self.zeroth(t, lambda, work)?;
+        Self::jacobian_of(work, jac);
+        self.hessian_of(work, kappa, jac, hess);
+        w.copy_from_slice(&work.z.w);
+        Ok(())
+    }
+
+    /// The Jacobian of [`ClosureDrift::w_jacobian`] is the same computation
+    /// (`jacobian_of` of the same node values): `jac` is used as given.
+    fn w_second_with_jacobian(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        kappa: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+        hess: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        let work = &mut *self.work.borrow_mut();
+        self.zeroth(t, lambda, work)?;
+        self.hessian_of(work, kappa, jac, hess);
+        w.copy_from_slice(&work.z.w);
         Ok(())
     }
 
@@ -911,5 +1025,30 @@ mod tests {
         let family = Exponential::quartic(-3.0, 3.0).unwrap();
         let e = ExponentialDrift::try_new(&DoubleWell, &[0.5], family).unwrap();
         check_second(&e, &[0.3, 1.0, -0.2, -0.8], &[0.5, -0.25, 0.1, 0.8], 1e-5);
+    }
+
+    /// `w_second_with_jacobian` given the Jacobian of `w_jacobian` returns what `w_second`
+    /// returns, bit for bit (the exponential family keeps the given Jacobian; the Gaussian
+    /// recomputes it), also after an evaluation elsewhere (the reused work buffers).
+    #[test]
+    fn second_derivatives_with_a_given_jacobian_equal_w_second() {
+        fn compare<Dr: ClosureDrift>(dr: &Dr, lambda: &[f64], kappa: &[f64]) {
+            let r = lambda.len();
+            let z = || (vec![0.0; r], vec![0.0; r * r], vec![0.0; r * r]);
+            let ((mut w1, mut j1, mut h1), (mut w2, mut j2, mut h2)) = (z(), z());
+            dr.w_second(0.3, lambda, kappa, &mut w1, &mut j1, &mut h1).unwrap();
+            dr.w_jacobian(0.3, lambda, &mut w2, &mut j2).unwrap();
+            let other: Vec<f64> = lambda.iter().map(|v| v * 0.9).collect();
+            dr.w_jacobian(0.1, &other, &mut w2.clone(), &mut j2.clone()).unwrap();
+            dr.w_second_with_jacobian(0.3, lambda, kappa, &mut w2, &mut j2, &mut h2).unwrap();
+            for (a, b) in w1.iter().chain(&j1).chain(&h1).zip(w2.iter().chain(&j2).chain(&h2)) {
+                assert_eq!(a.to_bits(), b.to_bits());
+            }
+        }
+        let family = Exponential::quartic(-3.0, 3.0).unwrap();
+        let e = ExponentialDrift::try_new(&DoubleWell, &[0.5], family).unwrap();
+        compare(&e, &[0.3, 1.0, -0.2, -0.8], &[0.5, -0.25, 0.1, 0.8]);
+        let g = GaussianDrift::try_new(&DoubleWell, &[0.5]).unwrap();
+        compare(&g, &[0.4 / 0.3, -0.5 / 0.3], &[0.7, -1.3]);
     }
 }

@@ -471,8 +471,13 @@ impl<D: ClosureDrift> ClosureAction<D> {
                     let block = (6 * s + i) * rr..(6 * s + i + 1) * rr;
                     let ji = if second {
                         let ki = &kbar[i * r..(i + 1) * r];
-                        let (ji, hi) = (&mut derivs.jac[block.clone()], &mut derivs.hess[block]);
-                        self.drift.w_second(ti, yi, ki, &mut w, ji, hi).map_err(|_| SweepFailure)?;
+                        let (ji, hi) = (&mut derivs.jac[block.clone()], &mut derivs.hess[block.clone()]);
+                        // The forward sweep's J_i, which a family may keep (see
+                        // `ClosureDrift::w_second_with_jacobian`).
+                        ji.copy_from_slice(&steps.jac[block]);
+                        self.drift
+                            .w_second_with_jacobian(ti, yi, ki, &mut w, ji, hi)
+                            .map_err(|_| SweepFailure)?;
                         &*ji
                     } else {
                         &steps.jac[block]
@@ -585,21 +590,21 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let mut active = vec![0usize; ne];
         let mut ncol = 0;
         let (mut dys, mut dks) = (Vec::new(), Vec::new());
-        for e in 0..ne {
+        for (e, (act, meas)) in active.iter_mut().zip(&events.meas).enumerate() {
             if e > 0 {
                 for st in fw.steps.interval(e - 1) {
                     let jac = &derivs.jac[6 * rr * st..6 * rr * (st + 1)];
                     Self::tangent_step(fw.steps.h[st], jac, r, nm, ncol, &mut dl, &mut dys, &mut dks);
                 }
             }
-            if let Some(k) = events.meas[e] {
+            if let Some(k) = *meas {
                 dl_before.push(dl.clone());
                 for (b, &a) in self.measured.iter().enumerate() {
                     dl[a * nm + k * s + b] += 1.0;
                 }
                 ncol = (k + 1) * s;
             }
-            active[e] = ncol;
+            *act = ncol;
             dl_after.push(dl.clone());
         }
         // Backward tangent δγ (R × nm).
