@@ -238,8 +238,8 @@ pub trait Sde {
 pub struct DriftDerivatives<'a> {
     /// For each input of w, its column among the kept inputs, or [`DriftDerivatives::DROPPED`].
     cols: &'a [usize],
-    /// Number of kept inputs n.
-    n: usize,
+    /// Length n(n + 1)/2 of a packed Hessian, n the number of kept inputs.
+    tri: usize,
     /// Number of kept outputs.
     outputs: usize,
     /// For each kept output, the position of its Hessian in `hess` or
@@ -263,7 +263,7 @@ impl<'a> DriftDerivatives<'a> {
     /// each input of w = (x, z, θ) to its column 0..n or to [`Self::DROPPED`].
     pub fn new(cols: &'a [usize], n: usize, outputs: usize, jac: &'a mut [f64], hess: &'a mut [f64]) -> Self {
         debug_assert!(jac.len() >= outputs * n);
-        DriftDerivatives { cols, n, outputs, slots: None, jac, hess, seconds: 0 }
+        DriftDerivatives { cols, tri: n * (n + 1) / 2, outputs, slots: None, jac, hess, seconds: 0 }
     }
 
     /// Stores the Hessian of output o at position `slots[o]` of `hess` (its packed triangle at
@@ -274,7 +274,7 @@ impl<'a> DriftDerivatives<'a> {
     }
 
     /// Adds `v` to ∂(output o)/∂w_i.
-    #[inline]
+    #[inline(always)]
     pub fn first(&mut self, o: usize, i: usize, v: f64) {
         let c = self.cols[i];
         if o < self.outputs && c != Self::DROPPED {
@@ -283,7 +283,7 @@ impl<'a> DriftDerivatives<'a> {
     }
 
     /// Adds `v` to ∂²(output o)/∂w_i∂w_j (i and j in either order; the entry is stored once).
-    #[inline]
+    #[inline(always)]
     pub fn second(&mut self, o: usize, i: usize, j: usize, v: f64) {
         let (a, b) = (self.cols[i], self.cols[j]);
         if o >= self.outputs || a == Self::DROPPED || b == Self::DROPPED {
@@ -295,7 +295,7 @@ impl<'a> DriftDerivatives<'a> {
         let slot = self.slots.map_or(o, |s| s[o]);
         if slot != Self::DROPPED {
             let (r, c) = (a.max(b), a.min(b));
-            self.hess[slot * self.n * (self.n + 1) / 2 + r * (r + 1) / 2 + c] += v;
+            self.hess[slot * self.tri + r * (r + 1) / 2 + c] += v;
         }
     }
 

@@ -606,22 +606,25 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
             let stored: u64 = cache.stored.iter().filter(|&&o| o < 64).fold(0, |m, &o| m | 1 << o);
             let PointCache { data, slots, len, .. } = cache;
             data.resize((2 * n + 1) * *len, 0.0);
-            let missing = with_buffer(npt, |pl| {
-                for (q, entry) in data.chunks_exact_mut(*len).enumerate() {
-                    // node q, or the midpoint of piece q − N − 1 (states after the nodes' in w)
-                    let t = if q <= n {
-                        self.grid.time(q)
-                    } else {
-                        0.5 * (self.grid.time(q - n - 1) + self.grid.time(q - n))
-                    };
-                    let (jr, packed) = entry.split_at_mut(nout * npt);
-                    let s = &w[q * ns..(q + 1) * ns];
-                    let seconds = self.hs_point_derivatives(t, s, theta_e, slots, pl, jr, packed, &mut ph);
-                    if seconds & !stored != 0 {
-                        return seconds & !stored;
+            let missing = self.with_theta(theta_e, |theta| {
+                with_buffer(npt, |pl| {
+                    for (q, entry) in data.chunks_exact_mut(*len).enumerate() {
+                        // node q, or the midpoint of piece q − N − 1 (states after the nodes' in w)
+                        let t = if q <= n {
+                            self.grid.time(q)
+                        } else {
+                            0.5 * (self.grid.time(q - n - 1) + self.grid.time(q - n))
+                        };
+                        let (jr, packed) = entry.split_at_mut(nout * npt);
+                        let s = &w[q * ns..(q + 1) * ns];
+                        let seconds =
+                            self.hs_point_derivatives(t, s, theta_e, theta, slots, pl, jr, packed, &mut ph);
+                        if seconds & !stored != 0 {
+                            return seconds & !stored;
+                        }
                     }
-                }
-                0
+                    0
+                })
             });
             if missing == 0 {
                 return;
@@ -663,8 +666,8 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
 
     /// The first and second derivatives of the outputs of a Lobatto point at time `t` with
     /// states `s` (the rate [f; h] and, for Onsager–Machlup, div_x f) in the point's
-    /// (s, θ_d), `theta_e` the estimated θ: the Jacobian into `jr` (outputs × npt,
-    /// column-major), the packed lower triangles of the Hessians of the outputs o with
+    /// (s, θ_d), `theta_e` the estimated θ and `theta` the full θ: the Jacobian into `jr`
+    /// (outputs × npt, column-major), the packed lower triangles of the Hessians of the outputs o with
     /// `slots[o]` ≠ [`DriftDerivatives::DROPPED`] into `packed` (at `slots[o]`). From the
     /// model's closed form ([`Sde::drift_derivatives`]) when it has one, else one
     /// [`ad::hessians_into`] pass (`pl`, `ph`: scratch of npt and outputs · npt² entries).
@@ -676,6 +679,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         t: f64,
         s: &[f64],
         theta_e: &[f64],
+        theta: &[f64],
         slots: &[usize],
         pl: &mut [f64],
         jr: &mut [f64],
@@ -686,15 +690,12 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         let d = p.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
         let (npt, nout) = (self.hs_point_dim(), self.hs_point_outputs());
-        let closed = self.with_theta(theta_e, |theta| {
-            jr.fill(0.0);
-            packed.fill(0.0);
-            let mut out =
-                DriftDerivatives::new(&self.point_cols, npt, nout, jr, packed).with_hessian_slots(slots);
-            p.sde.drift_derivatives(t, &s[..nx], &s[nx..], theta, &mut out).then(|| out.second_outputs())
-        });
-        if let Some(seconds) = closed {
-            return seconds;
+        jr.fill(0.0);
+        packed.fill(0.0);
+        let mut out =
+            DriftDerivatives::new(&self.point_cols, npt, nout, jr, packed).with_hessian_slots(slots);
+        if p.sde.drift_derivatives(t, &s[..nx], &s[nx..], theta, &mut out) {
+            return out.second_outputs();
         }
         let om = self.merit == Merit::OnsagerMachlup;
         let f = PointFn { nlp: self, t, theta_e, with_div: om, div_weight: 0.0, mu: None };
@@ -728,7 +729,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         if let Some(c) = cached {
             for i in 0..3 {
                 let e = self.hs_entry(k, i) * c.len;
-                self.hs_add_rate_jacobian(k, i, &c.data[e..e + nout * npt], nout, jac);
+                self.hs_add_rate_jacobian(i, &c.data[e..e + nout * npt], nout, jac);
             }
             return;
         }
@@ -738,20 +739,20 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
                     for (i, (t, off, ..)) in self.hs_points(k).into_iter().enumerate() {
                         self.hs_point_local(local, off, pl);
                         ad::jacobian_into(&self.point_fn(t, local), pl, value, jr);
-                        self.hs_add_rate_jacobian(k, i, jr, ns, jac);
+                        self.hs_add_rate_jacobian(i, jr, ns, jac);
                     }
                 })
             })
         });
     }
 
-    /// Adds the part of Lobatto point i of piece k to the piece's constraint Jacobian `jac`
+    /// Adds the part of Lobatto point i of a piece to the piece's constraint Jacobian `jac`
     /// (row-major): −(h/6) α_i and −(h/8) β_i times the rate Jacobian `jr` (its columns
     /// `stride` apart, the rate in the first ns entries of each).
-    fn hs_add_rate_jacobian(&self, k: usize, i: usize, jr: &[f64], stride: usize, jac: &mut [f64]) {
+    fn hs_add_rate_jacobian(&self, i: usize, jr: &[f64], stride: usize, jac: &mut [f64]) {
         let ns = self.problem.sde.dims().states();
         let nv = jac.len() / (2 * ns);
-        let (_, _, alpha, beta, _) = self.hs_points(k)[i];
+        let (alpha, beta, _) = HS_WEIGHTS[i];
         let h = self.grid.step;
         let (w1, w2) = (-alpha * h / 6.0, -beta * h / 8.0);
         for (&c, jc) in self.point_index[i].iter().zip(jr.chunks_exact(stride)) {
@@ -808,7 +809,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         let (points, noise) = values.split_at_mut(3 * tri);
         with_buffer(ns, |mu| {
             for (i, out) in points.chunks_exact_mut(tri).enumerate() {
-                let div_weight = self.hs_point_weights(k, i, obj_factor, lambda, mu);
+                let div_weight = self.hs_point_weights(i, obj_factor, lambda, mu);
                 if let Some(c) = cached {
                     let e = self.hs_entry(k, i) * c.len;
                     let hs = &c.data[e + nout * npt..e + c.len];
@@ -839,11 +840,11 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         noise[nx..2 * nx].fill(obj_factor * h / 12.0);
     }
 
-    /// The weights of Lobatto point i of piece k in the Hessian of the Lagrangian: μ_i =
+    /// The weights of Lobatto point i of a piece in the Hessian of the Lagrangian: μ_i =
     /// −(h/6) α_i λ₁ − (h/8) β_i λ₂ of the rate [f; h] (into `mu`), and, returned, σ_f (h/12) α_i of
     /// div_x f for Onsager–Machlup (0 for the energy merit).
-    fn hs_point_weights(&self, k: usize, i: usize, obj_factor: f64, lambda: &[f64], mu: &mut [f64]) -> f64 {
-        let (_, _, alpha, beta, _) = self.hs_points(k)[i];
+    fn hs_point_weights(&self, i: usize, obj_factor: f64, lambda: &[f64], mu: &mut [f64]) -> f64 {
+        let (alpha, beta, _) = HS_WEIGHTS[i];
         let h = self.grid.step;
         let ns = mu.len();
         for (r, m) in mu.iter_mut().enumerate() {
@@ -1194,7 +1195,8 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
     fn constraints(&mut self, w: &[f64], c: &mut [f64]) {
         if self.transcription == Transcription::HermiteSimpson {
             // only the pieces have constraints
-            return self.hs_constraints(w, c);
+            self.hs_constraints(w, c);
+            return;
         }
         for b in self.blocks.iter().filter(|b| b.rows > 0) {
             with_buffer(b.vars.len(), |local| {
