@@ -20,7 +20,11 @@
 //! Sect. 4.2.1, written for $LDL^\top$: for $j = f_p, \dots, p-1$,
 //! $u_{pj} = a_{pj} - \sum_{k=\max(f_p, f_j)}^{j-1} u_{pk}\, l_{jk}$ with $u_{pk} = l_{pk} d_k$,
 //! then $l_{pj} = u_{pj}/d_j$ and $d_p = a_{pp} - \sum_j u_{pj} l_{pj}$. Each inner sum is a dot
-//! product of two contiguous slices. Pivots with $|d| \le 10^{-30}\max|K_{ij}|$ are replaced by
+//! product of two contiguous slices. Consecutive rows with the same first column (the defect
+//! constraints of one transcription interval) form a group: their sums over the columns before
+//! the group are done together, up to four rows per pass over row $j$ of the factor, and the
+//! columns inside the group right after each of its rows is finished (the same sums; only those
+//! of eight or more terms before the group are added in another order). Pivots with $|d| \le 10^{-30}\max|K_{ij}|$ are replaced by
 //! $\pm\delta\max|K_{ij}|$ ([`REGULARIZATION_DELTA`](super::kkt::REGULARIZATION_DELTA)), exactly
 //! as faer's dynamic regularisation in
 //! [`FaerLdlt`](super::FaerLdlt), and the inertia is read from the signs of $D$.
@@ -55,6 +59,11 @@ pub struct BandLdlt {
     first: Vec<usize>,
     /// Start of each row in `values` / `factor`; the row's diagonal is at `row_ptr[p + 1] − 1`.
     row_ptr: Vec<usize>,
+    /// Row groups `(p0, end)`, ascending: at least two consecutive rows with the same first
+    /// column f < p0 (for example the defect constraints of one transcription interval), so
+    /// that the factorisation handles the columns f..p0 before the group once for up to four
+    /// of its rows. The other rows are factorised one at a time.
+    groups: Vec<(usize, usize)>,
     /// Assembled lower envelope of the matrix.
     values: Vec<f64>,
     /// The factor: unit-lower L below the diagonal, D on the diagonal.
@@ -189,6 +198,75 @@ impl BandLdlt {
 fn axpy(a: f64, x: &[f64], y: &mut [f64]) {
     for (yk, &xk) in y.iter_mut().zip(x) {
         *yk -= a * xk;
+    }
+}
+
+/// The R dot products of the rows with x (each row at least as long as x), each summed left
+/// to right, in one pass over x.
+#[inline(always)]
+fn multi_dot<const R: usize>(rows: [&[f64]; R], x: &[f64]) -> [f64; R] {
+    let n = x.len();
+    let rows = rows.map(|r| &r[..n]);
+    let mut s = [0.0f64; R];
+    for k in 0..n {
+        let xk = x[k];
+        for i in 0..R {
+            s[i] += rows[i][k] * xk;
+        }
+    }
+    s
+}
+
+/// The runs of at least two consecutive rows with the same first column f < p0 (see
+/// [`BandLdlt`]'s `groups`).
+fn row_groups(first: &[usize]) -> Vec<(usize, usize)> {
+    let mut groups = Vec::new();
+    let mut p0 = 0;
+    while p0 < first.len() {
+        let mut end = p0 + 1;
+        while end < first.len() && first[end] == first[p0] {
+            end += 1;
+        }
+        if first[p0] < p0 && end - p0 >= 2 {
+            groups.push((p0, end));
+        }
+        p0 = end;
+    }
+    groups
+}
+
+/// For the R consecutive rows of a group stored in `rows` (lengths `lens`, first column `f`,
+/// the group starting at row `p0`), the columns f + 1..p0 before the group:
+/// u_pj ← u_pj − Σ_k u_pk l_jk over k = max(f, f_j)..j − 1, for the R rows at once, so that
+/// row j of the factor (in `done`) is read once for all of them.
+#[inline(always)]
+fn factor_shared_columns<const R: usize>(
+    rows: &mut [f64],
+    lens: [usize; R],
+    done: &[f64],
+    first: &[usize],
+    row_ptr: &[usize],
+    f: usize,
+    p0: usize,
+) {
+    let mut rest = rows;
+    let rows: [&mut [f64]; R] = std::array::from_fn(|i| {
+        let (a, b) = std::mem::take(&mut rest).split_at_mut(lens[i]);
+        rest = b;
+        a
+    });
+    for j in f + 1..p0 {
+        let k0 = f.max(first[j]);
+        if k0 >= j {
+            continue; // row j starts at its diagonal: nothing to subtract
+        }
+        let (a, b) = (k0 - f, j - f);
+        let dj = row_ptr[j + 1] - 1;
+        let lj = &done[dj - (b - a)..dj];
+        let s = multi_dot(rows.each_ref().map(|r| &r[a..b]), lj);
+        for i in 0..R {
+            rows[i][b] -= s[i];
+        }
     }
 }
 
@@ -384,6 +462,7 @@ impl KktSolver for BandLdlt {
         self.hess_map = s.hessian.iter().map(|&(i, j)| slot(lower(iperm[i], iperm[j]))).collect();
         self.jac_map = s.jacobian.iter().map(|&(r, c)| slot(lower(iperm[n + r], iperm[c]))).collect();
         self.diag_map = (0..dim).map(|g| row_ptr[iperm[g] + 1] - 1).collect();
+        self.groups = row_groups(&first);
         self.first = first;
         self.row_ptr = row_ptr;
         self.iperm = iperm;
@@ -442,25 +521,14 @@ impl KktSolver for BandLdlt {
         let mut regularized = 0usize;
         let mut inertia = Inertia::default();
         let (first, row_ptr) = (&self.first, &self.row_ptr);
-        for p in 0..dim {
-            let (fp, start, end) = (first[p], row_ptr[p], row_ptr[p + 1]);
-            let (done, rest) = self.factor.split_at_mut(start);
-            // row[jj] is column fp + jj, row[p − fp] the diagonal
-            let row = &mut rest[..end - start];
-            let w = p - fp;
-            // u_pj = a_pj − Σ_k u_pk l_jk over k = max(fp, f_j) .. j − 1: the last `len` entries
-            // before the diagonal of row j (stored at row_ptr[j + 1] − 1) against the entries of
-            // row p before column j (row p holds u_p· for the columns already done)
-            for jj in 1..w {
-                let j = fp + jj;
-                let dj = row_ptr[j + 1] - 1;
-                let len = jj.min(j - first[j]);
-                let s = dot(&row[jj - len..jj], &done[dj - len..dj]);
-                row[jj] -= s;
-            }
+        let (factor, inv_d) = (&mut self.factor, &mut self.inv_d);
+        // turns row p (u_p· for the columns f_p..p, then a_pp) into l_p· and d_p; None for a
+        // non-finite pivot
+        let mut finish = |p: usize, row: &mut [f64]| -> Option<()> {
+            let w = p - first[p];
             let (offdiag, diag) = row.split_at_mut(w);
             let mut d = diag[0];
-            for (u, &inv) in offdiag.iter_mut().zip(&self.inv_d[fp..p]) {
+            for (u, &inv) in offdiag.iter_mut().zip(&inv_d[first[p]..p]) {
                 let l = *u * inv;
                 d -= *u * l;
                 *u = l;
@@ -473,12 +541,72 @@ impl KktSolver for BandLdlt {
                 return None;
             }
             diag[0] = d;
-            self.inv_d[p] = 1.0 / d;
+            inv_d[p] = 1.0 / d;
             if d > 0.0 {
                 inertia.positive += 1;
             } else {
                 inertia.negative += 1;
             }
+            Some(())
+        };
+        let mut p = 0;
+        for &(p0, end) in self.groups.iter().chain(std::iter::once(&(dim, dim))) {
+            // single rows: u_pj = a_pj − Σ_k u_pk l_jk over k = max(f_p, f_j)..j − 1, the last
+            // `len` entries before the diagonal of row j against the entries of row p before
+            // column j (row p holds u_p· for the columns already done)
+            for q in p..p0 {
+                let (done, rest) = factor.split_at_mut(row_ptr[q]);
+                let row = &mut rest[..row_ptr[q + 1] - row_ptr[q]];
+                let fq = first[q];
+                for jj in 1..q - fq {
+                    let j = fq + jj;
+                    let len = jj.min(j - first[j]);
+                    if len > 0 {
+                        let dj = row_ptr[j + 1] - 1;
+                        row[jj] -= dot(&row[jj - len..jj], &done[dj - len..dj]);
+                    }
+                }
+                finish(q, row)?;
+            }
+            if p0 == dim {
+                break;
+            }
+            let f = first[p0];
+            // a group: the columns f + 1..p0 before it (column f needs nothing), up to four
+            // rows at a time
+            let (done, rest) = factor.split_at_mut(row_ptr[p0]);
+            let mut seg = &mut rest[..row_ptr[end] - row_ptr[p0]];
+            let mut t = p0;
+            while t < end {
+                let r = (end - t).min(4);
+                let (chunk, tail) = std::mem::take(&mut seg).split_at_mut(row_ptr[t + r] - row_ptr[t]);
+                seg = tail;
+                let len = |i: usize| row_ptr[t + i + 1] - row_ptr[t + i];
+                let (fr, rp) = (first, row_ptr);
+                match r {
+                    4 => factor_shared_columns(chunk, [len(0), len(1), len(2), len(3)], done, fr, rp, f, p0),
+                    3 => factor_shared_columns(chunk, [len(0), len(1), len(2)], done, fr, rp, f, p0),
+                    2 => factor_shared_columns(chunk, [len(0), len(1)], done, fr, rp, f, p0),
+                    _ => factor_shared_columns(chunk, [len(0)], done, fr, rp, f, p0),
+                }
+                t += r;
+            }
+            // then its rows in order: the columns p0..q of row q were updated when the earlier
+            // rows of the group were finished; finish row q and update the later rows t of the
+            // group at column q: u_tq = a_tq − Σ_{k=f}^{q−1} u_tk l_qk
+            for q in p0..end {
+                let (head, tail) = factor.split_at_mut(row_ptr[q + 1]);
+                finish(q, &mut head[row_ptr[q]..])?;
+                let w = q - f;
+                let lq = &head[row_ptr[q]..row_ptr[q + 1] - 1];
+                let mut seg = &mut tail[..row_ptr[end] - row_ptr[q + 1]];
+                for t in q + 1..end {
+                    let (rt, rest) = std::mem::take(&mut seg).split_at_mut(t - f + 1);
+                    seg = rest;
+                    rt[w] -= dot(&rt[..w], lq);
+                }
+            }
+            p = end;
         }
         self.factored = true;
         self.regularized = regularized;
