@@ -528,7 +528,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
 
     /// Time, local offset of the states and (α, β) weights of the three Lobatto points of
     /// piece k: the Simpson weights α = (1, 4, 1) and the Hermite midpoint weights
-    /// β = (1, 0, −1) of the defects in [`Self::block_constraints`].
+    /// β = (1, 0, −1) of the defects in [`Self::hs_constraints`].
     fn hs_points(&self, k: usize) -> [(f64, usize, f64, f64, f64); 3] {
         let ns = self.problem.sde.dims().states();
         let (t0, t1) = (self.grid.time(k), self.grid.time(k + 1));
@@ -719,7 +719,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
 
     /// Writes the constraint Jacobian of a Hermite–Simpson piece (rows × nv, row-major) into
     /// `jac`: its constant part ([`hs_jacobian_constant`]) plus the rate Jacobians at its three
-    /// points (see [`Self::block_constraints`] for the defects), read from `cached` (the
+    /// points (see [`Self::hs_constraints`] for the defects), read from `cached` (the
     /// [`PointCache`] when it holds the current point; `local`, the piece's local vector, is
     /// then not read) or differentiated.
     fn hs_jacobian_into(&self, k: usize, local: &[f64], jac: &mut [f64], cached: Option<&PointCache>) {
@@ -874,7 +874,7 @@ const HS_WEIGHTS: [(f64, f64, f64); 3] = [(1.0, 1.0, -0.5), (4.0, 0.0, 0.0), (1.
 /// length of the piece's local vector (s0, sm, s1, a, b, θ)) that does not depend on the point:
 /// the derivatives of s1 − s0 and sm − ½(s0 + s1) and, through the noise term
 /// G(a + (σ_i − ½) b) of the rate at the Lobatto points (weights −(h/6)(1, 4, 1) and
-/// −(h/8)(1, 0, −1), see `PathNlp::block_constraints`), ∂/∂a = G and ∂/∂b = (σ_i − ½) G on
+/// −(h/8)(1, 0, −1), see `PathNlp::hs_constraints`), ∂/∂a = G and ∂/∂b = (σ_i − ½) G on
 /// the noisy rows.
 fn hs_jacobian_constant(ns: usize, nx: usize, nv: usize, h: f64, g: &[f64]) -> Vec<f64> {
     let mut jac = vec![0.0; 2 * ns * nv];

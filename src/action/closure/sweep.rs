@@ -325,6 +325,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let mut tc = t;
         let mut h = h_guess.min(span);
         let mut rejections = 0usize;
+        // the step cap below is per interval between events, as before the steps were flat
+        let first_step = steps.len();
         let r = y.len();
         let rr = r * r;
         if work.k1_time != Some(tc) {
@@ -359,7 +361,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                     rejections += 1;
                 }
             }
-            if h < 1e-13 * span.max(1.0) || rejections > 10_000 || steps.len() > 2_000_000 {
+            if h < 1e-13 * span.max(1.0) || rejections > 10_000 || steps.len() - first_step > 2_000_000 {
                 return Err(SweepFailure);
             }
         }
@@ -430,7 +432,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
 
     /// The discrete adjoint: γ at every event (after the jump at measurement events, i.e.
     /// γ(t_k+)); with `second`, also the stage derivatives of every step for the tangents
-    /// (`[interval][step]`).
+    /// (flat, indexed like the forward sweep's steps: [`Steps::interval`]).
     fn backward(
         &self,
         events: &Events,
