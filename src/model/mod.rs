@@ -115,6 +115,22 @@ pub trait Sde {
         false
     }
 
+    /// The total degree d of the state drift [f; h](t, x, z, θ) as a polynomial in the state
+    /// s = (x, z), the same d for every t and θ (a bound: a term of degree d may vanish for
+    /// some θ), or `None` when the drift is not a polynomial in the state (the default).
+    ///
+    /// Used by the Gaussian closures to choose their quadrature: their averages ⟨f⟩ and
+    /// ⟨f (s − m)ᵀ⟩ over N(m, Σ) (`003_d2fc48a470e528fc.txt (II.3)`) are then averages of
+    /// polynomials of degree ≤ d + 1, which a Gauss–Hermite rule of ⌊d/2⌋ + 1 points per
+    /// dimension integrates exactly, instead of the 16 / 8 / 5 points of the general rule
+    /// (see `docs/closures.md`). **A wrong declaration gives wrong closure averages** with no
+    /// error (a degree below the true one drops the higher moments of the drift); `None`, the
+    /// default, is always correct. The built-in models' declarations are tested against their
+    /// drifts.
+    fn drift_polynomial_degree(&self) -> Option<usize> {
+        None
+    }
+
     // ----- provided methods -------------------------------------------------------------
 
     /// Names of all states: noisy then clean.

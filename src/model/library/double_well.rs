@@ -70,6 +70,11 @@ impl Sde for DoubleWell {
         true
     }
 
+    /// f = 4x − 4x³: a cubic.
+    fn drift_polynomial_degree(&self) -> Option<usize> {
+        Some(3)
+    }
+
     /// D enters G only.
     fn drift_uses_param(&self, i: usize) -> bool {
         i != Self::D

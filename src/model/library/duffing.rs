@@ -98,6 +98,11 @@ impl Sde for Duffing {
         true
     }
 
+    /// f = −az³ − bz − dx + γ cos t and h = x: a cubic in (x, z).
+    fn drift_polynomial_degree(&self) -> Option<usize> {
+        Some(3)
+    }
+
     /// Σ_D enters G only, Σ_y the measurements only.
     fn drift_uses_param(&self, i: usize) -> bool {
         i != Self::SIGMA_D && i != Self::SIGMA_Y

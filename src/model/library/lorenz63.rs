@@ -96,6 +96,11 @@ impl Sde for Lorenz63 {
         true
     }
 
+    /// f is quadratic (the products x₁x₃ and x₁x₂).
+    fn drift_polynomial_degree(&self) -> Option<usize> {
+        Some(2)
+    }
+
     /// Σ_w enters G only.
     fn drift_uses_param(&self, i: usize) -> bool {
         i != Self::SIGMA_W

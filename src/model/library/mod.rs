@@ -148,6 +148,10 @@ impl Sde for BuiltinModel {
     ) -> bool {
         delegate!(self, m => m.drift_derivatives(t, x, z, theta, out))
     }
+
+    fn drift_polynomial_degree(&self) -> Option<usize> {
+        delegate!(self, m => m.drift_polynomial_degree())
+    }
 }
 
 /// A built-in model with everything needed to simulate it and to estimate its states and

@@ -70,6 +70,11 @@ impl Sde for Ou {
         true
     }
 
+    /// f = −θx: linear.
+    fn drift_polynomial_degree(&self) -> Option<usize> {
+        Some(1)
+    }
+
     /// Σ enters G only.
     fn drift_uses_param(&self, i: usize) -> bool {
         i != Self::SIGMA

@@ -565,3 +565,65 @@ fn closed_form_drift_derivatives_equal_automatic_differentiation() {
         }
     });
 }
+
+/// The (d + 1)-th forward difference Δ_h^{d+1} g(0) = Σ_k (−1)^{d+1−k} C(d + 1, k) g(kh) of
+/// every component of g: zero for a polynomial of degree ≤ d, d! h^d times the leading
+/// coefficient for degree d + 1 (Newton's forward-difference identity).
+fn forward_difference(g: &dyn Fn(f64) -> Vec<f64>, order: usize, h: f64) -> (Vec<f64>, f64) {
+    let mut out = Vec::new();
+    let mut scale = 0.0f64;
+    let mut binom = 1.0;
+    for k in 0..=order {
+        let sign = if (order - k) % 2 == 0 { 1.0 } else { -1.0 };
+        let v = g(k as f64 * h);
+        out.resize(v.len(), 0.0);
+        for (o, vi) in out.iter_mut().zip(&v) {
+            *o += sign * binom * vi;
+            scale = scale.max(binom * vi.abs());
+        }
+        binom = binom * (order - k) as f64 / (k + 1) as f64;
+    }
+    (out, scale)
+}
+
+/// Every built-in model that declares `drift_polynomial_degree() = Some(d)` has a state drift
+/// [f; h] of degree exactly d along random lines s0 + τu of the state (t and θ random): the
+/// (d + 1)-th finite difference vanishes to round-off at every point, the d-th does not
+/// (so d is not an overstatement) on some. `tanh` is not a polynomial and declares nothing;
+/// `BuiltinModel` forwards the declaration.
+#[test]
+fn declared_drift_polynomial_degrees_are_exact() {
+    let declared = std::cell::RefCell::new(Vec::new());
+    let leading = std::cell::RefCell::new(Vec::new());
+    for_every_model(|p, pt| {
+        let Some(d) = p.model.drift_polynomial_degree() else {
+            assert_eq!(p.name, "tanh", "a polynomial model without a declared degree");
+            return;
+        };
+        declared.borrow_mut().push(p.name);
+        let ns = p.dims().states();
+        let s0 = concat(&[&pt.x, &pt.z]);
+        // A direction from the point's velocity and state, of length ~1.
+        let u: Vec<f64> = (0..ns).map(|i| ((i + 1) as f64 * 1.7 + s0[i]).sin()).collect();
+        let g = |tau: f64| {
+            let s: Vec<f64> = s0.iter().zip(&u).map(|(a, b)| a + tau * b).collect();
+            let mut out = vec![0.0; ns];
+            p.model.state_drift(pt.t, &s, &pt.theta, &mut out);
+            out
+        };
+        let h = 0.5;
+        let (high, scale) = forward_difference(&g, d + 1, h);
+        for v in &high {
+            assert!(v.abs() <= 1e-13 * scale, "{}: Δ^{} = {v} (scale {scale})", p.name, d + 1);
+        }
+        let (top, scale) = forward_difference(&g, d, h);
+        if top.iter().any(|v| v.abs() > 1e-6 * scale) {
+            leading.borrow_mut().push(p.name);
+        }
+    });
+    let (mut declared, mut leading) = (declared.into_inner(), leading.into_inner());
+    declared.dedup();
+    leading.dedup();
+    assert_eq!(declared, leading, "models whose declared degree is never reached");
+    assert_eq!(declared.len(), NAMES.len() - 1);
+}

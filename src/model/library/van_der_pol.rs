@@ -84,6 +84,11 @@ impl Sde for VanDerPol {
         true
     }
 
+    /// f = (v, −u + μ(1 − u²)v): a cubic (the term u²v).
+    fn drift_polynomial_degree(&self) -> Option<usize> {
+        Some(3)
+    }
+
     /// Σ enters G only.
     fn drift_uses_param(&self, i: usize) -> bool {
         i != Self::SIGMA
