@@ -379,3 +379,49 @@ fn quartic_closure_is_closer_to_the_exact_estimate_than_the_gaussian_closure() {
     let (eg, eq) = (rmse(&g.path.values, &exact.history.mean), rmse(&q.path.values, &exact.history.mean));
     assert!(eq < 0.02 && eq < 0.2 * eg, "RMSE quartic {eq} vs Gaussian {eg}");
 }
+
+/// The double well's drift 4x − 4x³ is declared cubic, so the Gaussian closures average it with
+/// the exact 3-point Gauss–Hermite rule (`Sde::drift_polynomial_degree`); their estimates equal
+/// those with the general 16-point rule (`gaussian_points = 16`) to round-off carried through
+/// the Runge–Kutta sweeps and the dual Newton iteration: path and F to 1e-8, same status. The
+/// moment-path (double-exponential) closure likewise.
+#[test]
+fn reduced_gauss_hermite_rule_gives_the_16_point_estimate_on_the_double_well() {
+    let case = DoubleWellCase::new(0, 12.0);
+    let problem = case.problem();
+    for kind in [ClosureKind::Gaussian, ClosureKind::DoubleExponential] {
+        let reduced = closure_estimate(&problem, &kind, &ClosureOptions::new()).unwrap();
+        let full =
+            closure_estimate(&problem, &kind, &ClosureOptions::new().with_gaussian_points(16)).unwrap();
+        assert_eq!(reduced.status, full.status, "{kind:?}");
+        assert_eq!(reduced.status, Status::Converged, "{kind:?}");
+        assert_eq!(reduced.path.times, full.path.times);
+        let mut max_err: f64 = 0.0;
+        for (a, b) in reduced.path.values.iter().zip(&full.path.values) {
+            max_err = max_err.max((a[0] - b[0]).abs());
+        }
+        assert!(max_err <= 1e-8, "{kind:?}: max |path(3 points) − path(16 points)| = {max_err}");
+        if kind == ClosureKind::Gaussian {
+            let f = |e: &onsager::estimate::PathEstimate| e.details["f_value"].as_f64().unwrap();
+            assert!((f(&reduced) - f(&full)).abs() <= 1e-8, "F: {} vs {}", f(&reduced), f(&full));
+        }
+    }
+}
+
+/// `gaussian_points`: 0, or more points than the Gauss–Hermite rules have, is an invalid option
+/// (for the dual and for the moment-path closures), not a panic.
+#[test]
+fn gaussian_points_option_is_validated() {
+    let case = DoubleWellCase::new(1, 2.0);
+    let problem = case.problem();
+    for kind in [ClosureKind::Gaussian, ClosureKind::Ksp] {
+        for bad in [0, 100_000] {
+            let options = ClosureOptions::new().with_gaussian_points(bad);
+            let err = closure_estimate(&problem, &kind, &options).unwrap_err();
+            assert!(
+                matches!(&err, Error::InvalidOption { name, .. } if name == "gaussian points"),
+                "{kind:?}, {bad} points: {err}"
+            );
+        }
+    }
+}

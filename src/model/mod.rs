@@ -121,7 +121,7 @@ pub trait Sde {
     ///
     /// Used by the Gaussian closures to choose their quadrature: their averages ⟨f⟩ and
     /// ⟨f (s − m)ᵀ⟩ over N(m, Σ) (`003_d2fc48a470e528fc.txt (II.3)`) are then averages of
-    /// polynomials of degree ≤ d + 1, which a Gauss–Hermite rule of ⌊d/2⌋ + 1 points per
+    /// polynomials of degree ≤ d + 1, which a Gauss–Hermite rule of ⌊(d + 1)/2⌋ + 1 points per
     /// dimension integrates exactly, instead of the 16 / 8 / 5 points of the general rule
     /// (see `docs/closures.md`). **A wrong declaration gives wrong closure averages** with no
     /// error (a degree below the true one drops the higher moments of the drift); `None`, the

@@ -17,7 +17,9 @@
 //!   (`(II.43)`) in closed form.
 
 use num_dual::{Dual2SVec64, Dual64, DualSVec64, HyperDual64};
-use onsager_closures::{cholesky_into, cholesky_solve_in_place, dot, Exponential, Gaussian, TrialFamily};
+use onsager_closures::{
+    cholesky_into, cholesky_solve_in_place, dot, Exponential, Gaussian, GaussianRule, TrialFamily,
+};
 
 use crate::model::{Scalar, Sde};
 use crate::{Error, Result};
@@ -116,12 +118,55 @@ fn unrealizable(e: onsager_closures::Error) -> Unrealizable {
     Unrealizable(e.to_string())
 }
 
+/// Gauss–Hermite points per dimension that make the Gaussian closures' averages exact for a
+/// state drift of total degree `degree` in the state: ⌊(d + 1)/2⌋ + 1.
+///
+/// The only quantities the Gaussian closures average over the nodes m + Lξ are ⟨f⟩ and
+/// ⟨f (s − m)ᵀ⟩ (the moment equations ṁ = ⟨f⟩, Σ̇ = ⟨f(s − m)ᵀ⟩ + ⟨(s − m)fᵀ⟩ + 2D, i.e.
+/// V = ⟨L*M⟩ of `003_d2fc48a470e528fc.txt (II.3)` for M = (s_i, s_is_j), and the same averages
+/// in the moment-path action (II.56)); D is constant and the cumulants, the prior and the
+/// measurement terms are closed forms. With f of total degree d, both integrands are
+/// polynomials in ξ of total degree ≤ d + 1, so each exponent of ξ_i is ≤ d + 1, and the
+/// tensor rule of k points per dimension, exact for ∏ξ_i^{a_i} with every a_i ≤ 2k − 1, is
+/// exact when 2k − 1 ≥ d + 1. The derivatives in λ (or in (μ, v)) are then derivatives of
+/// the exact polynomial expressions in (m, L), so W, ∂W/∂λ and ∇²(κᵀW) are exact too.
+pub fn exact_gauss_hermite_points(degree: usize) -> usize {
+    (degree + 1) / 2 + 1
+}
+
+/// The quadrature of the Gaussian closures on a `dim`-dimensional state: `points_per_dim`
+/// Gauss–Hermite points per dimension when given; otherwise, when the model declares a
+/// polynomial drift ([`Sde::drift_polynomial_degree`]) and `dim` ≤ 3, the fewest that make the
+/// averages exact ([`exact_gauss_hermite_points`]: 2 points for a linear or quadratic drift,
+/// 3 for a cubic) if that is fewer than [`GaussianRule::Auto`]'s 16 / 8 / 5; else
+/// [`GaussianRule::Auto`].
+pub fn gaussian_closure_rule<S: Sde + ?Sized>(
+    sde: &S,
+    dim: usize,
+    points_per_dim: Option<usize>,
+) -> GaussianRule {
+    if let Some(k) = points_per_dim {
+        return GaussianRule::GaussHermite { points_per_dim: k };
+    }
+    let auto = match dim {
+        1 => 16,
+        2 => 8,
+        3 => 5,
+        _ => return GaussianRule::Auto,
+    };
+    match sde.drift_polynomial_degree().map(exact_gauss_hermite_points) {
+        Some(k) if k < auto => GaussianRule::GaussHermite { points_per_dim: k },
+        _ => GaussianRule::Auto,
+    }
+}
+
 /// The Gaussian closure of any model: M = (x_i, x_ix_j (i ≤ j)) on the full state [x; z]
 /// ([`Gaussian`]). Between measurements the closure is the moment equation
 /// ṁ = ⟨f⟩, Σ̇ = ⟨f(x − m)ᵀ⟩ + ⟨(x − m)fᵀ⟩ + 2D, the node averages taken by the family's rule
-/// (Gauss–Hermite or cubature); it is mapped to the natural parameters (a, b) = (Pm, −½P_ii,
-/// −P_ij) with Ṗ = −PΣ̇P, ȧ = Ṗm + Pṁ, which is W = C⁻¹V (`003_d2fc48a470e528fc.txt (II.46)`)
-/// without forming C. Exact for linear drifts.
+/// ([`gaussian_closure_rule`]: Gauss–Hermite or cubature; for a drift declared polynomial, the
+/// smallest Gauss–Hermite rule that takes them exactly); it is mapped to the natural
+/// parameters (a, b) = (Pm, −½P_ii, −P_ij) with Ṗ = −PΣ̇P, ȧ = Ṗm + Pṁ, which is W = C⁻¹V
+/// (`003_d2fc48a470e528fc.txt (II.46)`) without forming C. Exact for linear drifts.
 pub struct GaussianDrift<'a, S: Sde + ?Sized> {
     sde: &'a S,
     theta: Vec<f64>,
@@ -136,13 +181,28 @@ impl<S: Sde + ?Sized> std::fmt::Debug for GaussianDrift<'_, S> {
 }
 
 impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
-    /// The Gaussian closure of `sde` at θ on the full state. Errors: a singular or non-finite G.
+    /// The Gaussian closure of `sde` at θ on the full state, with the automatic quadrature of
+    /// [`gaussian_closure_rule`]. Errors: a singular or non-finite G.
     pub fn try_new(sde: &'a S, theta: &[f64]) -> Result<Self> {
+        Self::try_with_points(sde, theta, None)
+    }
+
+    /// As [`GaussianDrift::try_new`] with `points_per_dim` Gauss–Hermite points per dimension
+    /// (`None`: automatic, [`gaussian_closure_rule`]). Errors: a singular or non-finite G;
+    /// [`Error::InvalidOption`] (`gaussian points`) for 0 points, more than the Gauss–Hermite
+    /// rules have, or a tensor rule of more than 10⁷ nodes.
+    pub fn try_with_points(sde: &'a S, theta: &[f64], points_per_dim: Option<usize>) -> Result<Self> {
         let n = sde.dims().states();
-        let family = Gaussian::try_new(n).map_err(|e| Error::InvalidOption {
-            name: "model".into(),
-            reason: format!("Gaussian closure: {e}"),
-        })?;
+        let family = Gaussian::try_new(n)
+            .map_err(|e| Error::InvalidOption {
+                name: "model".into(),
+                reason: format!("Gaussian closure: {e}"),
+            })?
+            .with_rule(gaussian_closure_rule(sde, n, points_per_dim))
+            .map_err(|e| Error::InvalidOption {
+                name: "gaussian points".into(),
+                reason: format!("Gaussian closure quadrature: {e}"),
+            })?;
         Ok(GaussianDrift { sde, theta: theta.to_vec(), family, diffusion: diffusion_matrix(sde, theta)? })
     }
 
@@ -861,7 +921,7 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::library::{DoubleWell, Lorenz63, Ou, VanDerPol};
+    use crate::model::library::{DoubleWell, Duffing, HolmesRand, Lorenz63, Ou, Tanh, VanDerPol};
     use approx::assert_relative_eq;
 
     fn fd_jacobian<Dr: ClosureDrift>(dr: &Dr, t: f64, lambda: &[f64]) -> Vec<f64> {
@@ -1050,5 +1110,107 @@ mod tests {
         compare(&e, &[0.3, 1.0, -0.2, -0.8], &[0.5, -0.25, 0.1, 0.8]);
         let g = GaussianDrift::try_new(&DoubleWell, &[0.5]).unwrap();
         compare(&g, &[0.4 / 0.3, -0.5 / 0.3], &[0.7, -1.3]);
+    }
+
+    /// W, ∂W/∂λ and ∇²(κᵀW) of a Gaussian closure at N(m, Σ), Σ = diag(var) + 0.05 off the
+    /// diagonal, t = 0.7 (so that the time-dependent forcing of Duffing and Holmes–Rand enters).
+    fn second_at<S: Sde + ?Sized>(g: &GaussianDrift<'_, S>, m: &[f64], var: &[f64]) -> Vec<f64> {
+        let n = m.len();
+        let cov: Vec<f64> = (0..n * n).map(|k| if k / n == k % n { var[k / n] } else { 0.05 }).collect();
+        let lambda = g.family().natural_from_mean_cov(m, &cov).unwrap();
+        let r = lambda.len();
+        let kappa: Vec<f64> = (0..r).map(|a| 0.3 + 0.4 * (a as f64).sin()).collect();
+        let (mut w, mut jac, mut hess) = (vec![0.0; r], vec![0.0; r * r], vec![0.0; r * r]);
+        g.w_second(0.7, &lambda, &kappa, &mut w, &mut jac, &mut hess).unwrap();
+        w.into_iter().chain(jac).chain(hess).collect()
+    }
+
+    fn max_difference(a: &[f64], b: &[f64]) -> (f64, f64) {
+        let scale = a.iter().fold(0.0f64, |s, v| s.max(v.abs()));
+        (a.iter().zip(b).fold(0.0f64, |d, (u, v)| d.max((u - v).abs())), scale)
+    }
+
+    /// For every built-in model with a declared polynomial drift of degree d, the automatic rule
+    /// is Gauss–Hermite with ⌊(d + 1)/2⌋ + 1 points per dimension, and W, ∂W/∂λ and ∇²(κᵀW) with it
+    /// equal those of the general rule (16 / 8 / 5 points per dimension) to round-off: the
+    /// averages ⟨f⟩, ⟨f(x − m)ᵀ⟩ are integrals of polynomials of degree ≤ d + 1 in the standard
+    /// normal ξ, which both rules integrate exactly (`003_d2fc48a470e528fc.txt (II.3)`). One
+    /// point fewer is not exact (the check is sensitive). `tanh` keeps the
+    /// general rule.
+    #[test]
+    fn exact_reduced_rule_equals_the_general_rule_for_polynomial_drifts() {
+        fn check<S: Sde>(sde: &S, theta: &[f64], m: &[f64], var: &[f64], k: usize) {
+            let n = m.len();
+            let auto = [16, 8, 5][n - 1];
+            let reduced = GaussianDrift::try_new(sde, theta).unwrap();
+            assert_eq!(reduced.family().rule_kind(), GaussianRule::GaussHermite { points_per_dim: k });
+            let full = GaussianDrift::try_with_points(sde, theta, Some(auto)).unwrap();
+            let (a, b) = (second_at(&reduced, m, var), second_at(&full, m, var));
+            let (diff, scale) = max_difference(&a, &b);
+            assert!(diff <= 1e-12 * scale, "k = {k}: difference {diff}, scale {scale}");
+            if k > 1 {
+                let coarse = GaussianDrift::try_with_points(sde, theta, Some(k - 1)).unwrap();
+                let (diff, scale) = max_difference(&second_at(&coarse, m, var), &b);
+                assert!(diff > 1e-6 * scale, "k − 1 = {} points are already exact", k - 1);
+            }
+        }
+        check(&Ou, &Ou::NOMINAL, &[0.4], &[0.3], 2);
+        check(&DoubleWell, &[0.5], &[0.4], &[0.3], 3);
+        check(&VanDerPol, &VanDerPol::NOMINAL, &[0.3, -0.5], &[0.2, 0.1], 3);
+        check(&Duffing, &Duffing::NOMINAL, &[0.3, -0.5], &[0.2, 0.1], 3);
+        check(&HolmesRand, &HolmesRand::NOMINAL, &[0.3, -0.5], &[0.2, 0.1], 3);
+        check(&Lorenz63, &Lorenz63::NOMINAL, &[0.3, -0.5, 1.0], &[0.2, 0.25, 0.3], 2);
+        let tanh = GaussianDrift::try_new(&Tanh, &Tanh::NOMINAL).unwrap();
+        assert_eq!(tanh.family().rule_kind(), GaussianRule::Auto);
+    }
+
+    /// The rule choice: an explicit size wins; no reduction from 4 states on (the cubature)
+    /// or where the exact rule would not be smaller than the general one; 0 points is an
+    /// invalid option, not a panic.
+    #[test]
+    fn gaussian_closure_rule_choices() {
+        let gh = |k| GaussianRule::GaussHermite { points_per_dim: k };
+        assert_eq!(gaussian_closure_rule(&DoubleWell, 1, Some(7)), gh(7));
+        assert_eq!(gaussian_closure_rule(&DoubleWell, 1, None), gh(3));
+        assert_eq!(gaussian_closure_rule(&DoubleWell, 4, None), GaussianRule::Auto);
+        assert_eq!(gaussian_closure_rule(&Tanh, 1, None), GaussianRule::Auto);
+        assert_eq!(exact_gauss_hermite_points(1), 2);
+        assert_eq!(exact_gauss_hermite_points(2), 2);
+        assert_eq!(exact_gauss_hermite_points(3), 3);
+        assert_eq!(exact_gauss_hermite_points(4), 3);
+        assert_eq!(exact_gauss_hermite_points(7), 5);
+        // A declared degree of 9 in 3-D needs 6 points: not fewer than the general rule's 5.
+        struct Nonic;
+        impl Sde for Nonic {
+            fn dims(&self) -> crate::model::Dims {
+                crate::model::Dims { noisy: 3, clean: 0, params: 0 }
+            }
+            fn noisy_names(&self) -> Vec<String> {
+                vec!["a".into(), "b".into(), "c".into()]
+            }
+            fn param_names(&self) -> Vec<String> {
+                Vec::new()
+            }
+            fn drift<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], _theta: &[D], out: &mut [D]) {
+                for (o, &v) in out.iter_mut().zip(x) {
+                    *o = -v.powi(9);
+                }
+            }
+            fn diffusion<D: Scalar>(&self, _theta: &[D], out: &mut [D]) {
+                for (k, o) in out.iter_mut().enumerate() {
+                    *o = D::from(if k % 4 == 0 { 1.0 } else { 0.0 });
+                }
+            }
+            fn drift_polynomial_degree(&self) -> Option<usize> {
+                Some(9)
+            }
+        }
+        assert_eq!(gaussian_closure_rule(&Nonic, 3, None), GaussianRule::Auto);
+        for bad in [0, 10_000] {
+            assert!(matches!(
+                GaussianDrift::try_with_points(&DoubleWell, &[0.5], Some(bad)),
+                Err(Error::InvalidOption { name, .. }) if name == "gaussian points"
+            ));
+        }
     }
 }

@@ -12,8 +12,9 @@
 //! these coordinates (ṁ − V) = J(ẏ − V_y) with J = ∂m/∂y, and Q_y = J⁻¹QJ⁻ᵀ
 //! = diag(D, 4Dv) (from Q = D[[1, 2μ], [2μ, 4⟨x²⟩]]), so
 //! ¼(ṁ − V)ᵀQ⁻¹(ṁ − V) = ¼[(μ̇ − ⟨f⟩)²/D + (v̇ − 2⟨f(x − μ)⟩ − 2D)²/(4Dv)],
-//! the averages taken with the family's Gauss–Hermite nodes ([`Gaussian::nodes`], exact for
-//! polynomial drift of low degree).
+//! the averages taken with the family's Gauss–Hermite nodes ([`Gaussian::nodes`]; for a drift
+//! declared polynomial of degree d, ⌊(d + 1)/2⌋ + 1 nodes, which take them exactly, see
+//! [`super::drift::gaussian_closure_rule`]).
 //!
 //! Initial term: K(m) = KL(N(μ, v) ‖ prior), the boundary term α(t_0)ᵀm(t_0) − F(λ(t_0)) + F(β_0)
 //! of (II.59) integrated by parts, so that the smoothed initial state can move (with K the
@@ -47,6 +48,7 @@ use crate::nlp::{self, NlpOptions, NlpProblem};
 use crate::{Error, Result};
 
 use super::super::exact::gaussian_dual_data;
+use super::drift::gaussian_closure_rule;
 use super::{gaussian_prior, invalid, ClosureKind};
 
 /// Options of [`moment_path_estimate`].
@@ -63,11 +65,15 @@ pub struct MomentPathOptions {
     pub tolerance: f64,
     /// Iteration limit of the interior-point solver. Default 500.
     pub max_iterations: usize,
+    /// Gauss–Hermite points of the averages ⟨f⟩, ⟨f(x − μ)⟩ (at least 1). Default `None`:
+    /// automatic, as [`super::ClosureOptions::gaussian_points`] (3 for a cubic drift, exact;
+    /// 16 for a drift not declared polynomial).
+    pub gaussian_points: Option<usize>,
 }
 
 impl Default for MomentPathOptions {
     fn default() -> Self {
-        MomentPathOptions { t0: 0.0, step: None, tolerance: 1e-9, max_iterations: 500 }
+        MomentPathOptions { t0: 0.0, step: None, tolerance: 1e-9, max_iterations: 500, gaussian_points: None }
     }
 }
 
@@ -109,6 +115,9 @@ impl MomentPathOptions {
         }
         if self.max_iterations == 0 {
             return Err(invalid("max iterations", "must be at least 1"));
+        }
+        if self.gaussian_points == Some(0) {
+            return Err(invalid("gaussian points", "must be at least 1"));
         }
         Ok(())
     }
@@ -361,7 +370,12 @@ fn build<'a, S: Sde + ?Sized>(
             measurements.push((grid.len() - 1, r));
         }
     }
-    let family = Gaussian::try_new(1).map_err(|e| invalid("model", e.to_string()))?;
+    // Only ⟨f⟩ and ⟨f(x − μ)⟩ go through the nodes: exact with ⌊(d + 1)/2⌋ + 1 points for a drift of
+    // degree d (see `gaussian_closure_rule`).
+    let rule = gaussian_closure_rule(problem.sde, 1, options.gaussian_points);
+    let family = Gaussian::try_new(1)
+        .and_then(|g| g.with_rule(rule))
+        .map_err(|e| invalid("gaussian points", e.to_string()))?;
     let r_var = data.variance[0];
     // Start: the data linearly interpolated (constant outside), variance R.
     let pts: Vec<(f64, f64)> = measurements.iter().map(|&(i, r)| (grid[i], r)).collect();
