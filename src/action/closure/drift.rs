@@ -131,7 +131,7 @@ fn unrealizable(e: onsager_closures::Error) -> Unrealizable {
 /// exact when 2k − 1 ≥ d + 1. The derivatives in λ (or in (μ, v)) are then derivatives of
 /// the exact polynomial expressions in (m, L), so W, ∂W/∂λ and ∇²(κᵀW) are exact too.
 pub fn exact_gauss_hermite_points(degree: usize) -> usize {
-    (degree + 1) / 2 + 1
+    degree.div_ceil(2) + 1
 }
 
 /// The quadrature of the Gaussian closures on a `dim`-dimensional state: `points_per_dim`

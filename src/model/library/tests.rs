@@ -574,7 +574,7 @@ fn forward_difference(g: &dyn Fn(f64) -> Vec<f64>, order: usize, h: f64) -> (Vec
     let mut scale = 0.0f64;
     let mut binom = 1.0;
     for k in 0..=order {
-        let sign = if (order - k) % 2 == 0 { 1.0 } else { -1.0 };
+        let sign = if (order - k).is_multiple_of(2) { 1.0 } else { -1.0 };
         let v = g(k as f64 * h);
         out.resize(v.len(), 0.0);
         for (o, vi) in out.iter_mut().zip(&v) {
