@@ -202,6 +202,10 @@ pub struct MethodOptions {
     pub keep_initial: Vec<String>,
     /// Degree of the exponential closure's moments (default 4: the quartic family).
     pub moments: Option<usize>,
+    /// Gauss–Hermite points per dimension of the Gaussian closures (`gaussian-closure`,
+    /// `ksp-closure`, `double-exp-closure`); default automatic (see
+    /// [`ClosureOptions::gaussian_points`]).
+    pub gaussian_points: Option<usize>,
     /// Largest number of node states for which the path methods compute the Laplace sd
     /// (default 4000; 0 switches it off).
     pub laplace_max_states: Option<usize>,
@@ -231,6 +235,14 @@ impl MethodOptions {
         }
         if self.moments.is_some() && method != Method::ExpClosure {
             return reject("moments", "`exp-closure`");
+        }
+        let gaussian =
+            matches!(method, Method::GaussianClosure | Method::KspClosure | Method::DoubleExpClosure);
+        if self.gaussian_points.is_some() && !gaussian {
+            return reject(
+                "gaussian points",
+                "the Gaussian closures (gaussian-closure, ksp-closure, double-exp-closure)",
+            );
         }
         if self.laplace_max_states.is_some() && !path {
             return reject("laplace_max_states", "the path-space MAP methods (jme, mee)");
@@ -340,7 +352,8 @@ pub fn run<S: Sde + ?Sized>(
         Method::Jme | Method::Mee => run_path(method, problem, options, &mut notes)?,
         Method::GaussianClosure | Method::ExpClosure | Method::KspClosure | Method::DoubleExpClosure => {
             let kind = ClosureKind::parse(method.name(), options.moments)?;
-            let closure_options = ClosureOptions::new().with_t0(default_initial_time(problem.data));
+            let mut closure_options = ClosureOptions::new().with_t0(default_initial_time(problem.data));
+            closure_options.gaussian_points = options.gaussian_points;
             closure_estimate(problem, &kind, &closure_options)?
         }
     };
@@ -492,6 +505,16 @@ mod tests {
                 "grid",
             ),
             (Method::Ekf, MethodOptions { dt: Some(-1.0), ..Default::default() }, "dt"),
+            (
+                Method::ExpClosure,
+                MethodOptions { gaussian_points: Some(3), ..Default::default() },
+                "gaussian points",
+            ),
+            (
+                Method::GaussianClosure,
+                MethodOptions { gaussian_points: Some(0), ..Default::default() },
+                "gaussian points",
+            ),
         ];
         for (method, options, name) in cases {
             match run(method, &problem, &options) {
