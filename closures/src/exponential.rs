@@ -362,6 +362,12 @@ impl Exponential {
         &self.table
     }
 
+    /// The same table moment-major: $M_a(x_k)$ at index $aK + k$ ($K$ nodes), one contiguous
+    /// row per moment, for loops over the nodes of one moment at a time.
+    pub fn moment_table_by_moment(&self) -> &[f64] {
+        &self.table_by_moment
+    }
+
     /// Node probabilities $\pi_k = e^{s_k - F}$ (summing to 1) and $F(\lambda)$ by
     /// log-sum-exp (`003_d2fc48a470e528fc.txt (II.36)`–(II.38)); the nodes are those of
     /// [`Exponential::grid`] and do not move with $\lambda$, so

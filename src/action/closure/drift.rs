@@ -499,8 +499,7 @@ pub struct ExponentialDrift<'a, S: Sde + ?Sized> {
     family: Exponential,
     diffusion: Vec<f64>,
     /// The hot loops run over the nodes with one contiguous row per moment ("moment-major"):
-    /// M_a(x_k) at row a.
-    table: Vec<f64>,
+    /// M_a(x_k) at row a is the family's [`Exponential::moment_table_by_moment`], and
     /// ∂M_a/∂x_i(x_k) at row a·dim + i.
     jac: Vec<f64>,
     /// D : ∇∇M_a(x_k) at row a.
@@ -569,13 +568,12 @@ impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
             }
             out
         };
-        let (table, jac, second) = (transpose(table, r), transpose(&jac, r * n), transpose(&second, r));
+        let (jac, second) = (transpose(&jac, r * n), transpose(&second, r));
         Ok(ExponentialDrift {
             sde,
             theta: theta.to_vec(),
             family,
             diffusion,
-            table,
             jac,
             second,
             linear,
@@ -693,7 +691,7 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
         v.resize(r, 0.0);
         for (a, va) in v.iter_mut().enumerate() {
             let row = a * nodes..(a + 1) * nodes;
-            let ma = &self.table[row.clone()];
+            let ma = &self.family.moment_table_by_moment()[row.clone()];
             let mu = dot(p, ma);
             d.extend(ma.iter().map(|&mk| mk - mu));
             pd.extend(p.iter().zip(&d[row.clone()]).map(|(&pk, &dk)| pk * dk));
