@@ -543,9 +543,16 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
     fn hs_point_local(&self, local: &[f64], off: usize, out: &mut [f64]) {
         let ns = self.problem.sde.dims().states();
         let th = &local[local.len() - self.problem.estimate.len()..];
-        out[..ns].copy_from_slice(&local[off..off + ns]);
+        self.hs_point_vector(&local[off..off + ns], th, out);
+    }
+
+    /// The point vector (s, θ_d) of the state `s` and the estimated θ `theta_e`, written into
+    /// `out` (length ns + `point_theta.len()`).
+    fn hs_point_vector(&self, s: &[f64], theta_e: &[f64], out: &mut [f64]) {
+        let ns = s.len();
+        out[..ns].copy_from_slice(s);
         for (o, &j) in out[ns..].iter_mut().zip(&self.point_theta) {
-            *o = th[j];
+            *o = theta_e[j];
         }
     }
 
@@ -687,8 +694,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         ph: &mut [f64],
     ) -> u64 {
         let p = self.problem;
-        let d = p.sde.dims();
-        let (ns, nx) = (d.states(), d.noisy);
+        let nx = p.sde.dims().noisy;
         let (npt, nout) = (self.hs_point_dim(), self.hs_point_outputs());
         jr.fill(0.0);
         packed.fill(0.0);
@@ -699,10 +705,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         }
         let om = self.merit == Merit::OnsagerMachlup;
         let f = PointFn { nlp: self, t, theta_e, with_div: om, div_weight: 0.0, mu: None };
-        pl[..ns].copy_from_slice(s);
-        for (o, &j) in pl[ns..].iter_mut().zip(&self.point_theta) {
-            *o = theta_e[j];
-        }
+        self.hs_point_vector(s, theta_e, pl);
         with_buffer(nout, |value| ad::hessians_into(&f, pl, value, jr, ph));
         let tri = npt * (npt + 1) / 2;
         for (&j, ho) in slots.iter().zip(ph.chunks_exact(npt * npt)) {
