@@ -493,6 +493,9 @@ impl<S: Sde + ?Sized> ClosureDrift for GaussianDrift<'_, S> {
 ///    \qquad d_k = M(x_k) - \mu , $$
 ///
 /// from ∂V/∂λ = Σπ_k g_k d_kᵀ and ∂C_ab/∂λ_j = Σπ_k d_a d_b d_j (`(II.43)`).
+///
+/// The drift keeps the work buffers of one evaluation in a `RefCell`, so it is not `Sync`:
+/// threads that evaluate closures in parallel (Monte Carlo replicates) each build their own.
 pub struct ExponentialDrift<'a, S: Sde + ?Sized> {
     sde: &'a S,
     theta: Vec<f64>,
