@@ -48,6 +48,9 @@ const B: [f64; 6] = [35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 /
 const E: [f64; 7] =
     [71.0 / 57600.0, 0.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253.0 / 339200.0, 22.0 / 525.0, -1.0 / 40.0];
 
+/// The default of [`ClosureAction::with_stage_tangent_budget`]: 2²³ values (64 MB).
+pub const STAGE_TANGENT_BUDGET: usize = 1 << 23;
+
 /// The accepted Runge–Kutta steps of one sweep, flat: start time and size of step s, its six
 /// stage arguments Y_i (6R values from `6Rs`) and stage Jacobians J_i = ∂W/∂λ(Y_i) (6 R × R
 /// row-major blocks from `6R²s`), formed with W in the forward sweep so that the adjoint sweep
@@ -154,6 +157,7 @@ pub struct ClosureAction<D: ClosureDrift> {
     cache: Option<(Vec<f64>, Forward, Vec<Vec<f64>>)>,
     sweeps: usize,
     steps: usize,
+    stage_tangent_budget: usize,
 }
 
 impl<D: ClosureDrift> std::fmt::Debug for ClosureAction<D> {
@@ -241,7 +245,19 @@ impl<D: ClosureDrift> ClosureAction<D> {
             cache: None,
             sweeps: 0,
             steps: 0,
+            stage_tangent_budget: STAGE_TANGENT_BUDGET,
         })
+    }
+
+    /// Sets how many stage tangents (values, 8 bytes each) the tangent sweeps of
+    /// [`EffectiveAction::hessian`] and of the dispersion may keep from their forward pass for
+    /// their backward pass: 6 R × (multipliers) per Runge–Kutta step. Above it (long records, many
+    /// multipliers) the backward pass recomputes them, an interval at a time, at the cost of a
+    /// second forward tangent pass; the values are the same either way. Default
+    /// [`STAGE_TANGENT_BUDGET`].
+    pub fn with_stage_tangent_budget(mut self, values: usize) -> Self {
+        self.stage_tangent_budget = values;
+        self
     }
 
     /// The drift.
@@ -592,11 +608,20 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let mut active = vec![0usize; ne];
         let mut ncol = 0;
         let (mut dys, mut dks) = (Vec::new(), Vec::new());
+        // The stage tangents of every step (6 R × nm per step), kept for the backward tangent
+        // sweep when they fit in the budget (values); otherwise it recomputes them, one
+        // interval at a time, from δλ after the interval's first event (the same values).
+        let block = 6 * r * nm;
+        let keep = fw.steps.len() * block <= self.stage_tangent_budget;
+        let mut kept = Vec::with_capacity(if keep { fw.steps.len() * block } else { 0 });
         for (e, (act, meas)) in active.iter_mut().zip(&events.meas).enumerate() {
             if e > 0 {
                 for st in fw.steps.interval(e - 1) {
                     let jac = &derivs.jac[6 * rr * st..6 * rr * (st + 1)];
                     Self::tangent_step(fw.steps.h[st], jac, r, nm, ncol, &mut dl, &mut dys, &mut dks);
+                    if keep {
+                        kept.extend_from_slice(&dys);
+                    }
                 }
             }
             if let Some(k) = *meas {
@@ -639,18 +664,23 @@ impl<D: ClosureDrift> ClosureAction<D> {
             if e == 0 {
                 break;
             }
-            // Recompute the stage tangents of the interval (e − 1, e) from δλ after event e − 1.
+            // The stage tangents of the interval (e − 1, e): kept, or recomputed from δλ after
+            // event e − 1.
             let ncol = active[e - 1];
-            let mut y = dl_after[e - 1].clone();
-            let block = 6 * r * nm;
-            stage_tangents.clear();
             let interval = fw.steps.interval(e - 1);
-            for st in interval.clone() {
-                let jac = &derivs.jac[6 * rr * st..6 * rr * (st + 1)];
-                Self::tangent_step(fw.steps.h[st], jac, r, nm, ncol, &mut y, &mut dys, &mut dks);
-                stage_tangents.extend_from_slice(&dys);
-            }
-            for (st, dy) in interval.zip(stage_tangents.chunks_exact(block)).rev() {
+            let stages: &[f64] = if keep {
+                &kept[interval.start * block..interval.end * block]
+            } else {
+                let mut y = dl_after[e - 1].clone();
+                stage_tangents.clear();
+                for st in interval.clone() {
+                    let jac = &derivs.jac[6 * rr * st..6 * rr * (st + 1)];
+                    Self::tangent_step(fw.steps.h[st], jac, r, nm, ncol, &mut y, &mut dys, &mut dks);
+                    stage_tangents.extend_from_slice(&dys);
+                }
+                &stage_tangents
+            };
+            for (st, dy) in interval.zip(stages.chunks_exact(block)).rev() {
                 let h = fw.steps.h[st];
                 let (jac, hess) = (
                     &derivs.jac[6 * rr * st..6 * rr * (st + 1)],
