@@ -87,4 +87,4 @@ pub use scalar::{
     cholesky, cholesky_into, cholesky_inverse, cholesky_inverse_into, cholesky_log_det, cholesky_solve,
     cholesky_solve_in_place, dot, Scalar,
 };
-pub use weights::normalize_log_weights;
+pub use weights::{normalize_log_weights, NEGLIGIBLE_LOG_WEIGHT};

@@ -1,21 +1,30 @@
 //! Normalising weights given by their logarithms without overflow (log-sum-exp).
 
+/// Log-weights more than this below the largest get weight zero in [`normalize_log_weights`]:
+/// e⁻⁵⁰ ≈ 1.9·10⁻²², so even a million such weights change the total by less than the
+/// round-off of its largest term, and their exponentials need not be computed (most of a wide
+/// grid under a concentrated density).
+pub const NEGLIGIBLE_LOG_WEIGHT: f64 = -50.0;
+
 /// Writes the normalised weights $w_i = e^{\ell_i - L}$ of the log-weights `log_w` into `out`
 /// and returns $L = \ln \sum_i e^{\ell_i}$, computed as $m + \ln\sum_i e^{\ell_i - m}$ with
 /// $m = \max_i \ell_i$ so that no exponential overflows. A NaN log-weight counts as a zero
-/// weight. Returns `None` (and leaves `out` unspecified) when every weight is zero or NaN, or
-/// when some log-weight is $+\infty$.
+/// weight, and so does a log-weight below $m$ + [`NEGLIGIBLE_LOG_WEIGHT`]. Returns `None` (and
+/// leaves `out` unspecified) when every weight is zero or NaN, or when some log-weight is
+/// $+\infty$.
 ///
 /// # Panics
 /// If `out` is shorter than `log_w`.
 pub fn normalize_log_weights(log_w: &[f64], out: &mut [f64]) -> Option<f64> {
-    let max = log_w.iter().copied().filter(|v| !v.is_nan()).fold(f64::NEG_INFINITY, f64::max);
+    // (f64::max returns the other argument when one is NaN.)
+    let max = log_w.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     if !max.is_finite() {
         return None;
     }
     let mut total = 0.0;
     for (w, &l) in out.iter_mut().zip(log_w) {
-        *w = if l.is_nan() { 0.0 } else { (l - max).exp() };
+        // (A NaN fails the comparison.)
+        *w = if l - max >= NEGLIGIBLE_LOG_WEIGHT { (l - max).exp() } else { 0.0 };
         total += *w;
     }
     for w in out[..log_w.len()].iter_mut() {
@@ -47,5 +56,19 @@ mod tests {
         assert_eq!((l, w[0], w[1]), (0.0, 0.0, 1.0));
         assert!(normalize_log_weights(&[f64::NEG_INFINITY, f64::NAN], &mut w[..2]).is_none());
         assert!(normalize_log_weights(&[f64::INFINITY], &mut w[..1]).is_none());
+    }
+
+    #[test]
+    fn negligible_weights_are_zero_and_the_rest_unchanged() {
+        // 0, −49 and −51 below the largest: e⁻⁴⁹ is kept, e⁻⁵¹ is zero; L as if it were kept
+        // (to round-off).
+        let logs = [0.0, -49.0, -51.0];
+        let mut w = [1.0; 3];
+        let l = normalize_log_weights(&logs, &mut w).unwrap();
+        let total = 1.0 + (-49f64).exp() + (-51f64).exp();
+        assert_relative_eq!(l, total.ln(), epsilon = 1e-30);
+        assert_relative_eq!(w[0], 1.0 / total, max_relative = 1e-15);
+        assert_relative_eq!(w[1], (-49f64).exp() / total, max_relative = 1e-15);
+        assert_eq!(w[2], 0.0);
     }
 }

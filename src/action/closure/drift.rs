@@ -654,6 +654,8 @@ struct ExpWork {
     fs: Vec<f64>,
     f: Vec<f64>,
     cov: Vec<f64>,
+    /// π on all nodes, before the restriction to the nodes with mass.
+    p_all: Vec<f64>,
     nodes: [Vec<f64>; 5],
     col: Vec<f64>,
     u: Vec<f64>,
@@ -661,21 +663,199 @@ struct ExpWork {
     tj: Vec<f64>,
 }
 
+/// The node averages of a closed-form closure drift (see [`ExponentialDrift`]) from the node
+/// probabilities π (in `z.p`) and the drift at the nodes `fs` (state-major, n × nodes) of an
+/// n-state model with R moments: d, πd, g, V, C (factored) and W = C⁻¹V into `z`. Per moment a,
+/// `moment(a)` holds M_a at the nodes, `gradient(a·n + i)` ∂M_a/∂x_i and `second(a)`
+/// D:∇∇M_a (`003_d2fc48a470e528fc.txt (II.3)`). `cov` is scratch.
+#[allow(clippy::too_many_arguments)]
+fn assemble<'t>(
+    z: &mut FirstOrder,
+    cov: &mut Vec<f64>,
+    fs: &[f64],
+    n: usize,
+    r: usize,
+    moment: impl Fn(usize) -> &'t [f64],
+    gradient: impl Fn(usize) -> &'t [f64],
+    second: impl Fn(usize) -> &'t [f64],
+) -> std::result::Result<(), Unrealizable> {
+    let p = &z.p;
+    let nodes = p.len();
+    let massless = p.contains(&0.0);
+    let (d, pd, g, v) = (&mut z.d, &mut z.pd, &mut z.g, &mut z.v);
+    d.clear();
+    pd.clear();
+    g.clear();
+    v.clear();
+    v.resize(r, 0.0);
+    for (a, va) in v.iter_mut().enumerate() {
+        let row = a * nodes..(a + 1) * nodes;
+        let ma = moment(a);
+        let mu = dot(p, ma);
+        d.extend(ma.iter().map(|&mk| mk - mu));
+        pd.extend(p.iter().zip(&d[row.clone()]).map(|(&pk, &dk)| pk * dk));
+        g.extend_from_slice(second(a));
+        let ga = &mut g[row];
+        for i in 0..n {
+            let ji = gradient(a * n + i);
+            let fi = &fs[i * nodes..(i + 1) * nodes];
+            for ((gk, &jk), &fk) in ga.iter_mut().zip(ji).zip(fi) {
+                *gk += jk * fk;
+            }
+        }
+        if massless {
+            for (gk, &pk) in ga.iter_mut().zip(p) {
+                if pk == 0.0 {
+                    *gk = 0.0;
+                }
+            }
+        }
+        *va = dot(p, ga);
+    }
+    if !v.iter().all(|x| x.is_finite()) {
+        return Err(Unrealizable("the drift is not finite on the family's grid".into()));
+    }
+    cov.clear();
+    cov.resize(r * r, 0.0);
+    for a in 0..r {
+        for b in a..r {
+            let cab = dot(&pd[a * nodes..(a + 1) * nodes], &d[b * nodes..(b + 1) * nodes]);
+            cov[a * r + b] = cab;
+            cov[b * r + a] = cab;
+        }
+    }
+    z.c.factor(cov, r)?;
+    z.w.clear();
+    z.w.extend_from_slice(v);
+    z.c.solve(&mut z.w);
+    Ok(())
+}
+
+/// Σ_k s_k d_a(x_k) d_b(x_k) for all a, b (symmetric, row-major r × r) of a node weight s;
+/// `sd` is scratch.
+fn weighted_second_moments(z: &FirstOrder, s: &[f64], out: &mut [f64], sd: &mut Vec<f64>) {
+    let r = z.w.len();
+    let nodes = z.p.len();
+    sd.clear();
+    sd.resize(nodes, 0.0);
+    for a in 0..r {
+        let da = &z.d[a * nodes..(a + 1) * nodes];
+        for ((x, &sk), &dk) in sd.iter_mut().zip(s).zip(da) {
+            *x = sk * dk;
+        }
+        for b in a..r {
+            let v = dot(sd, &z.d[b * nodes..(b + 1) * nodes]);
+            out[a * r + b] = v;
+            out[b * r + a] = v;
+        }
+    }
+}
+
+/// Σ_a c_a m_a(x_k) at every node of moment-major rows m, into `out`.
+fn project(rows: &[f64], c: &[f64], out: &mut Vec<f64>) {
+    let nodes = rows.len() / c.len().max(1);
+    out.clear();
+    out.resize(nodes, 0.0);
+    for (row, &ca) in rows.chunks_exact(nodes).zip(c) {
+        for (o, &mk) in out.iter_mut().zip(row) {
+            *o += ca * mk;
+        }
+    }
+}
+
+/// ∂W/∂λ = C⁻¹Σπ_k(g_k − (d_k·W)d_k)d_kᵀ into `jac` (row-major), of `work.z`.
+fn jacobian_of(work: &mut ExpWork, jac: &mut [f64]) {
+    let ExpWork { z, nodes: [wd, e, ..], col, .. } = work;
+    let r = z.w.len();
+    let nodes = z.p.len();
+    project(&z.d, &z.w, wd);
+    e.clear();
+    e.resize(nodes, 0.0);
+    for a in 0..r {
+        let row = a * nodes..(a + 1) * nodes;
+        for (((ek, &pk), &gk), (&pdk, &u)) in
+            e.iter_mut().zip(&z.p).zip(&z.g[row.clone()]).zip(z.pd[row].iter().zip(wd.iter()))
+        {
+            *ek = pk * gk - u * pdk;
+        }
+        for j in 0..r {
+            jac[a * r + j] = dot(e, &z.d[j * nodes..(j + 1) * nodes]);
+        }
+    }
+    col.clear();
+    col.resize(r, 0.0);
+    for j in 0..r {
+        for a in 0..r {
+            col[a] = jac[a * r + j];
+        }
+        z.c.solve(col);
+        for a in 0..r {
+            jac[a * r + j] = col[a];
+        }
+    }
+}
+
+/// ∇²(κᵀW) of [`ClosureDrift::w_second`] into `hess`, from the node values of `work.z` and
+/// J = ∂W/∂λ.
+fn hessian_of(work: &mut ExpWork, kappa: &[f64], jac: &[f64], hess: &mut [f64]) {
+    let r = work.z.w.len();
+    let ExpWork { z, nodes: [ud, wd, ug, psi, tu], u, tm, tj, f: sd, .. } = work;
+    u.clear();
+    u.extend_from_slice(kappa);
+    z.c.solve(u);
+    // hess = ⟨ψ d dᵀ⟩, tm = T, with ψ_k = π_k(uᵀg_k − (uᵀd_k)(Wᵀd_k)) and π_k uᵀd_k.
+    project(&z.d, u, ud);
+    project(&z.d, &z.w, wd);
+    project(&z.g, u, ug);
+    psi.clear();
+    psi.extend((0..z.p.len()).map(|k| z.p[k] * (ug[k] - ud[k] * wd[k])));
+    tu.clear();
+    tu.extend(z.p.iter().zip(ud.iter()).map(|(p, u)| p * u));
+    tm.clear();
+    tm.resize(r * r, 0.0);
+    weighted_second_moments(z, psi, hess, sd);
+    weighted_second_moments(z, tu, tm, sd);
+    tj.clear();
+    tj.resize(r * r, 0.0);
+    for a in 0..r {
+        for j in 0..r {
+            tj[a * r + j] = (0..r).map(|b| tm[a * r + b] * jac[b * r + j]).sum();
+        }
+    }
+    for a in 0..r {
+        for j in 0..r {
+            hess[a * r + j] += -tj[a * r + j] - tj[j * r + a] + kappa[a] * z.v[j] + z.v[a] * kappa[j];
+        }
+    }
+}
+
 impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
-    /// π, d, g, V, C and W = C⁻¹V at (t, λ) into `z`, with the scratch of `work`.
+    /// π, d, g, V, C and W = C⁻¹V at (t, λ) into `z`, with the scratch of `work`, on the nodes
+    /// `lo..hi` from the first to the last of non-zero probability: the node vectors of `z` are
+    /// that range, compact. A concentrated density has no mass that counts on most of a wide
+    /// grid, and the family gives probability 0 to nodes below e⁻⁵⁰ of the largest
+    /// ([`onsager_closures::NEGLIGIBLE_LOG_WEIGHT`]), so W, ∂W/∂λ and ∇²(κᵀW) remain the
+    /// exact derivatives of one another.
     fn zeroth(&self, t: f64, lambda: &[f64], work: &mut ExpWork) -> std::result::Result<(), Unrealizable> {
         let n = self.family.dim();
         let r = self.family.n_moments();
-        let ExpWork { z, s, fs, f, cov, .. } = work;
-        self.family.node_probabilities_into(lambda, s, &mut z.p).map_err(unrealizable)?;
+        let ExpWork { z, s, fs, f, cov, p_all, .. } = work;
+        self.family.node_probabilities_into(lambda, s, p_all).map_err(unrealizable)?;
+        let all = p_all.len();
+        let lo = p_all.iter().position(|&pk| pk > 0.0).unwrap_or(0);
+        let hi = p_all.iter().rposition(|&pk| pk > 0.0).map_or(all, |k| k + 1);
+        z.p.clear();
+        z.p.extend_from_slice(&p_all[lo..hi]);
         let p = &z.p;
         let nodes = p.len();
+        // Row `row` of a table of rows of `all` node values, restricted to lo..hi.
+        let active = |row: usize| row * all + lo..row * all + hi;
         // The drift at the nodes that carry mass, state-major.
         fs.clear();
         fs.resize(n * nodes, 0.0);
         f.clear();
         f.resize(n, 0.0);
-        let points = self.family.grid().points();
+        let points = &self.family.grid().points()[lo * n..hi * n];
         for (k, &pk) in p.iter().enumerate() {
             if pk != 0.0 {
                 self.sde.state_drift(t, &points[k * n..(k + 1) * n], &self.theta, f);
@@ -684,152 +864,17 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
                 }
             }
         }
-        let massless = p.contains(&0.0);
-        let (d, pd, g, v) = (&mut z.d, &mut z.pd, &mut z.g, &mut z.v);
-        d.clear();
-        pd.clear();
-        g.clear();
-        g.extend_from_slice(&self.second);
-        v.clear();
-        v.resize(r, 0.0);
-        for (a, va) in v.iter_mut().enumerate() {
-            let row = a * nodes..(a + 1) * nodes;
-            let ma = &self.family.moment_table_by_moment()[row.clone()];
-            let mu = dot(p, ma);
-            d.extend(ma.iter().map(|&mk| mk - mu));
-            pd.extend(p.iter().zip(&d[row.clone()]).map(|(&pk, &dk)| pk * dk));
-            let ga = &mut g[row];
-            for i in 0..n {
-                let ji = &self.jac[(a * n + i) * nodes..(a * n + i + 1) * nodes];
-                let fi = &fs[i * nodes..(i + 1) * nodes];
-                for ((gk, &jk), &fk) in ga.iter_mut().zip(ji).zip(fi) {
-                    *gk += jk * fk;
-                }
-            }
-            if massless {
-                for (gk, &pk) in ga.iter_mut().zip(p) {
-                    if pk == 0.0 {
-                        *gk = 0.0;
-                    }
-                }
-            }
-            *va = dot(p, ga);
-        }
-        if !v.iter().all(|x| x.is_finite()) {
-            return Err(Unrealizable("the drift is not finite on the family's grid".into()));
-        }
-        cov.clear();
-        cov.resize(r * r, 0.0);
-        for a in 0..r {
-            for b in a..r {
-                let cab = dot(&pd[a * nodes..(a + 1) * nodes], &d[b * nodes..(b + 1) * nodes]);
-                cov[a * r + b] = cab;
-                cov[b * r + a] = cab;
-            }
-        }
-        z.c.factor(cov, r)?;
-        z.w.clear();
-        z.w.extend_from_slice(v);
-        z.c.solve(&mut z.w);
-        Ok(())
-    }
-
-    /// Σ_k s_k d_a(x_k) d_b(x_k) for all a, b (symmetric, row-major r × r) of a node weight s;
-    /// `sd` is scratch.
-    fn weighted_second_moments(z: &FirstOrder, s: &[f64], out: &mut [f64], sd: &mut Vec<f64>) {
-        let r = z.w.len();
-        let nodes = z.p.len();
-        sd.clear();
-        sd.resize(nodes, 0.0);
-        for a in 0..r {
-            let da = &z.d[a * nodes..(a + 1) * nodes];
-            for ((x, &sk), &dk) in sd.iter_mut().zip(s).zip(da) {
-                *x = sk * dk;
-            }
-            for b in a..r {
-                let v = dot(sd, &z.d[b * nodes..(b + 1) * nodes]);
-                out[a * r + b] = v;
-                out[b * r + a] = v;
-            }
-        }
-    }
-
-    /// Σ_a c_a m_a(x_k) at every node of moment-major rows m, into `out`.
-    fn project(rows: &[f64], c: &[f64], out: &mut Vec<f64>) {
-        let nodes = rows.len() / c.len().max(1);
-        out.clear();
-        out.resize(nodes, 0.0);
-        for (row, &ca) in rows.chunks_exact(nodes).zip(c) {
-            for (o, &mk) in out.iter_mut().zip(row) {
-                *o += ca * mk;
-            }
-        }
-    }
-
-    /// ∂W/∂λ = C⁻¹Σπ_k(g_k − (d_k·W)d_k)d_kᵀ into `jac` (row-major), of `work.z`.
-    fn jacobian_of(work: &mut ExpWork, jac: &mut [f64]) {
-        let ExpWork { z, nodes: [wd, e, ..], col, .. } = work;
-        let r = z.w.len();
-        let nodes = z.p.len();
-        Self::project(&z.d, &z.w, wd);
-        e.clear();
-        e.resize(nodes, 0.0);
-        for a in 0..r {
-            let row = a * nodes..(a + 1) * nodes;
-            for (((ek, &pk), &gk), (&pdk, &u)) in
-                e.iter_mut().zip(&z.p).zip(&z.g[row.clone()]).zip(z.pd[row].iter().zip(wd.iter()))
-            {
-                *ek = pk * gk - u * pdk;
-            }
-            for j in 0..r {
-                jac[a * r + j] = dot(e, &z.d[j * nodes..(j + 1) * nodes]);
-            }
-        }
-        col.clear();
-        col.resize(r, 0.0);
-        for j in 0..r {
-            for a in 0..r {
-                col[a] = jac[a * r + j];
-            }
-            z.c.solve(col);
-            for a in 0..r {
-                jac[a * r + j] = col[a];
-            }
-        }
-    }
-
-    /// ∇²(κᵀW) of [`ClosureDrift::w_second`] into `hess`, from the node values of `work.z` and
-    /// J = ∂W/∂λ.
-    fn hessian_of(&self, work: &mut ExpWork, kappa: &[f64], jac: &[f64], hess: &mut [f64]) {
-        let r = self.family.n_moments();
-        let ExpWork { z, nodes: [ud, wd, ug, psi, tu], u, tm, tj, f: sd, .. } = work;
-        u.clear();
-        u.extend_from_slice(kappa);
-        z.c.solve(u);
-        // hess = ⟨ψ d dᵀ⟩, tm = T, with ψ_k = π_k(uᵀg_k − (uᵀd_k)(Wᵀd_k)) and π_k uᵀd_k.
-        Self::project(&z.d, u, ud);
-        Self::project(&z.d, &z.w, wd);
-        Self::project(&z.g, u, ug);
-        psi.clear();
-        psi.extend((0..z.p.len()).map(|k| z.p[k] * (ug[k] - ud[k] * wd[k])));
-        tu.clear();
-        tu.extend(z.p.iter().zip(ud.iter()).map(|(p, u)| p * u));
-        tm.clear();
-        tm.resize(r * r, 0.0);
-        Self::weighted_second_moments(z, psi, hess, sd);
-        Self::weighted_second_moments(z, tu, tm, sd);
-        tj.clear();
-        tj.resize(r * r, 0.0);
-        for a in 0..r {
-            for j in 0..r {
-                tj[a * r + j] = (0..r).map(|b| tm[a * r + b] * jac[b * r + j]).sum();
-            }
-        }
-        for a in 0..r {
-            for j in 0..r {
-                hess[a * r + j] += -tj[a * r + j] - tj[j * r + a] + kappa[a] * z.v[j] + z.v[a] * kappa[j];
-            }
-        }
+        let table = self.family.moment_table_by_moment();
+        assemble(
+            z,
+            cov,
+            fs,
+            n,
+            r,
+            |a| &table[active(a)],
+            |row| &self.jac[active(row)],
+            |a| &self.second[active(a)],
+        )
     }
 }
 
@@ -858,7 +903,7 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
     ) -> std::result::Result<(), Unrealizable> {
         let work = &mut *self.work.borrow_mut();
         self.zeroth(t, lambda, work)?;
-        Self::jacobian_of(work, jac);
+        jacobian_of(work, jac);
         w.copy_from_slice(&work.z.w);
         Ok(())
     }
@@ -881,8 +926,8 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
     ) -> std::result::Result<(), Unrealizable> {
         let work = &mut *self.work.borrow_mut();
         self.zeroth(t, lambda, work)?;
-        Self::jacobian_of(work, jac);
-        self.hessian_of(work, kappa, jac, hess);
+        jacobian_of(work, jac);
+        hessian_of(work, kappa, jac, hess);
         w.copy_from_slice(&work.z.w);
         Ok(())
     }
@@ -900,7 +945,7 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
     ) -> std::result::Result<(), Unrealizable> {
         let work = &mut *self.work.borrow_mut();
         self.zeroth(t, lambda, work)?;
-        self.hessian_of(work, kappa, jac, hess);
+        hessian_of(work, kappa, jac, hess);
         w.copy_from_slice(&work.z.w);
         Ok(())
     }
@@ -1086,6 +1131,65 @@ mod tests {
         let family = Exponential::quartic(-3.0, 3.0).unwrap();
         let e = ExponentialDrift::try_new(&DoubleWell, &[0.5], family).unwrap();
         check_second(&e, &[0.3, 1.0, -0.2, -0.8], &[0.5, -0.25, 0.1, 0.8], 1e-5);
+    }
+
+    /// A density concentrated on a small part of a wide grid (N(1, 0.2²) on [−6, 6], 512 nodes):
+    /// the drift works on the nodes of non-zero probability only (most of the grid has
+    /// probability 0 under the e⁻⁵⁰ cut), and W = C⁻¹V still holds against the family's
+    /// own all-node quadrature, with ∂W/∂λ and ∇²(κᵀW) against finite differences.
+    #[test]
+    fn exponential_drift_on_the_nodes_with_mass_of_a_concentrated_density() {
+        let family = Exponential::quartic(-6.0, 6.0).unwrap();
+        let (m, v) = (1.0, 0.04);
+        let lambda = [m / v, -0.5 / v, 0.0, 0.0];
+        let p = family.node_probabilities(&lambda).unwrap().0;
+        let zero = p.iter().filter(|&&pk| pk == 0.0).count();
+        assert!(zero > p.len() / 2, "{zero} of {} nodes have probability 0", p.len());
+        let dr = ExponentialDrift::try_new(&DoubleWell, &[0.5], family.clone()).unwrap();
+        let (mut w, mut jac) = ([0.0; 4], [0.0; 16]);
+        dr.w_jacobian(0.0, &lambda, &mut w, &mut jac).unwrap();
+        let rule = family.quadrature(&lambda).unwrap();
+        let c = family.covariance(&lambda).unwrap();
+        for a in 1..=4i32 {
+            let va = rule.integrate(|x| {
+                let x = x[0];
+                let f = 4.0 * x - 4.0 * x.powi(3);
+                a as f64 * x.powi(a - 1) * f + 0.5 * (a * (a - 1)) as f64 * x.powi((a - 2).max(0))
+            });
+            let cw: f64 = (0..4).map(|b| c[(a as usize - 1) * 4 + b] * w[b]).sum();
+            assert_relative_eq!(cw, va, epsilon = 1e-9, max_relative = 1e-9);
+        }
+        // ∂W/∂λ and ∇²(κᵀW) against fourth-order central differences, relative to their
+        // largest entries (the small entries are below the differences' round-off at these λ).
+        let kappa = [0.5, -0.25, 0.1, 0.8];
+        let (mut w2, mut j2, mut hess) = ([0.0; 4], [0.0; 16], [0.0; 16]);
+        dr.w_second(0.0, &lambda, &kappa, &mut w2, &mut j2, &mut hess).unwrap();
+        let at = |j: usize, dl: f64| {
+            let (mut l, mut w, mut jac) = (lambda, [0.0; 4], [0.0; 16]);
+            l[j] += dl;
+            dr.w_jacobian(0.0, &l, &mut w, &mut jac).unwrap();
+            (w, jac)
+        };
+        let (mut fd_j, mut fd_h) = ([0.0; 16], [0.0; 16]);
+        for j in 0..4 {
+            let h = 1e-4 * (1.0 + lambda[j].abs());
+            let pts = [(2.0, -1.0), (1.0, 8.0), (-1.0, -8.0), (-2.0, 1.0)].map(|(s, c)| (at(j, s * h), c));
+            for i in 0..4 {
+                fd_j[i * 4 + j] = pts.iter().map(|((w, _), c)| c * w[i]).sum::<f64>() / (12.0 * h);
+                fd_h[i * 4 + j] = pts
+                    .iter()
+                    .map(|((_, jac), c)| c * (0..4).map(|a| kappa[a] * jac[a * 4 + i]).sum::<f64>())
+                    .sum::<f64>()
+                    / (12.0 * h);
+            }
+        }
+        for (exact, fd) in [(&jac, &fd_j), (&hess, &fd_h)] {
+            let scale = exact.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for (a, b) in exact.iter().zip(fd) {
+                assert!((a - b).abs() <= 1e-6 * scale, "{a} vs {b} (largest entry {scale})");
+            }
+        }
+        assert_eq!(j2, jac);
     }
 
     /// `w_second_with_jacobian` given the Jacobian of `w_jacobian` returns what `w_second`
