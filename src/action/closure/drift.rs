@@ -663,172 +663,6 @@ struct ExpWork {
     tj: Vec<f64>,
 }
 
-/// The node averages of a closed-form closure drift (see [`ExponentialDrift`]) from the node
-/// probabilities π (in `z.p`) and the drift at the nodes `fs` (state-major, n × nodes) of an
-/// n-state model with R moments: d, πd, g, V, C (factored) and W = C⁻¹V into `z`. Per moment a,
-/// `moment(a)` holds M_a at the nodes, `gradient(a·n + i)` ∂M_a/∂x_i and `second(a)`
-/// D:∇∇M_a (`003_d2fc48a470e528fc.txt (II.3)`). `cov` is scratch.
-#[allow(clippy::too_many_arguments)]
-fn assemble<'t>(
-    z: &mut FirstOrder,
-    cov: &mut Vec<f64>,
-    fs: &[f64],
-    n: usize,
-    r: usize,
-    moment: impl Fn(usize) -> &'t [f64],
-    gradient: impl Fn(usize) -> &'t [f64],
-    second: impl Fn(usize) -> &'t [f64],
-) -> std::result::Result<(), Unrealizable> {
-    let p = &z.p;
-    let nodes = p.len();
-    let massless = p.contains(&0.0);
-    let (d, pd, g, v) = (&mut z.d, &mut z.pd, &mut z.g, &mut z.v);
-    d.clear();
-    pd.clear();
-    g.clear();
-    v.clear();
-    v.resize(r, 0.0);
-    for (a, va) in v.iter_mut().enumerate() {
-        let row = a * nodes..(a + 1) * nodes;
-        let ma = moment(a);
-        let mu = dot(p, ma);
-        d.extend(ma.iter().map(|&mk| mk - mu));
-        pd.extend(p.iter().zip(&d[row.clone()]).map(|(&pk, &dk)| pk * dk));
-        g.extend_from_slice(second(a));
-        let ga = &mut g[row];
-        for i in 0..n {
-            let ji = gradient(a * n + i);
-            let fi = &fs[i * nodes..(i + 1) * nodes];
-            for ((gk, &jk), &fk) in ga.iter_mut().zip(ji).zip(fi) {
-                *gk += jk * fk;
-            }
-        }
-        if massless {
-            for (gk, &pk) in ga.iter_mut().zip(p) {
-                if pk == 0.0 {
-                    *gk = 0.0;
-                }
-            }
-        }
-        *va = dot(p, ga);
-    }
-    if !v.iter().all(|x| x.is_finite()) {
-        return Err(Unrealizable("the drift is not finite on the family's grid".into()));
-    }
-    cov.clear();
-    cov.resize(r * r, 0.0);
-    for a in 0..r {
-        for b in a..r {
-            let cab = dot(&pd[a * nodes..(a + 1) * nodes], &d[b * nodes..(b + 1) * nodes]);
-            cov[a * r + b] = cab;
-            cov[b * r + a] = cab;
-        }
-    }
-    z.c.factor(cov, r)?;
-    z.w.clear();
-    z.w.extend_from_slice(v);
-    z.c.solve(&mut z.w);
-    Ok(())
-}
-
-/// Σ_k s_k d_a(x_k) d_b(x_k) for all a, b (symmetric, row-major r × r) of a node weight s;
-/// `sd` is scratch.
-fn weighted_second_moments(z: &FirstOrder, s: &[f64], out: &mut [f64], sd: &mut Vec<f64>) {
-    let r = z.w.len();
-    let nodes = z.p.len();
-    sd.clear();
-    sd.resize(nodes, 0.0);
-    for a in 0..r {
-        let da = &z.d[a * nodes..(a + 1) * nodes];
-        for ((x, &sk), &dk) in sd.iter_mut().zip(s).zip(da) {
-            *x = sk * dk;
-        }
-        for b in a..r {
-            let v = dot(sd, &z.d[b * nodes..(b + 1) * nodes]);
-            out[a * r + b] = v;
-            out[b * r + a] = v;
-        }
-    }
-}
-
-/// Σ_a c_a m_a(x_k) at every node of moment-major rows m, into `out`.
-fn project(rows: &[f64], c: &[f64], out: &mut Vec<f64>) {
-    let nodes = rows.len() / c.len().max(1);
-    out.clear();
-    out.resize(nodes, 0.0);
-    for (row, &ca) in rows.chunks_exact(nodes).zip(c) {
-        for (o, &mk) in out.iter_mut().zip(row) {
-            *o += ca * mk;
-        }
-    }
-}
-
-/// ∂W/∂λ = C⁻¹Σπ_k(g_k − (d_k·W)d_k)d_kᵀ into `jac` (row-major), of `work.z`.
-fn jacobian_of(work: &mut ExpWork, jac: &mut [f64]) {
-    let ExpWork { z, nodes: [wd, e, ..], col, .. } = work;
-    let r = z.w.len();
-    let nodes = z.p.len();
-    project(&z.d, &z.w, wd);
-    e.clear();
-    e.resize(nodes, 0.0);
-    for a in 0..r {
-        let row = a * nodes..(a + 1) * nodes;
-        for (((ek, &pk), &gk), (&pdk, &u)) in
-            e.iter_mut().zip(&z.p).zip(&z.g[row.clone()]).zip(z.pd[row].iter().zip(wd.iter()))
-        {
-            *ek = pk * gk - u * pdk;
-        }
-        for j in 0..r {
-            jac[a * r + j] = dot(e, &z.d[j * nodes..(j + 1) * nodes]);
-        }
-    }
-    col.clear();
-    col.resize(r, 0.0);
-    for j in 0..r {
-        for a in 0..r {
-            col[a] = jac[a * r + j];
-        }
-        z.c.solve(col);
-        for a in 0..r {
-            jac[a * r + j] = col[a];
-        }
-    }
-}
-
-/// ∇²(κᵀW) of [`ClosureDrift::w_second`] into `hess`, from the node values of `work.z` and
-/// J = ∂W/∂λ.
-fn hessian_of(work: &mut ExpWork, kappa: &[f64], jac: &[f64], hess: &mut [f64]) {
-    let r = work.z.w.len();
-    let ExpWork { z, nodes: [ud, wd, ug, psi, tu], u, tm, tj, f: sd, .. } = work;
-    u.clear();
-    u.extend_from_slice(kappa);
-    z.c.solve(u);
-    // hess = ⟨ψ d dᵀ⟩, tm = T, with ψ_k = π_k(uᵀg_k − (uᵀd_k)(Wᵀd_k)) and π_k uᵀd_k.
-    project(&z.d, u, ud);
-    project(&z.d, &z.w, wd);
-    project(&z.g, u, ug);
-    psi.clear();
-    psi.extend((0..z.p.len()).map(|k| z.p[k] * (ug[k] - ud[k] * wd[k])));
-    tu.clear();
-    tu.extend(z.p.iter().zip(ud.iter()).map(|(p, u)| p * u));
-    tm.clear();
-    tm.resize(r * r, 0.0);
-    weighted_second_moments(z, psi, hess, sd);
-    weighted_second_moments(z, tu, tm, sd);
-    tj.clear();
-    tj.resize(r * r, 0.0);
-    for a in 0..r {
-        for j in 0..r {
-            tj[a * r + j] = (0..r).map(|b| tm[a * r + b] * jac[b * r + j]).sum();
-        }
-    }
-    for a in 0..r {
-        for j in 0..r {
-            hess[a * r + j] += -tj[a * r + j] - tj[j * r + a] + kappa[a] * z.v[j] + z.v[a] * kappa[j];
-        }
-    }
-}
-
 impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
     /// π, d, g, V, C and W = C⁻¹V at (t, λ) into `z`, with the scratch of `work`, on the nodes
     /// `lo..hi` from the first to the last of non-zero probability: the node vectors of `z` are
@@ -865,16 +699,152 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
             }
         }
         let table = self.family.moment_table_by_moment();
-        assemble(
-            z,
-            cov,
-            fs,
-            n,
-            r,
-            |a| &table[active(a)],
-            |row| &self.jac[active(row)],
-            |a| &self.second[active(a)],
-        )
+        let massless = p.contains(&0.0);
+        let (d, pd, g, v) = (&mut z.d, &mut z.pd, &mut z.g, &mut z.v);
+        d.clear();
+        pd.clear();
+        g.clear();
+        v.clear();
+        v.resize(r, 0.0);
+        for (a, va) in v.iter_mut().enumerate() {
+            let row = a * nodes..(a + 1) * nodes;
+            let ma = &table[active(a)];
+            let mu = dot(p, ma);
+            d.extend(ma.iter().map(|&mk| mk - mu));
+            pd.extend(p.iter().zip(&d[row.clone()]).map(|(&pk, &dk)| pk * dk));
+            g.extend_from_slice(&self.second[active(a)]);
+            let ga = &mut g[row];
+            for i in 0..n {
+                let ji = &self.jac[active(a * n + i)];
+                let fi = &fs[i * nodes..(i + 1) * nodes];
+                for ((gk, &jk), &fk) in ga.iter_mut().zip(ji).zip(fi) {
+                    *gk += jk * fk;
+                }
+            }
+            if massless {
+                for (gk, &pk) in ga.iter_mut().zip(p) {
+                    if pk == 0.0 {
+                        *gk = 0.0;
+                    }
+                }
+            }
+            *va = dot(p, ga);
+        }
+        if !v.iter().all(|x| x.is_finite()) {
+            return Err(Unrealizable("the drift is not finite on the family's grid".into()));
+        }
+        cov.clear();
+        cov.resize(r * r, 0.0);
+        for a in 0..r {
+            for b in a..r {
+                let cab = dot(&pd[a * nodes..(a + 1) * nodes], &d[b * nodes..(b + 1) * nodes]);
+                cov[a * r + b] = cab;
+                cov[b * r + a] = cab;
+            }
+        }
+        z.c.factor(cov, r)?;
+        z.w.clear();
+        z.w.extend_from_slice(v);
+        z.c.solve(&mut z.w);
+        Ok(())
+    }
+
+    /// Σ_k s_k d_a(x_k) d_b(x_k) for all a, b (symmetric, row-major r × r) of a node weight s;
+    /// `sd` is scratch.
+    fn weighted_second_moments(z: &FirstOrder, s: &[f64], out: &mut [f64], sd: &mut Vec<f64>) {
+        let r = z.w.len();
+        let nodes = z.p.len();
+        sd.clear();
+        sd.resize(nodes, 0.0);
+        for a in 0..r {
+            let da = &z.d[a * nodes..(a + 1) * nodes];
+            for ((x, &sk), &dk) in sd.iter_mut().zip(s).zip(da) {
+                *x = sk * dk;
+            }
+            for b in a..r {
+                let v = dot(sd, &z.d[b * nodes..(b + 1) * nodes]);
+                out[a * r + b] = v;
+                out[b * r + a] = v;
+            }
+        }
+    }
+
+    /// Σ_a c_a m_a(x_k) at every node of moment-major rows m, into `out`.
+    fn project(rows: &[f64], c: &[f64], out: &mut Vec<f64>) {
+        let nodes = rows.len() / c.len().max(1);
+        out.clear();
+        out.resize(nodes, 0.0);
+        for (row, &ca) in rows.chunks_exact(nodes).zip(c) {
+            for (o, &mk) in out.iter_mut().zip(row) {
+                *o += ca * mk;
+            }
+        }
+    }
+
+    /// ∂W/∂λ = C⁻¹Σπ_k(g_k − (d_k·W)d_k)d_kᵀ into `jac` (row-major), of `work.z`.
+    fn jacobian_of(work: &mut ExpWork, jac: &mut [f64]) {
+        let ExpWork { z, nodes: [wd, e, ..], col, .. } = work;
+        let r = z.w.len();
+        let nodes = z.p.len();
+        Self::project(&z.d, &z.w, wd);
+        e.clear();
+        e.resize(nodes, 0.0);
+        for a in 0..r {
+            let row = a * nodes..(a + 1) * nodes;
+            for (((ek, &pk), &gk), (&pdk, &u)) in
+                e.iter_mut().zip(&z.p).zip(&z.g[row.clone()]).zip(z.pd[row].iter().zip(wd.iter()))
+            {
+                *ek = pk * gk - u * pdk;
+            }
+            for j in 0..r {
+                jac[a * r + j] = dot(e, &z.d[j * nodes..(j + 1) * nodes]);
+            }
+        }
+        col.clear();
+        col.resize(r, 0.0);
+        for j in 0..r {
+            for a in 0..r {
+                col[a] = jac[a * r + j];
+            }
+            z.c.solve(col);
+            for a in 0..r {
+                jac[a * r + j] = col[a];
+            }
+        }
+    }
+
+    /// ∇²(κᵀW) of [`ClosureDrift::w_second`] into `hess`, from the node values of `work.z` and
+    /// J = ∂W/∂λ.
+    fn hessian_of(&self, work: &mut ExpWork, kappa: &[f64], jac: &[f64], hess: &mut [f64]) {
+        let r = self.family.n_moments();
+        let ExpWork { z, nodes: [ud, wd, ug, psi, tu], u, tm, tj, f: sd, .. } = work;
+        u.clear();
+        u.extend_from_slice(kappa);
+        z.c.solve(u);
+        // hess = ⟨ψ d dᵀ⟩, tm = T, with ψ_k = π_k(uᵀg_k − (uᵀd_k)(Wᵀd_k)) and π_k uᵀd_k.
+        Self::project(&z.d, u, ud);
+        Self::project(&z.d, &z.w, wd);
+        Self::project(&z.g, u, ug);
+        psi.clear();
+        psi.extend((0..z.p.len()).map(|k| z.p[k] * (ug[k] - ud[k] * wd[k])));
+        tu.clear();
+        tu.extend(z.p.iter().zip(ud.iter()).map(|(p, u)| p * u));
+        tm.clear();
+        tm.resize(r * r, 0.0);
+        Self::weighted_second_moments(z, psi, hess, sd);
+        Self::weighted_second_moments(z, tu, tm, sd);
+        tj.clear();
+        tj.resize(r * r, 0.0);
+        for a in 0..r {
+            for j in 0..r {
+                tj[a * r + j] = (0..r).map(|b| tm[a * r + b] * jac[b * r + j]).sum();
+            }
+        }
+        for a in 0..r {
+            for j in 0..r {
+                hess[a * r + j] += -tj[a * r + j] - tj[j * r + a] + kappa[a] * z.v[j] + z.v[a] * kappa[j];
+            }
+        }
     }
 }
 
@@ -903,7 +873,7 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
     ) -> std::result::Result<(), Unrealizable> {
         let work = &mut *self.work.borrow_mut();
         self.zeroth(t, lambda, work)?;
-        jacobian_of(work, jac);
+        Self::jacobian_of(work, jac);
         w.copy_from_slice(&work.z.w);
         Ok(())
     }
@@ -926,8 +896,8 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
     ) -> std::result::Result<(), Unrealizable> {
         let work = &mut *self.work.borrow_mut();
         self.zeroth(t, lambda, work)?;
-        jacobian_of(work, jac);
-        hessian_of(work, kappa, jac, hess);
+        Self::jacobian_of(work, jac);
+        self.hessian_of(work, kappa, jac, hess);
         w.copy_from_slice(&work.z.w);
         Ok(())
     }
@@ -945,7 +915,7 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
     ) -> std::result::Result<(), Unrealizable> {
         let work = &mut *self.work.borrow_mut();
         self.zeroth(t, lambda, work)?;
-        hessian_of(work, kappa, jac, hess);
+        self.hessian_of(work, kappa, jac, hess);
         w.copy_from_slice(&work.z.w);
         Ok(())
     }
