@@ -978,6 +978,23 @@ mod tests {
         }
     }
 
+    /// CW = V for the double well (D = 0.5) and the quartic family, with V by the family's own
+    /// quadrature on all its nodes: V = ⟨f M' + D M''⟩ with f = 4x − 4x³, M = x^a, i.e.
+    /// V_a = ⟨a x^{a−1} f + a(a−1)/2 x^{a−2}⟩.
+    fn assert_w_is_c_inverse_v(family: &Exponential, lambda: &[f64], w: &[f64]) {
+        let rule = family.quadrature(lambda).unwrap();
+        let c = family.covariance(lambda).unwrap();
+        for a in 1..=4i32 {
+            let v = rule.integrate(|x| {
+                let x = x[0];
+                let f = 4.0 * x - 4.0 * x.powi(3);
+                a as f64 * x.powi(a - 1) * f + 0.5 * (a * (a - 1)) as f64 * x.powi((a - 2).max(0))
+            });
+            let cw: f64 = (0..4).map(|b| c[(a as usize - 1) * 4 + b] * w[b]).sum();
+            assert_relative_eq!(cw, v, epsilon = 1e-9, max_relative = 1e-9);
+        }
+    }
+
     #[test]
     fn exponential_drift_jacobian_matches_finite_differences_and_w_is_c_inverse_v() {
         let family = Exponential::quartic(-3.0, 3.0).unwrap();
@@ -989,18 +1006,7 @@ mod tests {
         for k in 0..16 {
             assert_relative_eq!(jac[k], fd[k], epsilon = 1e-5, max_relative = 1e-5);
         }
-        // V = ⟨f M' + D M''⟩ with f = 4x − 4x³, D = 0.5, M = x^a: V_a = ⟨a x^{a−1} f + a(a−1)/2 x^{a−2}⟩.
-        let rule = family.quadrature(&lambda).unwrap();
-        let c = family.covariance(&lambda).unwrap();
-        for a in 1..=4i32 {
-            let v = rule.integrate(|x| {
-                let x = x[0];
-                let f = 4.0 * x - 4.0 * x.powi(3);
-                a as f64 * x.powi(a - 1) * f + 0.5 * (a * (a - 1)) as f64 * x.powi((a - 2).max(0))
-            });
-            let cw: f64 = (0..4).map(|b| c[(a as usize - 1) * 4 + b] * w[b]).sum();
-            assert_relative_eq!(cw, v, epsilon = 1e-9, max_relative = 1e-9);
-        }
+        assert_w_is_c_inverse_v(&family, &lambda, &w);
         assert_eq!(dr.linear_index(0), Some(0));
         assert_eq!(dr.square_index(0), Some(1));
     }
@@ -1118,17 +1124,7 @@ mod tests {
         let dr = ExponentialDrift::try_new(&DoubleWell, &[0.5], family.clone()).unwrap();
         let (mut w, mut jac) = ([0.0; 4], [0.0; 16]);
         dr.w_jacobian(0.0, &lambda, &mut w, &mut jac).unwrap();
-        let rule = family.quadrature(&lambda).unwrap();
-        let c = family.covariance(&lambda).unwrap();
-        for a in 1..=4i32 {
-            let va = rule.integrate(|x| {
-                let x = x[0];
-                let f = 4.0 * x - 4.0 * x.powi(3);
-                a as f64 * x.powi(a - 1) * f + 0.5 * (a * (a - 1)) as f64 * x.powi((a - 2).max(0))
-            });
-            let cw: f64 = (0..4).map(|b| c[(a as usize - 1) * 4 + b] * w[b]).sum();
-            assert_relative_eq!(cw, va, epsilon = 1e-9, max_relative = 1e-9);
-        }
+        assert_w_is_c_inverse_v(&family, &lambda, &w);
         // ∂W/∂λ and ∇²(κᵀW) against fourth-order central differences, relative to their
         // largest entries (the small entries are below the differences' round-off at these λ).
         let kappa = [0.5, -0.25, 0.1, 0.8];
