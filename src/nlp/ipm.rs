@@ -154,6 +154,10 @@ struct Ipm<'a, P: ?Sized, K: ?Sized> {
     u: Vec<f64>,
     has_l: Vec<bool>,
     has_u: Vec<bool>,
+    /// The variables with at least one finite bound, ascending: the barrier terms, Σ, the
+    /// bound multipliers and their steps are nonzero only there, so the per-iteration loops over
+    /// them skip the free variables (all of a transcription's states and noises).
+    bounded: Vec<usize>,
     n_bounds: usize,
     jac_rows: Vec<usize>,
     jac_cols: Vec<usize>,
@@ -169,8 +173,13 @@ struct Ipm<'a, P: ?Sized, K: ?Sized> {
     grad: Vec<f64>,
     c: Vec<f64>,
     jac: Vec<f64>,
+    /// Hessian values of the last [`Self::eval_hess`] (which runs at the start of every
+    /// iteration), or zeros after a factorisation that needs no Hessian (least-squares
+    /// multipliers, restoration) zeroed them in place.
     hess: Vec<f64>,
-    hess_zero: Vec<f64>,
+    /// False while `hess` holds those zeros; a Newton factorisation then evaluates the Hessian
+    /// first (not reached in the iteration, where an evaluation precedes every step).
+    hess_current: bool,
     sigma: Vec<f64>,
     // barrier and filter
     mu: f64,
@@ -307,6 +316,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         let has_l: Vec<bool> = l.iter().map(|v| v.is_finite()).collect();
         let has_u: Vec<bool> = u.iter().map(|v| v.is_finite()).collect();
         let n_bounds = has_l.iter().filter(|&&b| b).count() + has_u.iter().filter(|&&b| b).count();
+        let bounded: Vec<usize> = (0..n).filter(|&i| has_l[i] || has_u[i]).collect();
         // Sect. 3.6: move the initial point strictly inside the bounds.
         for i in 0..n {
             let (lo, hi) = (l[i], u[i]);
@@ -336,6 +346,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             u,
             has_l,
             has_u,
+            bounded,
             n_bounds,
             jac_rows: jac_pat.iter().map(|p| p.0).collect(),
             jac_cols: jac_pat.iter().map(|p| p.1).collect(),
@@ -350,7 +361,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             c: vec![0.0; m],
             jac: vec![0.0; jac_len],
             hess: vec![0.0; hess_len],
-            hess_zero: vec![0.0; hess_len],
+            hess_current: false,
             sigma: vec![0.0; n],
             mu,
             tau: TAU_MIN.max(1.0 - mu),
@@ -432,6 +443,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         self.problem.hessian_values(&self.x, self.sf, &lambda, &mut h);
         let ok = all_finite(&h);
         self.hess = h;
+        self.hess_current = true;
         self.times.evaluation += t.elapsed();
         ok
     }
@@ -446,7 +458,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     /// Barrier function φ_μ(x) (eq. (3)) with the one-sided damping of Sect. 3.7.
     fn phi(&self, f: f64, x: &[f64]) -> f64 {
         let mut b = 0.0;
-        for i in 0..self.n {
+        for &i in &self.bounded {
             if self.has_l[i] {
                 b -= (x[i] - self.l[i]).ln();
                 if !self.has_u[i] {
@@ -466,7 +478,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     /// ∇φ_μ at the current point.
     fn grad_phi(&self) -> Vec<f64> {
         let mut g = self.grad.clone();
-        for i in 0..self.n {
+        for &i in &self.bounded {
             if self.has_l[i] {
                 g[i] -= self.mu / (self.x[i] - self.l[i]);
                 if !self.has_u[i] {
@@ -494,7 +506,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     fn dual_residual(&self) -> Vec<f64> {
         let mut r = self.grad.clone();
         self.jt_times(&self.y, &mut r);
-        for i in 0..self.n {
+        for &i in &self.bounded {
             r[i] += self.zu[i] - self.zl[i];
         }
         r
@@ -511,7 +523,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         let primal = norm_inf(&self.c);
         let mut compl = 0.0f64;
         let mut z1 = 0.0;
-        for i in 0..self.n {
+        for &i in &self.bounded {
             if self.has_l[i] {
                 compl = compl.max((self.zl[i] * (self.x[i] - self.l[i]) - mu).abs());
                 z1 += self.zl[i].abs();
@@ -538,7 +550,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
 
     fn unscaled_compl(&self) -> f64 {
         let mut v = 0.0f64;
-        for i in 0..self.n {
+        for &i in &self.bounded {
             if self.has_l[i] {
                 v = v.max(self.zl[i] * (self.x[i] - self.l[i]));
             }
@@ -564,17 +576,25 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
 
     // ---------------------------------------------------------------- linear algebra
 
+    /// Factorises the KKT matrix with the current Jacobian, the Hessian at the current iterate
+    /// or (`zero_hessian`) a zero Hessian, the primal diagonal and the regularisations.
     fn factor(
         &mut self,
-        values_hess_zero: bool,
+        zero_hessian: bool,
         primal_diag: &[f64],
         dw: f64,
         dc: f64,
     ) -> Option<super::kkt::FactorInfo> {
         let t = Instant::now();
-        let hess = if values_hess_zero { &self.hess_zero } else { &self.hess };
+        if zero_hessian {
+            self.hess.fill(0.0);
+            self.hess_current = false;
+        } else if !self.hess_current && !self.eval_hess() {
+            // not reached: every Newton factorisation follows a Hessian evaluation
+            return None;
+        }
         let info = self.kkt.factorize(&KktValues {
-            hessian: hess,
+            hessian: &self.hess,
             jacobian: &self.jac,
             primal_diagonal: primal_diag,
             delta_w: dw,
@@ -619,7 +639,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
 
     /// Σ = X_L⁻¹ Z_L + X_U⁻¹ Z_U.
     fn update_sigma(&mut self) {
-        for i in 0..self.n {
+        for &i in &self.bounded {
             let mut s = 0.0;
             if self.has_l[i] {
                 s += self.zl[i] / (self.x[i] - self.l[i]);
@@ -725,7 +745,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         let n = self.n;
         let mut dzl = vec![0.0; n];
         let mut dzu = vec![0.0; n];
-        for i in 0..n {
+        for &i in &self.bounded {
             if self.has_l[i] {
                 let s = self.x[i] - self.l[i];
                 dzl[i] = (self.mu - self.zl[i] * s - self.zl[i] * dx[i]) / s;
@@ -741,7 +761,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     /// Largest α ≤ 1 keeping x + α dx at least a fraction (1 − τ) inside the bounds (eq. (15)).
     fn max_step_primal(&self, x: &[f64], dx: &[f64], tau: f64) -> f64 {
         let mut a = 1.0f64;
-        for i in 0..self.n {
+        for &i in &self.bounded {
             if self.has_l[i] && dx[i] < 0.0 {
                 a = a.min(-tau * (x[i] - self.l[i]) / dx[i]);
             }
@@ -754,7 +774,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
 
     fn max_step_dual(&self, dzl: &[f64], dzu: &[f64]) -> f64 {
         let mut a = 1.0f64;
-        for i in 0..self.n {
+        for &i in &self.bounded {
             if self.has_l[i] && dzl[i] < 0.0 {
                 a = a.min(-self.tau * self.zl[i] / dzl[i]);
             }
@@ -960,7 +980,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         for r in 0..self.m {
             self.y[r] += alpha * dir.dy[r];
         }
-        for i in 0..self.n {
+        for &i in &self.bounded {
             if self.has_l[i] {
                 self.zl[i] += alpha_z * dir.dzl[i];
             }
@@ -980,7 +1000,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     fn reset_bound_multipliers(&mut self) {
         let tiny = f64::EPSILON * self.mu;
         let shift = f64::EPSILON.powf(0.75);
-        for i in 0..self.n {
+        for &i in &self.bounded {
             if self.has_l[i] && self.x[i] - self.l[i] < tiny {
                 self.l[i] -= shift * self.l[i].abs().max(1.0);
             }
@@ -988,7 +1008,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
                 self.u[i] += shift * self.u[i].abs().max(1.0);
             }
         }
-        for i in 0..self.n {
+        for &i in &self.bounded {
             if self.has_l[i] {
                 let s = self.x[i] - self.l[i];
                 self.zl[i] = self.zl[i].min(KAPPA_SIGMA * self.mu / s).max(self.mu / (KAPPA_SIGMA * s));
