@@ -355,6 +355,47 @@ fn nonconvex_needs_inertia_correction() {
     assert_relative_eq!(sol.w[1], sol.w[0], epsilon = 1e-7);
 }
 
+/// The counterexample of A. Wächter and L. T. Biegler, "Failure of global convergence for a
+/// class of interior point methods for nonlinear programming", Math. Program. 88 (2000),
+/// 565–574, eq. (2) with a = −1, b = ½: min x₁ s.t. x₁² − x₂ − 1 = 0, x₁ − x₃ − ½ = 0,
+/// x₂, x₃ ≥ 0, from (−2, 3, 1). Newton steps that keep the linearised constraints cannot stay
+/// inside the bounds there, so the line search fails and the restoration phase runs (its
+/// factorisations and the least-squares multipliers after it have no Hessian); the solver must
+/// then converge to x* = (1, 0, ½) with Newton factorisations that use the Hessian again.
+#[test]
+fn wachter_biegler_counterexample_needs_restoration() {
+    let mut p = Dense::free(
+        3,
+        2,
+        vec![-2.0, 3.0, 1.0],
+        |x| x[0],
+        |_, g| {
+            g[0] = 1.0;
+            g[1] = 0.0;
+            g[2] = 0.0;
+        },
+        |x, c| {
+            c[0] = x[0] * x[0] - x[1] - 1.0;
+            c[1] = x[0] - x[2] - 0.5;
+        },
+        |x, j| {
+            j.copy_from_slice(&[2.0 * x[0], -1.0, 0.0, 1.0, 0.0, -1.0]);
+        },
+        |_, _, l, h| {
+            h.fill(0.0);
+            h[0] = 2.0 * l[0];
+        },
+    );
+    p.lower[1] = 0.0;
+    p.lower[2] = 0.0;
+    let sol = run(&mut p);
+    assert_eq!(sol.report.status, Status::Converged);
+    assert!(sol.report.restoration_steps > 0, "{:?}", sol.report);
+    assert_relative_eq!(sol.w[0], 1.0, epsilon = 1e-6);
+    assert_relative_eq!(sol.w[1], 0.0, epsilon = 1e-6);
+    assert_relative_eq!(sol.w[2], 0.5, epsilon = 1e-6);
+}
+
 // ------------------------------------------------------------------ large banded problem
 
 include!("banded_double_well.rs");
