@@ -180,6 +180,10 @@ struct Ipm<'a, P: ?Sized, K: ?Sized> {
     /// False while `hess` holds those zeros; a Newton factorisation then evaluates the Hessian
     /// first (not reached in the iteration, where an evaluation precedes every step).
     hess_current: bool,
+    /// The gradient and Jacobian arrays of the iterate before the last accepted trial point,
+    /// reused (zeroed) for the next trial point's derivatives instead of allocating new ones.
+    spare_grad: Vec<f64>,
+    spare_jac: Vec<f64>,
     sigma: Vec<f64>,
     // barrier and filter
     mu: f64,
@@ -362,6 +366,8 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             jac: vec![0.0; jac_len],
             hess: vec![0.0; hess_len],
             hess_current: false,
+            spare_grad: Vec::new(),
+            spare_jac: Vec::new(),
             sigma: vec![0.0; n],
             mu,
             tau: TAU_MIN.max(1.0 - mu),
@@ -950,8 +956,8 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
                 self.x = x;
                 self.f = f;
                 self.c = c;
-                self.grad = g;
-                self.jac = j;
+                self.spare_grad = std::mem::replace(&mut self.grad, g);
+                self.spare_jac = std::mem::replace(&mut self.jac, j);
             }
             None => {
                 for i in 0..self.n {
@@ -1034,14 +1040,21 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     }
 
     fn eval_derivatives(&mut self, x: &[f64]) -> Option<(Vec<f64>, Vec<f64>)> {
-        let mut g = vec![0.0; self.n];
+        let zeroed = |mut v: Vec<f64>, len: usize| {
+            v.clear();
+            v.resize(len, 0.0);
+            v
+        };
+        let mut g = zeroed(std::mem::take(&mut self.spare_grad), self.n);
         self.eval_grad(x, &mut g);
-        let mut j = vec![0.0; self.jac.len()];
+        let mut j = zeroed(std::mem::take(&mut self.spare_jac), self.jac.len());
         self.eval_jac(x, &mut j);
         if all_finite(&g) && all_finite(&j) {
             Some((g, j))
         } else {
             self.non_finite_trials += 1;
+            self.spare_grad = g;
+            self.spare_jac = j;
             None
         }
     }
@@ -1280,8 +1293,8 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
                     self.x = x_t;
                     self.f = f_t;
                     self.c = c_t;
-                    self.grad = g;
-                    self.jac = j;
+                    self.spare_grad = std::mem::replace(&mut self.grad, g);
+                    self.spare_jac = std::mem::replace(&mut self.jac, j);
                     self.reset_bound_multipliers();
                     if ared >= 0.75 * pred {
                         rho = (rho / 3.0).max(1e-12);
