@@ -32,6 +32,12 @@
 //!   variant (`duffing_large auto 1 6`) the derivatives are 0.86 × 10⁹ instructions against
 //!   1.03 × 10⁹ before, the whole example 2.11 × 10⁹ against 2.31 × 10⁹.
 //!
+//! Latest (main at 32385bb, otherwise idle machine, 2026-11-22): `path_van_der_pol` band
+//! 91.3 ms median, faer 119.0 ms, band kept across solves 62.7 ms (same run; callgrind of three
+//! kept-solver solves 1.87 × 10⁹ instructions, 1.79 × 10⁹ after the interior-point changes of
+//! ab85dec and 1fb8029); Duffing 36k (`examples/duffing_large auto 1 36`): `solve_seconds`
+//! 0.96–1.09 s, peak resident memory 267 MB (254 MB after 1fb8029), 5 iterations.
+//!
 //! Both targets are missed; docs/map.md ("Performance") lists what remains.
 
 use std::hint::black_box;
