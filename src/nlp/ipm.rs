@@ -968,12 +968,11 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
                 let mut c = vec![0.0; self.m];
                 self.eval_c(&x, &mut c);
                 self.c = c;
-                let mut g = vec![0.0; self.n];
+                let (mut g, mut j) = self.take_spare_derivatives();
                 self.eval_grad(&x, &mut g);
-                self.grad = g;
-                let mut j = vec![0.0; self.jac.len()];
                 self.eval_jac(&x, &mut j);
-                self.jac = j;
+                self.spare_grad = std::mem::replace(&mut self.grad, g);
+                self.spare_jac = std::mem::replace(&mut self.jac, j);
                 if !self.f.is_finite()
                     || !all_finite(&self.c)
                     || !all_finite(&self.grad)
@@ -1039,15 +1038,21 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         }
     }
 
-    fn eval_derivatives(&mut self, x: &[f64]) -> Option<(Vec<f64>, Vec<f64>)> {
+    /// Zeroed gradient and Jacobian arrays for a new point, from the spares.
+    fn take_spare_derivatives(&mut self) -> (Vec<f64>, Vec<f64>) {
         let zeroed = |mut v: Vec<f64>, len: usize| {
             v.clear();
             v.resize(len, 0.0);
             v
         };
-        let mut g = zeroed(std::mem::take(&mut self.spare_grad), self.n);
+        let g = zeroed(std::mem::take(&mut self.spare_grad), self.n);
+        let j = zeroed(std::mem::take(&mut self.spare_jac), self.jac.len());
+        (g, j)
+    }
+
+    fn eval_derivatives(&mut self, x: &[f64]) -> Option<(Vec<f64>, Vec<f64>)> {
+        let (mut g, mut j) = self.take_spare_derivatives();
         self.eval_grad(x, &mut g);
-        let mut j = zeroed(std::mem::take(&mut self.spare_jac), self.jac.len());
         self.eval_jac(x, &mut j);
         if all_finite(&g) && all_finite(&j) {
             Some((g, j))
