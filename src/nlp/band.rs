@@ -410,6 +410,28 @@ fn rcm_order(s: &KktStructure<'_>, dense_var: &[bool], dense_row: &[bool]) -> Ve
     order
 }
 
+/// The problem's ordering hint without the dense variables (ordered last by
+/// [`place_constraints`](super::kkt::place_constraints)); an error unless `hint` is a
+/// permutation of `0..n`.
+fn hinted_order(hint: &[usize], n: usize, dense_var: &[bool]) -> Result<Vec<usize>> {
+    let mut seen = vec![false; n];
+    for &v in hint {
+        if v >= n || std::mem::replace(&mut seen[v], true) {
+            return Err(Error::InvalidOption {
+                name: "variable_order".into(),
+                reason: format!("not a permutation of the {n} variables (entry {v})"),
+            });
+        }
+    }
+    if hint.len() != n {
+        return Err(Error::InvalidOption {
+            name: "variable_order".into(),
+            reason: format!("has {} entries for {n} variables", hint.len()),
+        });
+    }
+    Ok(hint.iter().copied().filter(|&v| !dense_var[v]).collect())
+}
+
 impl KktSolver for BandLdlt {
     fn analyse(&mut self, s: &KktStructure<'_>) -> Result<()> {
         if self.reuse_analysis(s) {
@@ -424,7 +446,10 @@ impl KktSolver for BandLdlt {
         self.m = m;
         self.factored = false;
         let (dense_var, dense_row) = super::kkt::dense_variables_and_rows(s);
-        let order = rcm_order(s, &dense_var, &dense_row);
+        let order = match s.order {
+            Some(hint) => hinted_order(hint, n, &dense_var)?,
+            None => rcm_order(s, &dense_var, &dense_row),
+        };
         let mut pos = vec![usize::MAX; n];
         for (p, &v) in order.iter().enumerate() {
             pos[v] = p;
@@ -683,7 +708,7 @@ mod tests {
                 m += 1;
             }
         }
-        let structure = KktStructure { n, m, hessian: &hess, jacobian: &jac };
+        let structure = KktStructure::new(n, m, &hess, &jac);
         let mut band = BandLdlt::new();
         band.analyse(&structure).unwrap();
         let sizes: Vec<usize> = band.groups.iter().map(|&(p0, end)| end - p0).collect();

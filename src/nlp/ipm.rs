@@ -307,7 +307,8 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
                 });
             }
         }
-        kkt.analyse(&KktStructure { n, m, hessian: &hess_pat, jacobian: &jac_pat })?;
+        let order = problem.variable_order();
+        kkt.analyse(&KktStructure::new(n, m, &hess_pat, &jac_pat).with_order(order.as_deref()))?;
         // Fixed variables (l = u) have no interior: relax their bounds slightly, as IPOPT's
         // bound relaxation does; the solution then satisfies them to about 1e-8.
         for i in 0..n {

@@ -71,6 +71,24 @@ pub struct KktStructure<'a> {
     pub hessian: &'a [(usize, usize)],
     /// Jacobian pattern, `(row, column)` with `row < m`, `column < n`.
     pub jacobian: &'a [(usize, usize)],
+    /// An elimination order of the primal variables known to the problem
+    /// ([`NlpProblem::variable_order`](super::NlpProblem::variable_order)): `order[p]` is the
+    /// variable at position `p`, a permutation of `0..n`. [`BandLdlt`](super::BandLdlt) uses it
+    /// instead of reverse Cuthill–McKee; faer's solver ignores it. `None`: no hint.
+    pub order: Option<&'a [usize]>,
+}
+
+impl<'a> KktStructure<'a> {
+    /// The structure of patterns `hessian` and `jacobian` of a problem with `n` variables and
+    /// `m` constraints, without an ordering hint.
+    pub fn new(n: usize, m: usize, hessian: &'a [(usize, usize)], jacobian: &'a [(usize, usize)]) -> Self {
+        KktStructure { n, m, hessian, jacobian, order: None }
+    }
+
+    /// The same structure with the ordering hint `order` (see [`KktStructure::order`]).
+    pub fn with_order(self, order: Option<&'a [usize]>) -> Self {
+        KktStructure { order, ..self }
+    }
 }
 
 /// The values of one KKT matrix, in the order of the patterns of [`KktStructure`].

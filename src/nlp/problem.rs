@@ -60,4 +60,14 @@ pub trait NlpProblem {
     /// $\sigma_f \nabla^2 f(w) + \sum_j \lambda_j \nabla^2 c_j(w)$
     /// in the order of [`hessian_structure`](Self::hessian_structure).
     fn hessian_values(&mut self, w: &[f64], obj_factor: f64, lambda: &[f64], values: &mut [f64]);
+
+    /// An elimination order of the variables that keeps the KKT matrix banded, when the
+    /// problem knows one (a transcription: its variables in time order): `order[p]` is the
+    /// variable at position `p`, a permutation of `0..n`. The band solver
+    /// ([`BandLdlt`](super::BandLdlt)) then skips its reverse Cuthill–McKee search, places each
+    /// constraint after its last variable and the dense variables and rows last as usual; faer's
+    /// solver ignores it. Queried once. The default `None` leaves the ordering to the solver.
+    fn variable_order(&self) -> Option<Vec<usize>> {
+        None
+    }
 }

@@ -969,7 +969,7 @@ fn check_kkt_inertia_and_solve(kkt: &mut dyn KktSolver) {
     // inertia (2, 1, 0).
     let hess = [(0, 0), (1, 0), (1, 1)];
     let jac = [(0, 0), (0, 1)];
-    kkt.analyse(&KktStructure { n: 2, m: 1, hessian: &hess, jacobian: &jac }).unwrap();
+    kkt.analyse(&KktStructure::new(2, 1, &hess, &jac)).unwrap();
     let info = kkt
         .factorize(&KktValues {
             hessian: &[4.0, 1.0, 3.0],
@@ -1074,7 +1074,7 @@ fn band_and_faer_agree_on_random_kkt_systems() {
     for trial in 0..20 {
         let (n, m) = (40 + trial, 10 + trial / 2);
         let (hess, jac) = random_kkt(&mut rng, n, m);
-        let structure = KktStructure { n, m, hessian: &hess, jacobian: &jac };
+        let structure = KktStructure::new(n, m, &hess, &jac);
         let hv: Vec<f64> = hess
             .iter()
             .map(|&(i, j)| if i == j { rng.random_range(-1.0..4.0) } else { rng.random_range(-1.0..1.0) })
@@ -1201,7 +1201,7 @@ fn band_ordering_is_a_permutation() {
     for trial in 0..10 {
         let (n, m) = (30 + 7 * trial, 8 + 2 * trial);
         let (hess, jac) = random_kkt(&mut rng, n, m);
-        let structure = KktStructure { n, m, hessian: &hess, jacobian: &jac };
+        let structure = KktStructure::new(n, m, &hess, &jac);
         let mut band = BandLdlt::new();
         band.analyse(&structure).unwrap();
         let mut seen = vec![false; n + m];

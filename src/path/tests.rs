@@ -357,7 +357,7 @@ fn band_and_faer_solve_a_jme_kkt_system_alike() {
     let (mut hv, mut jv) = (vec![0.0; hs.len()], vec![0.0; js.len()]);
     nlp.hessian_values(&w, 1.0, &lambda, &mut hv);
     nlp.jacobian_values(&w, &mut jv);
-    let structure = KktStructure { n, m, hessian: &hs, jacobian: &js };
+    let structure = KktStructure::new(n, m, &hs, &js);
     let sigma = vec![0.0; n];
     let values =
         KktValues { hessian: &hv, jacobian: &jv, primal_diagonal: &sigma, delta_w: 0.0, delta_c: 0.0 };
@@ -378,6 +378,61 @@ fn band_and_faer_solve_a_jme_kkt_system_alike() {
             assert!((b - f).abs() <= 1e-10 * scale, "{b} vs {f} (scale {scale:.2e})");
         }
     }
+}
+
+/// The transcriptions' ordering hint ([`NlpProblem::variable_order`]) gives the band solver the
+/// envelope of reverse Cuthill–McKee on their KKT patterns, for every transcription and with
+/// estimated parameters (ordered last); for Euler and trapezoidal the same permutation. (For
+/// Hermite–Simpson on these short grids RCM's tie-breaking by degree orders some groups of a
+/// piece differently, with the same envelope; on the Van der Pol benchmark problem of
+/// `benches/path.rs` it is the same order.)
+#[test]
+fn time_order_hint_has_the_envelope_of_reverse_cuthill_mckee() {
+    use crate::nlp::{BandLdlt, KktSolver, KktStructure};
+    let times: Vec<f64> = (0..=20).map(|k| 0.1 * k as f64).collect();
+    let cases: &[(&str, &[usize])] = &[
+        ("ou", &[]),
+        ("van-der-pol", &[]),
+        ("duffing", &[0, 1, 2]),
+        ("holmes-rand", &[]),
+        ("double-well", &[]),
+    ];
+    for &(name, estimate) in cases {
+        let p = preset(name).unwrap();
+        let data = data_for(&p, &times);
+        let prob = p.problem(&data, estimate);
+        for transcription in [Transcription::HermiteSimpson, Transcription::Trapezoidal, Transcription::Euler]
+        {
+            let options = PathOptions::new(Merit::OnsagerMachlup, transcription).with_step(0.025);
+            let nlp = build_nlp(&prob, &options).unwrap();
+            let (n, m) = (nlp.num_variables(), nlp.num_constraints());
+            let (hs, js) = (nlp.hessian_structure(), nlp.jacobian_structure());
+            let order = nlp.variable_order().unwrap();
+            let (mut rcm, mut hinted) = (BandLdlt::new(), BandLdlt::new());
+            rcm.analyse(&KktStructure::new(n, m, &hs, &js)).unwrap();
+            hinted.analyse(&KktStructure::new(n, m, &hs, &js).with_order(Some(&order))).unwrap();
+            let what = format!("{name} {}", transcription.name());
+            assert_eq!(hinted.envelope_size(), rcm.envelope_size(), "{what}");
+            if transcription != Transcription::HermiteSimpson {
+                assert_eq!(hinted.permutation(), rcm.permutation(), "{what}");
+            }
+        }
+    }
+    // the grid of the Van der Pol benchmark: 3200 Hermite–Simpson pieces on [0, 16]
+    let p = preset("van-der-pol").unwrap();
+    let times: Vec<f64> = (0..=160).map(|k| 0.1 * k as f64).collect();
+    let data = data_for(&p, &times);
+    let prob = p.problem(&data, &[]);
+    let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson).with_step(0.005);
+    let nlp = build_nlp(&prob, &options).unwrap();
+    let (n, m) = (nlp.num_variables(), nlp.num_constraints());
+    let (hs, js) = (nlp.hessian_structure(), nlp.jacobian_structure());
+    let order = nlp.variable_order().unwrap();
+    let (mut rcm, mut hinted) = (BandLdlt::new(), BandLdlt::new());
+    rcm.analyse(&KktStructure::new(n, m, &hs, &js)).unwrap();
+    hinted.analyse(&KktStructure::new(n, m, &hs, &js).with_order(Some(&order))).unwrap();
+    assert_eq!(rcm.envelope_size(), 243_187);
+    assert_eq!(hinted.permutation(), rcm.permutation());
 }
 
 /// A KKT solver kept across estimates reuses its analysis (for the Laplace sd after the solve
