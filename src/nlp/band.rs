@@ -36,7 +36,7 @@
 
 use onsager_closures::dot;
 
-use super::kkt::{scatter_values, FactorInfo, Inertia, KktSolver, KktStructure, KktValues};
+use super::kkt::{FactorInfo, Inertia, KktSolver, KktStructure, KktValues, SlotMap};
 use crate::{Error, Result};
 
 /// Largest mean envelope width (stored entries per row) accepted by [`BandLdlt::analyse`] in
@@ -69,9 +69,8 @@ pub struct BandLdlt {
     /// The factor: unit-lower L below the diagonal, D on the diagonal.
     factor: Vec<f64>,
     inv_d: Vec<f64>,
-    hess_map: Vec<usize>,
-    jac_map: Vec<usize>,
-    diag_map: Vec<usize>,
+    /// The slots of the pattern entries in `values`.
+    slots: SlotMap,
     work_x: Vec<f64>,
     work_r: Vec<f64>,
     work_b: Vec<f64>,
@@ -137,15 +136,18 @@ impl BandLdlt {
             s.hessian.iter().map(|&(i, j)| slot(lower(iperm[i], iperm[j]))).collect();
         let jac: Option<Vec<usize>> =
             s.jacobian.iter().map(|&(r, c)| slot(lower(iperm[n + r], iperm[c]))).collect();
-        match (hess, jac) {
-            (Some(h), Some(j)) => {
-                self.hess_map = h;
-                self.jac_map = j;
+        let (Some(hess), Some(jac)) = (hess, jac) else {
+            return false;
+        };
+        let diag: Vec<usize> = self.slots.diagonal_slots().collect();
+        match SlotMap::try_new(self.values.len(), hess.into_iter(), jac.into_iter(), diag.into_iter()) {
+            Ok(slots) => {
+                self.slots = slots;
                 self.factored = false;
                 self.reused += 1;
                 true
             }
-            _ => false,
+            Err(_) => false,
         }
     }
 
@@ -484,9 +486,12 @@ impl KktSolver for BandLdlt {
             });
         }
         let slot = |(r, c): (usize, usize)| row_ptr[r] + (c - first[r]);
-        self.hess_map = s.hessian.iter().map(|&(i, j)| slot(lower(iperm[i], iperm[j]))).collect();
-        self.jac_map = s.jacobian.iter().map(|&(r, c)| slot(lower(iperm[n + r], iperm[c]))).collect();
-        self.diag_map = (0..dim).map(|g| row_ptr[iperm[g] + 1] - 1).collect();
+        self.slots = SlotMap::try_new(
+            size,
+            s.hessian.iter().map(|&(i, j)| slot(lower(iperm[i], iperm[j]))),
+            s.jacobian.iter().map(|&(r, c)| slot(lower(iperm[n + r], iperm[c]))),
+            (0..dim).map(|g| row_ptr[iperm[g] + 1] - 1),
+        )?;
         self.groups = row_groups(&first);
         self.first = first;
         self.row_ptr = row_ptr;
@@ -508,7 +513,7 @@ impl KktSolver for BandLdlt {
         if self.row_ptr.len() != dim + 1 {
             return None; // `analyse` was not called
         }
-        scatter_values(&mut self.values, &self.hess_map, &self.jac_map, &self.diag_map, n, m, v);
+        self.slots.scatter(&mut self.values, v);
         // max |K_ij| and the row sums of |K| (∞-norm of the symmetric matrix) in one pass, which
         // also copies the matrix into the factor's storage; a non-finite entry makes the total
         // non-finite (the comparisons below skip NaN, the sums do not)
@@ -674,7 +679,7 @@ impl KktSolver for BandLdlt {
     }
 
     fn nnz(&self) -> (usize, usize) {
-        (self.hess_map.len() + self.jac_map.len() + self.n + self.m, self.envelope_size())
+        (self.slots.entries(), self.envelope_size())
     }
 
     fn name(&self) -> &'static str {

@@ -244,9 +244,7 @@ pub struct FaerLdlt {
     col_ptr: Vec<usize>,
     row_idx: Vec<usize>,
     values: Vec<f64>,
-    hess_map: Vec<usize>,
-    jac_map: Vec<usize>,
-    diag_map: Vec<usize>,
+    slots: SlotMap,
     symbolic: Option<SymbolicCholesky<usize>>,
     l_values: Vec<f64>,
     factor_mem: Option<MemBuffer>,
@@ -632,9 +630,12 @@ impl KktSolver for FaerLdlt {
             let rows = &me.row_idx[me.col_ptr[j]..me.col_ptr[j + 1]];
             me.col_ptr[j] + rows.binary_search(&i).expect("entry is in the pattern")
         };
-        self.hess_map = s.hessian.iter().map(|&(i, j)| slot(self, iperm[i], iperm[j])).collect();
-        self.jac_map = s.jacobian.iter().map(|&(r, c)| slot(self, iperm[n + r], iperm[c])).collect();
-        self.diag_map = (0..dim).map(|g| slot(self, iperm[g], iperm[g])).collect();
+        self.slots = SlotMap::try_new(
+            self.row_idx.len(),
+            s.hessian.iter().map(|&(i, j)| slot(self, iperm[i], iperm[j])),
+            s.jacobian.iter().map(|&(r, c)| slot(self, iperm[n + r], iperm[c])),
+            (0..dim).map(|g| slot(self, iperm[g], iperm[g])),
+        )?;
         self.values = vec![0.0; self.row_idx.len()];
 
         let pattern = SymbolicSparseColMatRef::new_checked(dim, dim, &self.col_ptr, None, &self.row_idx);
@@ -668,7 +669,7 @@ impl KktSolver for FaerLdlt {
 
     fn factorize(&mut self, v: &KktValues<'_>) -> Option<FactorInfo> {
         let (n, m) = (self.n, self.m);
-        scatter_values(&mut self.values, &self.hess_map, &self.jac_map, &self.diag_map, n, m, v);
+        self.slots.scatter(&mut self.values, v);
         let mut max_abs = 0.0f64;
         for &a in &self.values {
             if !a.is_finite() {
@@ -782,31 +783,94 @@ impl KktSolver for FaerLdlt {
     }
 }
 
-/// Writes the KKT matrix values of `v` into `values` (the lower triangle in the solver's storage)
-/// through the position maps of the Hessian entries, the Jacobian entries and the diagonal
-/// (n primal then m dual), adding the primal diagonal Σ + δ_w and the dual regularisation −δ_c.
-pub(crate) fn scatter_values(
-    values: &mut [f64],
-    hess_map: &[usize],
-    jac_map: &[usize],
-    diag_map: &[usize],
-    n: usize,
-    m: usize,
-    v: &KktValues<'_>,
-) {
-    debug_assert!(hess_map.len() == v.hessian.len() && jac_map.len() == v.jacobian.len());
-    debug_assert!(diag_map.len() == n + m && v.primal_diagonal.len() == n);
-    values.fill(0.0);
-    for (&s, &h) in hess_map.iter().zip(v.hessian) {
-        values[s] += h;
+/// Where the entries of the KKT patterns go in a solver's value storage: the slot of each
+/// Hessian entry, each Jacobian entry and each diagonal entry (n primal, then m dual), as `u32`
+/// with [`SlotMap::ADD`] set on every entry whose slot an earlier entry (in the order Hessian,
+/// Jacobian, diagonal) writes too, and the slots no entry writes (fill-in kept in the storage).
+/// [`SlotMap::scatter`] then assigns the first contribution to each slot and adds the others,
+/// instead of zeroing the whole storage first: the same sums in the same order, so the same
+/// values bit for bit, with half the index traffic of `usize` maps and one pass fewer over the
+/// storage.
+#[derive(Debug, Default, Clone)]
+pub(crate) struct SlotMap {
+    hess: Vec<u32>,
+    jac: Vec<u32>,
+    diag: Vec<u32>,
+    zero: Vec<u32>,
+}
+
+impl SlotMap {
+    /// Flag of an entry that adds to its slot (an earlier entry assigned it).
+    const ADD: u32 = 1 << 31;
+
+    /// The map of storage with `size` slots from the slots of the Hessian, Jacobian and
+    /// diagonal entries in pattern order. An error when the storage has 2³¹ slots or more.
+    pub(crate) fn try_new(
+        size: usize,
+        hess: impl ExactSizeIterator<Item = usize>,
+        jac: impl ExactSizeIterator<Item = usize>,
+        diag: impl ExactSizeIterator<Item = usize>,
+    ) -> Result<SlotMap> {
+        if size >= Self::ADD as usize {
+            return Err(Error::InvalidOption {
+                name: "linear_solver".into(),
+                reason: format!("the KKT storage has {size} entries, more than 2^31"),
+            });
+        }
+        let mut written = vec![false; size];
+        let mut flagged = |slots: &mut dyn ExactSizeIterator<Item = usize>| -> Vec<u32> {
+            let mut out = Vec::with_capacity(slots.len());
+            for s in slots {
+                let add = std::mem::replace(&mut written[s], true);
+                out.push(s as u32 | if add { Self::ADD } else { 0 });
+            }
+            out
+        };
+        let (mut hess, mut jac, mut diag) = (hess, jac, diag);
+        let (hess, jac, diag) = (flagged(&mut hess), flagged(&mut jac), flagged(&mut diag));
+        let zero = (0..size).filter(|&s| !written[s]).map(|s| s as u32).collect();
+        Ok(SlotMap { hess, jac, diag, zero })
     }
-    for (&s, &a) in jac_map.iter().zip(v.jacobian) {
-        values[s] += a;
+
+    /// Number of pattern entries (Hessian, Jacobian and diagonal).
+    pub(crate) fn entries(&self) -> usize {
+        self.hess.len() + self.jac.len() + self.diag.len()
     }
-    for (&s, &d) in diag_map[..n].iter().zip(v.primal_diagonal) {
-        values[s] += d + v.delta_w;
+
+    /// The slots of the diagonal entries (n primal, then m dual).
+    pub(crate) fn diagonal_slots(&self) -> impl ExactSizeIterator<Item = usize> + '_ {
+        self.diag.iter().map(|&s| (s & !Self::ADD) as usize)
     }
-    for &s in &diag_map[n..n + m] {
-        values[s] -= v.delta_c;
+
+    /// Writes the KKT matrix values of `v` into `values` (the solver's storage of the lower
+    /// or upper triangle): the Hessian and Jacobian entries, the primal diagonal Σ + δ_w and
+    /// the dual regularisation −δ_c, summed per slot in that order; zero elsewhere.
+    pub(crate) fn scatter(&self, values: &mut [f64], v: &KktValues<'_>) {
+        let n = v.primal_diagonal.len();
+        debug_assert!(self.hess.len() == v.hessian.len() && self.jac.len() == v.jacobian.len());
+        debug_assert!(self.diag.len() >= n);
+        // `0.0 + x` rather than `x`: the first contribution is added to zero, as before, so
+        // that a −0.0 becomes +0.0 exactly as a zeroed storage made it
+        #[inline(always)]
+        fn put(values: &mut [f64], flagged: u32, x: f64) {
+            let s = (flagged & !SlotMap::ADD) as usize;
+            let base = if flagged & SlotMap::ADD != 0 { values[s] } else { 0.0 };
+            values[s] = base + x;
+        }
+        for &s in &self.zero {
+            values[s as usize] = 0.0;
+        }
+        for (&s, &h) in self.hess.iter().zip(v.hessian) {
+            put(values, s, h);
+        }
+        for (&s, &a) in self.jac.iter().zip(v.jacobian) {
+            put(values, s, a);
+        }
+        for (&s, &d) in self.diag[..n].iter().zip(v.primal_diagonal) {
+            put(values, s, d + v.delta_w);
+        }
+        for &s in &self.diag[n..] {
+            put(values, s, -v.delta_c);
+        }
     }
 }
