@@ -818,18 +818,21 @@ impl SlotMap {
             });
         }
         let mut written = vec![false; size];
-        let mut flagged = |slots: &mut dyn ExactSizeIterator<Item = usize>| -> Vec<u32> {
-            let mut out = Vec::with_capacity(slots.len());
-            for s in slots {
-                let add = std::mem::replace(&mut written[s], true);
-                out.push(s as u32 | if add { Self::ADD } else { 0 });
-            }
-            out
-        };
-        let (mut hess, mut jac, mut diag) = (hess, jac, diag);
-        let (hess, jac, diag) = (flagged(&mut hess), flagged(&mut jac), flagged(&mut diag));
+        let hess = Self::flagged(&mut written, hess);
+        let jac = Self::flagged(&mut written, jac);
+        let diag = Self::flagged(&mut written, diag);
         let zero = (0..size).filter(|&s| !written[s]).map(|s| s as u32).collect();
         Ok(SlotMap { hess, jac, diag, zero })
+    }
+
+    /// The slots, each flagged [`SlotMap::ADD`] when `written` already holds it; marks them.
+    fn flagged(written: &mut [bool], slots: impl ExactSizeIterator<Item = usize>) -> Vec<u32> {
+        let mut out = Vec::with_capacity(slots.len());
+        for s in slots {
+            let add = std::mem::replace(&mut written[s], true);
+            out.push(s as u32 | if add { Self::ADD } else { 0 });
+        }
+        out
     }
 
     /// Number of pattern entries (Hessian, Jacobian and diagonal).
