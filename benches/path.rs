@@ -38,7 +38,15 @@
 //! ab85dec and 1fb8029); Duffing 36k (`examples/duffing_large auto 1 36`): `solve_seconds`
 //! 0.96–1.09 s, peak resident memory 267 MB (254 MB after 1fb8029), 5 iterations.
 //!
-//! Both targets are missed; docs/map.md ("Performance") lists what remains.
+//! Latest (main after 011bbe8: the transcription's time order instead of the RCM search, one
+//! `u32` slot map for the KKT scatter; idle machine, 2026-11-25, same run): `path_van_der_pol`
+//! band 43.0 ms median (45.2 ms before, same session), faer 65.1 ms (66.3), band kept across
+//! solves 31.7 ms (35.0); `path_duffing_joint_36k` 559 ms. Callgrind of one fresh Van der Pol
+//! solve 687.0 × 10⁶ → 630.6 × 10⁶ instructions; Duffing 36k peak resident memory 244 MB.
+//!
+//! The 35 ms target is met by the kept solver, not yet by a fresh one (about 8.5 ms of its
+//! 43.0 ms are page faults of memory the allocator returns between solves); the Duffing target
+//! (0.5 s) is missed. docs/map.md ("Performance") lists what remains.
 
 use std::hint::black_box;
 use std::time::Duration;

@@ -11,7 +11,10 @@
 //! variables, and variables coupled to very many others (static parameters) and dense
 //! constraint rows are ordered last (see [`super::kkt`]). For a time-discretised problem RCM
 //! recovers the time order, and the matrix becomes a band of width a few intervals plus a
-//! border of the parameter rows.
+//! border of the parameter rows. A problem that knows such an order gives it as a hint
+//! ([`NlpProblem::variable_order`](super::NlpProblem::variable_order), passed in
+//! [`KktStructure::order`]); the search is then skipped and the rest is the same (the path
+//! transcriptions do: their time order has RCM's envelope).
 //!
 //! **Storage and factorisation.** Row $p$ of the lower triangle is stored densely from its
 //! first nonzero column $f_p$ to the diagonal (George & Liu, Sect. 4.1, the envelope
