@@ -159,8 +159,10 @@ struct Ipm<'a, P: ?Sized, K: ?Sized> {
     /// them skip the free variables (all of a transcription's states and noises).
     bounded: Vec<usize>,
     n_bounds: usize,
-    jac_rows: Vec<usize>,
-    jac_cols: Vec<usize>,
+    /// Row and column of each Jacobian pattern entry (`u32`: half the memory of `usize` on the
+    /// largest transcriptions; [`Ipm::new`] checks that n and m fit).
+    jac_rows: Vec<u32>,
+    jac_cols: Vec<u32>,
     // scaling (Sect. 3.8)
     sf: f64,
     sc: Vec<f64>,
@@ -245,6 +247,9 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     fn new(problem: &'a mut P, kkt: &'a mut K, opt: &'a mut NlpOptions, start: Instant) -> Result<Self> {
         let n = problem.num_variables();
         let m = problem.num_constraints();
+        if n.max(m) > u32::MAX as usize {
+            return Err(invalid("size", format!("{n} variables and {m} constraints: at most 2^32 - 1 each")));
+        }
         if n == 0 {
             return Err(Error::DimensionMismatch {
                 what: "number of variables (must be positive)".into(),
@@ -353,8 +358,8 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             has_u,
             bounded,
             n_bounds,
-            jac_rows: jac_pat.iter().map(|p| p.0).collect(),
-            jac_cols: jac_pat.iter().map(|p| p.1).collect(),
+            jac_rows: jac_pat.iter().map(|p| p.0 as u32).collect(),
+            jac_cols: jac_pat.iter().map(|p| p.1 as u32).collect(),
             sf: 1.0,
             sc: vec![1.0; m],
             x,
@@ -437,7 +442,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         self.counts.jacobian += 1;
         self.problem.jacobian_values(x, out);
         for (v, &r) in out.iter_mut().zip(&self.jac_rows) {
-            *v *= self.sc[r];
+            *v *= self.sc[r as usize];
         }
         self.times.evaluation += t.elapsed();
     }
@@ -505,7 +510,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     /// out += Jᵀ v (scaled Jacobian).
     fn jt_times(&self, v: &[f64], out: &mut [f64]) {
         for ((&a, &c), &r) in self.jac.iter().zip(&self.jac_cols).zip(&self.jac_rows) {
-            out[c] += a * v[r];
+            out[c as usize] += a * v[r as usize];
         }
     }
 
@@ -820,6 +825,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             self.sf = if gmax > G_MAX { G_MAX / gmax } else { 1.0 };
             let mut row_max = vec![0.0f64; self.m];
             for (k, &r) in self.jac_rows.iter().enumerate() {
+                let r = r as usize;
                 row_max[r] = row_max[r].max(jac[k].abs());
             }
             for r in 0..self.m {
@@ -830,7 +836,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             *v *= self.sf;
         }
         for (v, &r) in jac.iter_mut().zip(&self.jac_rows) {
-            *v *= self.sc[r];
+            *v *= self.sc[r as usize];
         }
         self.grad = g;
         self.jac = jac;
@@ -1282,7 +1288,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             // predicted decrease of ½‖c‖²: ½‖c‖² − ½‖c + a J d‖²
             let mut jd = vec![0.0; self.m];
             for k in 0..self.jac.len() {
-                jd[self.jac_rows[k]] += self.jac[k] * d[self.jac_cols[k]];
+                jd[self.jac_rows[k] as usize] += self.jac[k] * d[self.jac_cols[k] as usize];
             }
             let c2: f64 = self.c.iter().map(|v| v * v).sum::<f64>() * 0.5;
             let pred = c2 - 0.5 * self.c.iter().zip(&jd).map(|(c, j)| (c + a * j).powi(2)).sum::<f64>();
