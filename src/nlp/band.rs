@@ -450,7 +450,7 @@ impl KktSolver for BandLdlt {
         self.n = n;
         self.m = m;
         self.factored = false;
-        let (dense_var, dense_row) = super::kkt::dense_variables_and_rows(s);
+        let (dense_var, dense_row) = super::kkt::dense_variables_and_rows(s)?;
         let order = match s.order {
             Some(hint) => hinted_order(hint, n, &dense_var)?,
             None => rcm_order(s, &dense_var, &dense_row),

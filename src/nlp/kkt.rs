@@ -328,8 +328,14 @@ impl FaerLdlt {
 /// appears in) exceeds the same limit (e.g. a static parameter shared by every transition
 /// constraint). Otherwise every constraint would wait for them and the constraint block would
 /// fill in completely.
-pub(crate) fn dense_variables_and_rows(s: &KktStructure<'_>) -> (Vec<bool>, Vec<bool>) {
+pub(crate) fn dense_variables_and_rows(s: &KktStructure<'_>) -> Result<(Vec<bool>, Vec<bool>)> {
     let (n, m) = (s.n, s.m);
+    if n > u32::MAX as usize {
+        return Err(Error::InvalidOption {
+            name: "kkt".into(),
+            reason: format!("{n} variables: at most 2^32 - 1"),
+        });
+    }
     // the variables of each row (compressed rows by counting, then sorted and deduplicated
     // within each row)
     let mut ptr = vec![0usize; m + 1];
@@ -339,10 +345,11 @@ pub(crate) fn dense_variables_and_rows(s: &KktStructure<'_>) -> (Vec<bool>, Vec<
     for r in 0..m {
         ptr[r + 1] += ptr[r];
     }
-    let mut vars = vec![0usize; s.jacobian.len()];
+    // u32 variable indices: half the memory of the pattern's
+    let mut vars = vec![0u32; s.jacobian.len()];
     let mut fill = ptr[..m].to_vec();
     for &(r, c) in s.jacobian {
-        vars[fill[r]] = c;
+        vars[fill[r]] = c as u32;
         fill[r] += 1;
     }
     let mut len = vec![0usize; m];
@@ -369,10 +376,10 @@ pub(crate) fn dense_variables_and_rows(s: &KktStructure<'_>) -> (Vec<bool>, Vec<
     }
     for r in (0..m).filter(|&r| !dense_row[r]) {
         for &c in &vars[ptr[r]..ptr[r] + len[r]] {
-            degree[c] += len[r] - 1;
+            degree[c as usize] += len[r] - 1;
         }
     }
-    (degree.iter().map(|&d| d > dense_limit).collect(), dense_row)
+    Ok((degree.iter().map(|&d| d > dense_limit).collect(), dense_row))
 }
 
 /// The KKT ordering from an ordering of the (non-dense) primal variables: `order[p]` is the
@@ -434,7 +441,7 @@ pub(crate) fn place_constraints(
 /// position `p`.
 fn kkt_ordering(s: &KktStructure<'_>) -> Result<Vec<usize>> {
     let n = s.n;
-    let (dense_var, dense_row) = dense_variables_and_rows(s);
+    let (dense_var, dense_row) = dense_variables_and_rows(s)?;
     // the primal graph without the dense variables and rows; AMD needs a deduplicated upper
     // CSC pattern, built by counting sorts (column-major, then rows within each column)
     let mut edges: Vec<(usize, usize)> = Vec::new();
