@@ -42,7 +42,9 @@
 //! `u32` slot map for the KKT scatter; idle machine, 2026-11-25, same run): `path_van_der_pol`
 //! band 43.0 ms median (45.2 ms before, same session), faer 65.1 ms (66.3), band kept across
 //! solves 31.7 ms (35.0); `path_duffing_joint_36k` 559 ms. Callgrind of one fresh Van der Pol
-//! solve 687.0 × 10⁶ → 630.6 × 10⁶ instructions; Duffing 36k peak resident memory 244 MB.
+//! solve 687.0 × 10⁶ → 630.6 × 10⁶ instructions; Duffing 36k peak resident memory 244 MB, 231 MB
+//! after the `u32` index lists of the interior-point method (`solve_seconds` 0.86 × that of
+//! 356a176, alternated runs).
 //!
 //! The 35 ms target is met by the kept solver, not yet by a fresh one (about 8.5 ms of its
 //! 43.0 ms are page faults of memory the allocator returns between solves); the Duffing target
