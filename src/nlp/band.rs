@@ -419,21 +419,7 @@ fn rcm_order(s: &KktStructure<'_>, dense_var: &[bool], dense_row: &[bool]) -> Ve
 /// [`place_constraints`](super::kkt::place_constraints)); an error unless `hint` is a
 /// permutation of `0..n`.
 fn hinted_order(hint: &[usize], n: usize, dense_var: &[bool]) -> Result<Vec<usize>> {
-    let mut seen = vec![false; n];
-    for &v in hint {
-        if v >= n || std::mem::replace(&mut seen[v], true) {
-            return Err(Error::InvalidOption {
-                name: "variable_order".into(),
-                reason: format!("not a permutation of the {n} variables (entry {v})"),
-            });
-        }
-    }
-    if hint.len() != n {
-        return Err(Error::InvalidOption {
-            name: "variable_order".into(),
-            reason: format!("has {} entries for {n} variables", hint.len()),
-        });
-    }
+    super::kkt::check_order(hint, n)?;
     Ok(hint.iter().copied().filter(|&v| !dense_var[v]).collect())
 }
 

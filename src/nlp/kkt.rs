@@ -91,6 +91,22 @@ impl<'a> KktStructure<'a> {
     }
 }
 
+/// An error unless `order` is a permutation of `0..n` (an ordering hint, see
+/// [`KktStructure::order`]).
+pub(crate) fn check_order(order: &[usize], n: usize) -> Result<()> {
+    let invalid = |reason: String| Err(Error::InvalidOption { name: "variable_order".into(), reason });
+    if order.len() != n {
+        return invalid(format!("has {} entries for {n} variables", order.len()));
+    }
+    let mut seen = vec![false; n];
+    for &v in order {
+        if v >= n || std::mem::replace(&mut seen[v], true) {
+            return invalid(format!("not a permutation of the {n} variables (entry {v})"));
+        }
+    }
+    Ok(())
+}
+
 /// The values of one KKT matrix, in the order of the patterns of [`KktStructure`].
 #[derive(Clone, Copy, Debug)]
 pub struct KktValues<'a> {
