@@ -389,6 +389,20 @@ fn band_and_faer_solve_a_jme_kkt_system_alike() {
 #[test]
 fn time_order_hint_has_the_envelope_of_reverse_cuthill_mckee() {
     use crate::nlp::{BandLdlt, KktSolver, KktStructure};
+    // the band analyses of a transcription without and with its hint
+    let analyses = |name: &str, estimate: &[usize], times: &[f64], options: &PathOptions| {
+        let p = preset(name).unwrap();
+        let data = data_for(&p, times);
+        let prob = p.problem(&data, estimate);
+        let nlp = build_nlp(&prob, options).unwrap();
+        let (n, m) = (nlp.num_variables(), nlp.num_constraints());
+        let (hs, js) = (nlp.hessian_structure(), nlp.jacobian_structure());
+        let order = nlp.variable_order().unwrap();
+        let (mut rcm, mut hinted) = (BandLdlt::new(), BandLdlt::new());
+        rcm.analyse(&KktStructure::new(n, m, &hs, &js)).unwrap();
+        hinted.analyse(&KktStructure::new(n, m, &hs, &js).with_order(Some(&order))).unwrap();
+        (rcm, hinted)
+    };
     let times: Vec<f64> = (0..=20).map(|k| 0.1 * k as f64).collect();
     let cases: &[(&str, &[usize])] = &[
         ("ou", &[]),
@@ -398,19 +412,10 @@ fn time_order_hint_has_the_envelope_of_reverse_cuthill_mckee() {
         ("double-well", &[]),
     ];
     for &(name, estimate) in cases {
-        let p = preset(name).unwrap();
-        let data = data_for(&p, &times);
-        let prob = p.problem(&data, estimate);
         for transcription in [Transcription::HermiteSimpson, Transcription::Trapezoidal, Transcription::Euler]
         {
             let options = PathOptions::new(Merit::OnsagerMachlup, transcription).with_step(0.025);
-            let nlp = build_nlp(&prob, &options).unwrap();
-            let (n, m) = (nlp.num_variables(), nlp.num_constraints());
-            let (hs, js) = (nlp.hessian_structure(), nlp.jacobian_structure());
-            let order = nlp.variable_order().unwrap();
-            let (mut rcm, mut hinted) = (BandLdlt::new(), BandLdlt::new());
-            rcm.analyse(&KktStructure::new(n, m, &hs, &js)).unwrap();
-            hinted.analyse(&KktStructure::new(n, m, &hs, &js).with_order(Some(&order))).unwrap();
+            let (rcm, hinted) = analyses(name, estimate, &times, &options);
             let what = format!("{name} {}", transcription.name());
             assert_eq!(hinted.envelope_size(), rcm.envelope_size(), "{what}");
             if transcription != Transcription::HermiteSimpson {
@@ -419,18 +424,9 @@ fn time_order_hint_has_the_envelope_of_reverse_cuthill_mckee() {
         }
     }
     // the grid of the Van der Pol benchmark: 3200 Hermite–Simpson pieces on [0, 16]
-    let p = preset("van-der-pol").unwrap();
     let times: Vec<f64> = (0..=160).map(|k| 0.1 * k as f64).collect();
-    let data = data_for(&p, &times);
-    let prob = p.problem(&data, &[]);
     let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson).with_step(0.005);
-    let nlp = build_nlp(&prob, &options).unwrap();
-    let (n, m) = (nlp.num_variables(), nlp.num_constraints());
-    let (hs, js) = (nlp.hessian_structure(), nlp.jacobian_structure());
-    let order = nlp.variable_order().unwrap();
-    let (mut rcm, mut hinted) = (BandLdlt::new(), BandLdlt::new());
-    rcm.analyse(&KktStructure::new(n, m, &hs, &js)).unwrap();
-    hinted.analyse(&KktStructure::new(n, m, &hs, &js).with_order(Some(&order))).unwrap();
+    let (rcm, hinted) = analyses("van-der-pol", &[], &times, &options);
     assert_eq!(rcm.envelope_size(), 243_187);
     assert_eq!(hinted.permutation(), rcm.permutation());
 }
