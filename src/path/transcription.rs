@@ -1251,8 +1251,9 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
 
     /// The variables in time order, which keeps the KKT matrix a narrow band: for each piece
     /// k its node (the last piece: both nodes), midpoint and noise coefficients
-    /// (Hermite–Simpson), the estimated θ last; the components of each group in reverse order. On these patterns this
-    /// is the order reverse Cuthill–McKee finds (the same envelope, test
+    /// (Hermite–Simpson), the estimated θ last; the components of each group in reverse order.
+    /// It has the envelope of the order reverse Cuthill–McKee finds on these patterns (and is
+    /// that order on the Van der Pol benchmark grid; test
     /// `time_order_hint_has_the_envelope_of_reverse_cuthill_mckee`), without its search.
     fn variable_order(&self) -> Option<Vec<usize>> {
         let ns = self.problem.sde.dims().states();
