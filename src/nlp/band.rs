@@ -11,10 +11,12 @@
 //! variables, and variables coupled to very many others (static parameters) and dense
 //! constraint rows are ordered last (see [`super::kkt`]). For a time-discretised problem RCM
 //! recovers the time order, and the matrix becomes a band of width a few intervals plus a
-//! border of the parameter rows. A problem that knows such an order gives it as a hint
-//! ([`NlpProblem::variable_order`](super::NlpProblem::variable_order), passed in
-//! [`KktStructure::order`]); the search is then skipped and the rest is the same (the path
-//! transcriptions do: their time order has RCM's envelope).
+//! border of the parameter rows. A problem that knows a good order of the whole KKT matrix
+//! gives it as a hint ([`NlpProblem::kkt_order`](super::NlpProblem::kkt_order), passed in
+//! [`KktStructure::order`]), which is then the elimination order. The path transcriptions do:
+//! their time order, with each piece's constraints placed so that no pivot is structurally
+//! zero, has a smaller envelope than RCM's and needs no regularised pivots (see
+//! `PathNlp::kkt_order`).
 //!
 //! **Storage and factorisation.** Row $p$ of the lower triangle is stored densely from its
 //! first nonzero column $f_p$ to the diagonal (George & Liu, Sect. 4.1, the envelope
@@ -415,14 +417,6 @@ fn rcm_order(s: &KktStructure<'_>, dense_var: &[bool], dense_row: &[bool]) -> Ve
     order
 }
 
-/// The problem's ordering hint without the dense variables (ordered last by
-/// [`place_constraints`](super::kkt::place_constraints)); an error unless `hint` is a
-/// permutation of `0..n`.
-fn hinted_order(hint: &[usize], n: usize, dense_var: &[bool]) -> Result<Vec<usize>> {
-    super::kkt::check_order(hint, n)?;
-    Ok(hint.iter().copied().filter(|&v| !dense_var[v]).collect())
-}
-
 impl KktSolver for BandLdlt {
     fn analyse(&mut self, s: &KktStructure<'_>) -> Result<()> {
         if self.reuse_analysis(s) {
@@ -436,16 +430,21 @@ impl KktSolver for BandLdlt {
         self.n = n;
         self.m = m;
         self.factored = false;
-        let (dense_var, dense_row) = super::kkt::dense_variables_and_rows(s)?;
-        let order = match s.order {
-            Some(hint) => hinted_order(hint, n, &dense_var)?,
-            None => rcm_order(s, &dense_var, &dense_row),
+        self.perm = match s.order {
+            Some(hint) => {
+                super::kkt::check_order(hint, dim)?;
+                hint.to_vec()
+            }
+            None => {
+                let (dense_var, dense_row) = super::kkt::dense_variables_and_rows(s)?;
+                let order = rcm_order(s, &dense_var, &dense_row);
+                let mut pos = vec![usize::MAX; n];
+                for (p, &v) in order.iter().enumerate() {
+                    pos[v] = p;
+                }
+                super::kkt::place_constraints(s, &order, &pos, &dense_var, &dense_row)
+            }
         };
-        let mut pos = vec![usize::MAX; n];
-        for (p, &v) in order.iter().enumerate() {
-            pos[v] = p;
-        }
-        self.perm = super::kkt::place_constraints(s, &order, &pos, &dense_var, &dense_row);
         let mut iperm = vec![0usize; dim];
         for (p, &g) in self.perm.iter().enumerate() {
             iperm[g] = p;

@@ -312,9 +312,9 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
                 });
             }
         }
-        let order = problem.variable_order();
+        let order = problem.kkt_order();
         if let Some(order) = &order {
-            super::kkt::check_order(order, n)?;
+            super::kkt::check_order(order, n + m)?;
         }
         kkt.analyse(&KktStructure::new(n, m, &hess_pat, &jac_pat).with_order(order.as_deref()))?;
         // Fixed variables (l = u) have no interior: relax their bounds slightly, as IPOPT's

@@ -71,10 +71,11 @@ pub struct KktStructure<'a> {
     pub hessian: &'a [(usize, usize)],
     /// Jacobian pattern, `(row, column)` with `row < m`, `column < n`.
     pub jacobian: &'a [(usize, usize)],
-    /// An elimination order of the primal variables known to the problem
-    /// ([`NlpProblem::variable_order`](super::NlpProblem::variable_order)): `order[p]` is the
-    /// variable at position `p`, a permutation of `0..n`. [`BandLdlt`](super::BandLdlt) uses it
-    /// instead of reverse Cuthill–McKee; faer's solver ignores it. `None`: no hint.
+    /// An elimination order of the KKT matrix known to the problem
+    /// ([`NlpProblem::kkt_order`](super::NlpProblem::kkt_order)): `order[p]` is the KKT row at
+    /// position `p` (variable `i` as `i`, constraint `r` as `n + r`), a permutation of
+    /// `0..n + m`. [`BandLdlt`](super::BandLdlt) eliminates in this order instead of its own;
+    /// faer's solver ignores it. `None`: no hint.
     pub order: Option<&'a [usize]>,
 }
 
@@ -91,17 +92,17 @@ impl<'a> KktStructure<'a> {
     }
 }
 
-/// An error unless `order` is a permutation of `0..n` (an ordering hint, see
-/// [`KktStructure::order`]).
-pub(crate) fn check_order(order: &[usize], n: usize) -> Result<()> {
-    let invalid = |reason: String| Err(Error::InvalidOption { name: "variable_order".into(), reason });
-    if order.len() != n {
-        return invalid(format!("has {} entries for {n} variables", order.len()));
+/// An error unless `order` is a permutation of `0..dim` (an ordering hint of the KKT matrix of
+/// dimension `dim`, see [`KktStructure::order`]).
+pub(crate) fn check_order(order: &[usize], dim: usize) -> Result<()> {
+    let invalid = |reason: String| Err(Error::InvalidOption { name: "kkt_order".into(), reason });
+    if order.len() != dim {
+        return invalid(format!("has {} entries for a KKT matrix of dimension {dim}", order.len()));
     }
-    let mut seen = vec![false; n];
+    let mut seen = vec![false; dim];
     for &v in order {
-        if v >= n || std::mem::replace(&mut seen[v], true) {
-            return invalid(format!("not a permutation of the {n} variables (entry {v})"));
+        if v >= dim || std::mem::replace(&mut seen[v], true) {
+            return invalid(format!("not a permutation of the {dim} KKT rows (entry {v})"));
         }
     }
     Ok(())

@@ -61,13 +61,17 @@ pub trait NlpProblem {
     /// in the order of [`hessian_structure`](Self::hessian_structure).
     fn hessian_values(&mut self, w: &[f64], obj_factor: f64, lambda: &[f64], values: &mut [f64]);
 
-    /// An elimination order of the variables that keeps the KKT matrix banded, when the
-    /// problem knows one (a transcription: its variables in time order): `order[p]` is the
-    /// variable at position `p`, a permutation of `0..n`. The band solver
-    /// ([`BandLdlt`](super::BandLdlt)) then skips its reverse Cuthill–McKee search, places each
-    /// constraint after its last variable and the dense variables and rows last as usual; faer's
-    /// solver ignores it. Queried once. The default `None` leaves the ordering to the solver.
-    fn variable_order(&self) -> Option<Vec<usize>> {
+    /// An elimination order of the KKT matrix that keeps it banded, when the problem knows one
+    /// (a transcription: its variables and constraints in time order): `order[p]` is the KKT
+    /// row at position `p`, variable `i` as `i` and constraint `r` as `n + r`, a permutation of
+    /// `0..n + m`. The band solver ([`BandLdlt`](super::BandLdlt)) then eliminates in this
+    /// order: no reverse Cuthill–McKee search, no placement of the constraints, no detection of
+    /// dense variables (the order puts them where it wants them, normally last); faer's solver
+    /// ignores it. Since that factorisation does not pivot, an order that eliminates each
+    /// variable without curvature after a constraint that holds it avoids the zero pivots it
+    /// would otherwise regularise (and the refinement step each solve then needs). Queried
+    /// once. The default `None` leaves the ordering to the solver.
+    fn kkt_order(&self) -> Option<Vec<usize>> {
         None
     }
 }

@@ -32,7 +32,7 @@ pub(super) fn laplace_variances<P: NlpProblem, K: KktSolver + ?Sized>(
     let mut jv = vec![0.0; js.len()];
     nlp.hessian_values(w, 1.0, lambda, &mut hv);
     nlp.jacobian_values(w, &mut jv);
-    let order = nlp.variable_order();
+    let order = nlp.kkt_order();
     solver.analyse(&KktStructure::new(n, m, &hs, &js).with_order(order.as_deref())).ok()?;
     let zeros = vec![0.0; n];
     let info = solver.factorize(&KktValues {

@@ -1249,33 +1249,59 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
         }
     }
 
-    /// The variables in time order, which keeps the KKT matrix a narrow band: for each piece
-    /// k its node (the last piece: both nodes), midpoint and noise coefficients
-    /// (Hermite–Simpson), the estimated θ last; the components of each group in reverse order.
-    /// It has the envelope of the order reverse Cuthill–McKee finds on these patterns (and is
-    /// that order on the Van der Pol benchmark grid; test
-    /// `time_order_hint_has_the_envelope_of_reverse_cuthill_mckee`), without its search.
-    fn variable_order(&self) -> Option<Vec<usize>> {
-        let ns = self.problem.sde.dims().states();
+    /// The KKT rows in time order, which keeps the KKT matrix a narrow band, the estimated θ
+    /// last (a border). Euler and trapezoidal: the nodes, each with its components in reverse
+    /// order, and each interval's clean-state defects right after its end node (the order the
+    /// band solver's reverse Cuthill–McKee search finds on these patterns, without the search).
+    ///
+    /// Hermite–Simpson, piece k: its noise coefficients (a_k, b_k); the defects of the states
+    /// the noise drives (rows of G with a nonzero entry), Simpson's then Hermite's; for k = 0
+    /// the first node; the midpoint; the other defects; the end node. A state whose
+    /// Lagrangian has no curvature (a velocity entering the drifts linearly, as in Van der Pol
+    /// and Duffing) is then eliminated after a defect that holds it with a nonzero
+    /// coefficient (Hermite's has 1 on the midpoint, Simpson's h/6 on the nodes), and each of
+    /// those defects after the noise coefficients (curvature from the energy) that enter it,
+    /// so no pivot of the unpivoted LDLᵀ is structurally zero. The node-first order with the
+    /// defects after their last variable, which reverse Cuthill–McKee finds, has two zero
+    /// pivots per piece on these models, each regularised at the cost of a refinement step in
+    /// every solve, and a wider envelope (test `kkt_order_avoids_zero_pivots_and_narrows_the_band`).
+    fn kkt_order(&self) -> Option<Vec<usize>> {
+        let d = self.problem.sde.dims();
+        let (ns, nx) = (d.states(), d.noisy);
         let n = self.grid.intervals;
         let theta0 = self.n_vars - self.problem.estimate.len();
-        let mut order = Vec::with_capacity(self.n_vars);
-        let mut group = |first: usize, len: usize| order.extend((first..first + len).rev());
-        for b in &self.blocks {
-            if let BlockKind::Interval(k) = b.kind {
-                // local order: node k, [midpoint k], node k + 1, [noise k], θ
-                group(b.vars[0], ns);
-                if k + 1 == n {
-                    group(n * ns, ns);
+        let nv = self.n_vars;
+        let mut order = Vec::with_capacity(nv + self.n_cons);
+        let node = |k: usize| k * ns..(k + 1) * ns;
+        if self.transcription == Transcription::HermiteSimpson {
+            let (mid0, noise0) = ((n + 1) * ns, (2 * n + 1) * ns);
+            // the defect rows i (Simpson) and ns + i (Hermite) of the states the noise drives
+            let driven: Vec<bool> =
+                (0..ns).map(|i| i < nx && (0..nx).any(|j| self.g_fixed[i + j * nx] != 0.0)).collect();
+            let driven = &driven;
+            let rows = |k: usize, want: bool| {
+                (0..2 * ns).filter(move |&r| driven[r % ns] == want).map(move |r| nv + 2 * ns * k + r)
+            };
+            for k in 0..n {
+                order.extend(noise0 + 2 * nx * k..noise0 + 2 * nx * (k + 1));
+                order.extend(rows(k, true));
+                if k == 0 {
+                    order.extend(node(0));
                 }
-                if self.hs_piece(b).is_some() {
-                    group(b.vars[ns], ns);
-                    group(b.vars[3 * ns], b.vars.len() - 3 * ns - (self.n_vars - theta0));
-                }
+                order.extend(mid0 + ns * k..mid0 + ns * (k + 1));
+                order.extend(rows(k, false));
+                order.extend(node(k + 1));
+            }
+        } else {
+            let rows = d.clean;
+            order.extend(node(0).rev());
+            for k in 0..n {
+                order.extend(node(k + 1).rev());
+                order.extend(nv + rows * k..nv + rows * (k + 1));
             }
         }
-        order.extend(theta0..self.n_vars);
-        debug_assert_eq!(order.len(), self.n_vars);
+        order.extend(theta0..nv);
+        debug_assert_eq!(order.len(), nv + self.n_cons);
         Some(order)
     }
 
