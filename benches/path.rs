@@ -46,9 +46,14 @@
 //! after the `u32` index lists of the interior-point method (`solve_seconds` 0.86 × that of
 //! 356a176, alternated runs).
 //!
-//! The 35 ms target is met by the kept solver, not yet by a fresh one (about 8.5 ms of its
-//! 43.0 ms are page faults of memory the allocator returns between solves); the Duffing target
-//! (0.5 s) is missed. docs/map.md ("Performance") lists what remains.
+//! Latest (main after 48212a9: the transcription orders the whole KKT matrix so that no pivot
+//! is structurally zero, `NlpProblem::kkt_order`; load ≈ 1.6, 2026-11-25, same run):
+//! `path_van_der_pol` band 34.16 ms median (41.9 ms the run before the change), faer 63.0 ms
+//! (band/faer 0.54, was 0.63), band kept across solves 27.65 ms; `path_duffing_joint_36k`
+//! 506.6 ms median, whose `solve_seconds` (`examples/duffing_large auto 1 36`) is 0.482–0.488 s
+//! against 0.578–0.597 s for the binary before (alternated runs), peak resident memory 220 MB.
+//! Callgrind of one fresh Van der Pol solve 554.1 × 10⁶ → 451.7 × 10⁶ instructions in
+//! `InteriorPoint::solve_with`. docs/map.md ("Performance") has the details.
 
 use std::hint::black_box;
 use std::time::Duration;
