@@ -53,7 +53,10 @@
 //! 506.6 ms median, whose `solve_seconds` (`examples/duffing_large auto 1 36`) is 0.482–0.488 s
 //! against 0.578–0.597 s for the binary before (alternated runs), peak resident memory 220 MB.
 //! Callgrind of one fresh Van der Pol solve 554.1 × 10⁶ → 451.7 × 10⁶ instructions in
-//! `InteriorPoint::solve_with`. docs/map.md ("Performance") has the details.
+//! `InteriorPoint::solve_with`. A second run with the machine about 5 % slower (faer 67.2 ms):
+//! band 35.36 ms, kept 27.84 ms, Duffing 36k 514.9 ms. The fresh Van der Pol solve is at the
+//! 35 ms target and the Duffing call at 0.5 s, within the machine's noise; the kept solver is
+//! well under. docs/map.md ("Performance") has the details.
 
 use std::hint::black_box;
 use std::time::Duration;
