@@ -1262,9 +1262,13 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
     /// coefficient (Hermite's has 1 on the midpoint, Simpson's h/6 on the nodes), and each of
     /// those defects after the noise coefficients (curvature from the energy) that enter it,
     /// so no pivot of the unpivoted LDLᵀ is structurally zero. The node-first order with the
-    /// defects after their last variable, which reverse Cuthill–McKee finds, has two zero
-    /// pivots per piece on these models, each regularised at the cost of a refinement step in
-    /// every solve, and a wider envelope (test `kkt_order_avoids_zero_pivots_and_narrows_the_band`).
+    /// defects after their last variable, which reverse Cuthill–McKee finds, has at least two
+    /// zero pivots per piece on these models, regularised at the cost of a refinement step in
+    /// every solve, and a wider envelope (test
+    /// `kkt_order_avoids_zero_pivots_and_narrows_the_band`). Putting the undriven states'
+    /// defects (Duffing's clean position) before the midpoint too would leave their two
+    /// defects coupled to the earlier variables almost only through one node value, a nearly
+    /// singular pair.
     fn kkt_order(&self) -> Option<Vec<usize>> {
         let d = self.problem.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
