@@ -288,8 +288,8 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
             return;
         }
         let d = self.problem.sde.dims();
-        let (ns, nx, n) = (d.states(), d.noisy, self.grid.intervals);
-        let off = (n + 1) * ns + n * ns + k * 2 * nx;
+        let nx = d.noisy;
+        let off = self.hs_offsets().1 + k * 2 * nx;
         w[off..off + nx].copy_from_slice(a);
         w[off + nx..off + 2 * nx].copy_from_slice(b);
     }
@@ -443,7 +443,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         let d = p.sde.dims();
         let (ns, nx, n) = (d.states(), d.noisy, self.grid.intervals);
         let h = self.grid.step;
-        let (mid0, noise0) = ((n + 1) * ns, (2 * n + 1) * ns);
+        let (mid0, noise0) = self.hs_offsets();
         let om = self.merit == Merit::OnsagerMachlup;
         self.with_theta(&w[self.n_vars - p.estimate.len()..], |theta| {
             let div =
@@ -478,7 +478,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         let d = p.sde.dims();
         let (ns, nx, n) = (d.states(), d.noisy, self.grid.intervals);
         let h = self.grid.step;
-        let (mid0, noise0) = ((n + 1) * ns, (2 * n + 1) * ns);
+        let (mid0, noise0) = self.hs_offsets();
         // G does not depend on an estimated θ for Hermite–Simpson (checked by the caller)
         let g = &self.g_fixed;
         let [(_, _, sg0), (_, _, sgm), (_, _, sg1)] = HS_WEIGHTS;
@@ -516,6 +516,13 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
                 }
             })
         })
+    }
+
+    /// The first variables of the Hermite–Simpson midpoint states and noise coefficients: the
+    /// N + 1 node states come first, then the N midpoints, then (a_k, b_k) piece by piece.
+    fn hs_offsets(&self) -> (usize, usize) {
+        let (ns, n) = (self.problem.sde.dims().states(), self.grid.intervals);
+        ((n + 1) * ns, (2 * n + 1) * ns)
     }
 
     /// The piece index of a Hermite–Simpson interval block (`None` for every other block).
@@ -1278,7 +1285,7 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
         let mut order = Vec::with_capacity(nv + self.n_cons);
         let node = |k: usize| k * ns..(k + 1) * ns;
         if self.transcription == Transcription::HermiteSimpson {
-            let (mid0, noise0) = ((n + 1) * ns, (2 * n + 1) * ns);
+            let (mid0, noise0) = self.hs_offsets();
             // the defect rows i (Simpson) and ns + i (Hermite) of the states the noise drives
             let driven: Vec<bool> =
                 (0..ns).map(|i| i < nx && (0..nx).any(|j| self.g_fixed[i + j * nx] != 0.0)).collect();
