@@ -135,8 +135,9 @@ struct Direction {
     dzu: Vec<f64>,
 }
 
-/// An evaluated trial point: (w, f, c, ∇f, J values), all scaled.
-type Trial = (Vec<f64>, f64, Vec<f64>, Vec<f64>, Vec<f64>);
+/// An evaluated trial point: (w, f, c), scaled; its ∇f and J values are already in the
+/// iterate's arrays ([`Ipm::eval_derivatives`]).
+type Trial = (Vec<f64>, f64, Vec<f64>);
 
 enum LineSearch {
     Accepted,
@@ -182,10 +183,6 @@ struct Ipm<'a, P: ?Sized, K: ?Sized> {
     /// False while `hess` holds those zeros; a Newton factorisation then evaluates the Hessian
     /// first (not reached in the iteration, where an evaluation precedes every step).
     hess_current: bool,
-    /// The gradient and Jacobian arrays of the iterate before the last accepted trial point,
-    /// reused (zeroed) for the next trial point's derivatives instead of allocating new ones.
-    spare_grad: Vec<f64>,
-    spare_jac: Vec<f64>,
     sigma: Vec<f64>,
     // barrier and filter
     mu: f64,
@@ -375,8 +372,6 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             jac: vec![0.0; jac_len],
             hess: vec![0.0; hess_len],
             hess_current: false,
-            spare_grad: Vec::new(),
-            spare_jac: Vec::new(),
             sigma: vec![0.0; n],
             mu,
             tau: TAU_MIN.max(1.0 - mu),
@@ -962,12 +957,10 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     ) -> std::result::Result<(), Status> {
         let alpha_z = self.max_step_dual(&dir.dzl, &dir.dzu);
         match trial {
-            Some((x, f, c, g, j)) => {
+            Some((x, f, c)) => {
                 self.x = x;
                 self.f = f;
                 self.c = c;
-                self.spare_grad = std::mem::replace(&mut self.grad, g);
-                self.spare_jac = std::mem::replace(&mut self.jac, j);
             }
             None => {
                 for i in 0..self.n {
@@ -978,11 +971,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
                 let mut c = vec![0.0; self.m];
                 self.eval_c(&x, &mut c);
                 self.c = c;
-                let (mut g, mut j) = self.take_spare_derivatives();
-                self.eval_grad(&x, &mut g);
-                self.eval_jac(&x, &mut j);
-                self.spare_grad = std::mem::replace(&mut self.grad, g);
-                self.spare_jac = std::mem::replace(&mut self.jac, j);
+                self.eval_derivatives_into_iterate(&x);
                 if !self.f.is_finite()
                     || !all_finite(&self.c)
                     || !all_finite(&self.grad)
@@ -1048,30 +1037,32 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         }
     }
 
-    /// Zeroed gradient and Jacobian arrays for a new point, from the spares.
-    fn take_spare_derivatives(&mut self) -> (Vec<f64>, Vec<f64>) {
-        let zeroed = |mut v: Vec<f64>, len: usize| {
-            v.clear();
-            v.resize(len, 0.0);
-            v
-        };
-        let g = zeroed(std::mem::take(&mut self.spare_grad), self.n);
-        let j = zeroed(std::mem::take(&mut self.spare_jac), self.jac.len());
-        (g, j)
-    }
-
-    fn eval_derivatives(&mut self, x: &[f64]) -> Option<(Vec<f64>, Vec<f64>)> {
-        let (mut g, mut j) = self.take_spare_derivatives();
+    /// ∇f and the Jacobian values at `x` into the iterate's arrays (zeroed first).
+    fn eval_derivatives_into_iterate(&mut self, x: &[f64]) {
+        let mut g = std::mem::take(&mut self.grad);
+        let mut j = std::mem::take(&mut self.jac);
+        g.fill(0.0);
+        j.fill(0.0);
         self.eval_grad(x, &mut g);
         self.eval_jac(x, &mut j);
-        if all_finite(&g) && all_finite(&j) {
-            Some((g, j))
-        } else {
-            self.non_finite_trials += 1;
-            self.spare_grad = g;
-            self.spare_jac = j;
-            None
+        self.grad = g;
+        self.jac = j;
+    }
+
+    /// ∇f and the Jacobian values at the trial point `x`, written over the iterate's: true when
+    /// they are finite. Otherwise (rare: f and c were finite there) those of the iterate are
+    /// evaluated again, so that the arrays still hold them, and false is returned. One pair of
+    /// arrays instead of a spare pair for the trial point: on Duffing with 36,000 pieces a spare
+    /// Jacobian is 13 MB, whose pages every fresh solve faults in.
+    fn eval_derivatives(&mut self, x: &[f64]) -> bool {
+        self.eval_derivatives_into_iterate(x);
+        if all_finite(&self.grad) && all_finite(&self.jac) {
+            return true;
         }
+        self.non_finite_trials += 1;
+        let current = self.x.clone();
+        self.eval_derivatives_into_iterate(&current);
+        false
     }
 
     /// Filter line search with second-order corrections (Sects. 2.3–2.4, Algorithm A steps
@@ -1141,12 +1132,12 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             }
             let verdict = self.acceptance(theta, phi, gd, alpha, theta_t, phi_t);
             if let Some(f_type) = verdict {
-                if let Some((g, j)) = self.eval_derivatives(&x_trial) {
+                if self.eval_derivatives(&x_trial) {
                     if !f_type {
                         self.augment_filter(theta, phi);
                     }
                     self.last_trials = trials;
-                    self.accept(dir, alpha, Some((x_trial, f_t, c_t, g, j)))?;
+                    self.accept(dir, alpha, Some((x_trial, f_t, c_t)))?;
                     return Ok(LineSearch::Accepted);
                 }
                 alpha *= 0.5;
@@ -1224,14 +1215,14 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             let theta_s = Self::theta(&c_s);
             let phi_s = self.phi(f_s, &x_soc);
             if let Some(f_type) = self.acceptance(theta, phi, gd, alpha_max, theta_s, phi_s) {
-                let Some((g, j)) = self.eval_derivatives(&x_soc) else {
+                if !self.eval_derivatives(&x_soc) {
                     return Ok(None);
-                };
+                }
                 if !f_type {
                     self.augment_filter(theta, phi);
                 }
                 self.note(|| "second-order correction accepted".into());
-                self.accept(&soc, a_soc, Some((x_soc, f_s, c_s, g, j)))?;
+                self.accept(&soc, a_soc, Some((x_soc, f_s, c_s)))?;
                 return Ok(Some(LineSearch::Accepted));
             }
             if theta_s > KAPPA_SOC * theta_old {
@@ -1300,16 +1291,14 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             let ared = trial.as_ref().map(|(_, c)| c2 - 0.5 * c.iter().map(|v| v * v).sum::<f64>());
             match (trial, ared) {
                 (Some((f_t, c_t)), Some(ared)) if pred > 0.0 && ared >= 1e-4 * pred => {
-                    let Some((g, j)) = self.eval_derivatives(&x_t) else {
+                    if !self.eval_derivatives(&x_t) {
                         rho *= 10.0;
                         continue;
-                    };
+                    }
                     self.restoration_steps += 1;
                     self.x = x_t;
                     self.f = f_t;
                     self.c = c_t;
-                    self.spare_grad = std::mem::replace(&mut self.grad, g);
-                    self.spare_jac = std::mem::replace(&mut self.jac, j);
                     self.reset_bound_multipliers();
                     if ared >= 0.75 * pred {
                         rho = (rho / 3.0).max(1e-12);

@@ -849,6 +849,39 @@ fn nan_gradient_at_trial_point_is_rejected() {
 }
 
 #[test]
+fn nan_jacobian_at_trial_point_is_rejected_and_the_iterate_keeps_its_derivatives() {
+    // HS6 with a finite constraint everywhere but a NaN Jacobian for 0 < x₁ < 0.1, where the
+    // first full step from (−1, 1) lands (x₁ = 0.053): a trial point there passes the objective and constraint checks, and its derivatives, written
+    // over the iterate's, are not finite; the solver must evaluate the iterate's again and
+    // shorten the step. Closed form x* = (1, 1).
+    let mut p = Dense::free(
+        2,
+        1,
+        vec![-1.0, 1.0],
+        |x| (1.0 - x[0]).powi(2),
+        |x, g| {
+            g[0] = -2.0 * (1.0 - x[0]);
+            g[1] = 0.0;
+        },
+        |x, c| c[0] = 10.0 * (x[1] - x[0] * x[0]),
+        |x, j| {
+            j[0] = if 0.0 < x[0] && x[0] < 0.1 { f64::NAN } else { -20.0 * x[0] };
+            j[1] = 10.0;
+        },
+        |_, s, l, h| {
+            h[0] = 2.0 * s - 20.0 * l[0];
+            h[1] = 0.0;
+            h[2] = 0.0;
+        },
+    );
+    let sol = run(&mut p);
+    assert_eq!(sol.report.status, Status::Converged);
+    assert!(sol.report.non_finite_trials > 0);
+    assert_relative_eq!(sol.w[0], 1.0, epsilon = 1e-7);
+    assert_relative_eq!(sol.w[1], 1.0, epsilon = 1e-7);
+}
+
+#[test]
 fn fixed_variable_is_relaxed() {
     // HS71 with x₁ fixed at its optimal value 1: same optimum f* = 17.0140173 (HS 1981).
     let mut p = hs71();
