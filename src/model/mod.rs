@@ -254,7 +254,9 @@ pub trait Sde {
 pub struct DriftDerivatives<'a> {
     /// For each input of w, its column among the kept inputs, or [`DriftDerivatives::DROPPED`].
     cols: &'a [usize],
-    /// Length n(n + 1)/2 of a packed Hessian, n the number of kept inputs.
+    /// Number of kept inputs n.
+    n: usize,
+    /// Length n(n + 1)/2 of a packed Hessian.
     tri: usize,
     /// Number of kept outputs.
     outputs: usize,
@@ -263,8 +265,8 @@ pub struct DriftDerivatives<'a> {
     slots: Option<&'a [usize]>,
     /// First derivatives, outputs × n, column-major.
     jac: &'a mut [f64],
-    /// Second derivatives: per stored output, the packed lower triangle (row by row) of its
-    /// n × n Hessian.
+    /// Second derivatives: per stored output, the packed lower triangle ([`packed_index`]) of
+    /// its n × n Hessian.
     hess: &'a mut [f64],
     /// Bit o set: a second derivative of output o (o < 64) in the kept inputs was written.
     seconds: u64,
@@ -275,11 +277,12 @@ impl<'a> DriftDerivatives<'a> {
     pub const DROPPED: usize = usize::MAX;
 
     /// Derivatives into `jac` (`outputs × n`, column-major) and `hess` (`outputs` packed lower
-    /// triangles of n(n + 1)/2 entries, row by row), both zeroed by the caller; `cols` maps
+    /// triangles of n(n + 1)/2 entries, column by column: [`packed_index`]), both zeroed by the
+    /// caller; `cols` maps
     /// each input of w = (x, z, θ) to its column 0..n or to [`Self::DROPPED`].
     pub fn new(cols: &'a [usize], n: usize, outputs: usize, jac: &'a mut [f64], hess: &'a mut [f64]) -> Self {
         debug_assert!(jac.len() >= outputs * n);
-        DriftDerivatives { cols, tri: n * (n + 1) / 2, outputs, slots: None, jac, hess, seconds: 0 }
+        DriftDerivatives { cols, n, tri: n * (n + 1) / 2, outputs, slots: None, jac, hess, seconds: 0 }
     }
 
     /// Stores the Hessian of output o at position `slots[o]` of `hess` (its packed triangle at
@@ -311,7 +314,7 @@ impl<'a> DriftDerivatives<'a> {
         let slot = self.slots.map_or(o, |s| s[o]);
         if slot != Self::DROPPED {
             let (r, c) = (a.max(b), a.min(b));
-            self.hess[slot * self.tri + r * (r + 1) / 2 + c] += v;
+            self.hess[slot * self.tri + packed_index(self.n, r, c)] += v;
         }
     }
 
@@ -320,6 +323,17 @@ impl<'a> DriftDerivatives<'a> {
     pub fn second_outputs(&self) -> u64 {
         self.seconds
     }
+}
+
+/// The position of entry (r, c), r ≥ c, of a symmetric n × n matrix in its packed lower
+/// triangle, column by column: column c holds rows c..n, after the n + (n − 1) + … + (n − c + 1)
+/// entries of the columns before it. The layout of [`DriftDerivatives`] and of the Lobatto-point
+/// Hessians of the path transcription, where it puts the (θ, θ) part of a point's (s, θ) block,
+/// the columns after the states', last and in one piece.
+#[inline(always)]
+pub fn packed_index(n: usize, r: usize, c: usize) -> usize {
+    debug_assert!(c <= r && r < n);
+    c * n - c * (c + 1) / 2 + r
 }
 
 /// div_x f of `sde` by automatic differentiation: one nested dual pass of [`Sde::drift`] per

@@ -180,13 +180,16 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         let mut vars = node(0);
         vars.extend(&theta_vars);
         blocks.push(Block { kind: BlockKind::Prior, vars, row0: row, rows: 0, jac0: 0, hess0: 0 });
-        let (mut jac, mut hess) = (0, 0);
         // Hermite–Simpson pieces: the Hessian is block-diagonal over the three Lobatto points'
         // (s_i, θ_d) plus the noise diagonal (see `hs_hessian_into`), θ_d the estimated θ that
-        // enter the dynamics; other blocks are dense
+        // enter the dynamics, whose (θ_d, θ_d) parts of all points are summed into one block
+        // ahead of the others; other blocks are dense
         let point_theta: Vec<usize> =
             (0..ne).filter(|&j| problem.sde.drift_uses_param(problem.estimate[j])).collect();
         let npt = ns + point_theta.len();
+        let theta_tri = if hs { point_theta.len() * (point_theta.len() + 1) / 2 } else { 0 };
+
+        let (mut jac, mut hess) = (0, theta_tri);
         // piece-local vector: s0, sm, s1, (a, b), estimated θ
         let nv_piece = 3 * ns + 2 * nx + ne;
         let point_index = [0, ns, 2 * ns].map(|off| {
@@ -205,7 +208,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
             let nv = b.vars.len();
             jac += b.rows * nv;
             hess += match (hs, b.kind) {
-                (true, BlockKind::Interval(_)) => 3 * npt * (npt + 1) / 2 + 2 * nx,
+                (true, BlockKind::Interval(_)) => 3 * (npt * (npt + 1) / 2 - theta_tri) + 2 * nx,
                 _ => nv * (nv + 1) / 2,
             };
         }
@@ -773,17 +776,35 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         }
     }
 
+    /// Number of entries of the lower triangle of (θ_d, θ_d), θ_d the estimated θ that enter
+    /// the dynamics: the block of the Hermite–Simpson Hessian that sums the points' (θ_d, θ_d)
+    /// parts (0 for the other transcriptions, whose blocks are dense).
+    fn hs_theta_tri(&self) -> usize {
+        let nt = self.point_theta.len();
+        if self.transcription == Transcription::HermiteSimpson {
+            nt * (nt + 1) / 2
+        } else {
+            0
+        }
+    }
+
     /// The Hessian pattern of a Hermite–Simpson piece, in the order of
-    /// [`Self::hs_hessian_into`]: the lower triangle of each point's (s_i, θ_e) block, then the
-    /// noise diagonal.
+    /// [`Self::hs_hessian_into`]: the lower triangle of each point's (s_i, θ_d) block without
+    /// its (θ_d, θ_d) part (summed over all points into the block ahead of the pieces, see
+    /// `hessian_structure`), then the noise diagonal. Each point's (θ_d, θ_d) part would
+    /// otherwise be a KKT entry of its own, summed into the same few slots as every other
+    /// point's: on Duffing with 36,000 pieces and θ = (a, b, d, σ_y) 648,000 of its 1.7 million
+    /// Hessian entries.
     fn hs_hessian_structure(&self, b: &Block, out: &mut Vec<(usize, usize)>) {
         let d = self.problem.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
+        // packed column by column (`packed_index`): the states' columns, then those of θ_d,
+        // which hold only (θ_d, θ_d) entries
         for idx in &self.point_index {
-            for (r, &lr) in idx.iter().enumerate() {
-                let vr = b.vars[lr];
-                for &lc in &idx[..=r] {
-                    let vc = b.vars[lc];
+            for (c, &lc) in idx[..ns].iter().enumerate() {
+                let vc = b.vars[lc];
+                for &lr in &idx[c..] {
+                    let vr = b.vars[lr];
                     out.push((vr.max(vc), vr.min(vc)));
                 }
             }
@@ -795,13 +816,15 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
     }
 
     /// Writes the Hessian of σ_f(−merit) + λᵀc of a Hermite–Simpson piece into `values` (the
-    /// block's slots, see [`Self::hs_hessian_structure`]): at each Lobatto point the Hessian in
-    /// (s_i, θ_d) of σ_f (h/12) α_i div_x f + μ_iᵀ [f; h], μ_i = −(h/6) α_i λ₁ − (h/8) β_i λ₂,
-    /// then the energy's constant diagonal on (a, b). The noise term G(a + (σ − ½)b) is linear
-    /// (G does not depend on an estimated θ for Hermite–Simpson). With `cached` (the data of
-    /// [`PointCache`] at the current point) the point Hessians are combinations of the
-    /// stored output Hessians (and `local`, the piece's local vector, is not read); otherwise
-    /// one second-order pass of the combination per point.
+    /// block's slots, see [`Self::hs_hessian_structure`]) and adds its (θ_d, θ_d) parts to
+    /// `theta` (the summed block, packed like a point's sub-triangle): at each Lobatto point the
+    /// Hessian in (s_i, θ_d) of σ_f (h/12) α_i div_x f + μ_iᵀ [f; h], μ_i = −(h/6) α_i λ₁ −
+    /// (h/8) β_i λ₂, then the energy's constant diagonal on (a, b). The noise term
+    /// G(a + (σ − ½)b) is linear (G does not depend on an estimated θ for Hermite–Simpson).
+    /// With `cached` (the data of [`PointCache`] at the current point) the point Hessians are
+    /// combinations of the stored output Hessians (and `local`, the piece's local vector, is
+    /// not read); otherwise one second-order pass of the combination per point.
+    #[allow(clippy::too_many_arguments)]
     fn hs_hessian_into(
         &self,
         k: usize,
@@ -809,6 +832,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         obj_factor: f64,
         lambda: &[f64],
         values: &mut [f64],
+        theta: &mut [f64],
         cached: Option<&PointCache>,
     ) {
         let d = self.problem.sde.dims();
@@ -816,34 +840,50 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         let npt = self.hs_point_dim();
         let tri = npt * (npt + 1) / 2;
         let nout = self.hs_point_outputs();
-        let (points, noise) = values.split_at_mut(3 * tri);
+        // the point's packed triangle: the states' columns (kept), then the (θ_d, θ_d) part
+        let kept = tri - self.hs_theta_tri();
+        let (points, noise) = values.split_at_mut(3 * kept);
         with_buffer(ns, |mu| {
-            for (i, out) in points.chunks_exact_mut(tri).enumerate() {
-                let div_weight = self.hs_point_weights(i, obj_factor, lambda, mu);
-                if let Some(c) = cached {
-                    let e = self.hs_entry(k, i) * c.len;
-                    let hs = &c.data[e + nout * npt..e + c.len];
-                    out.fill(0.0);
-                    for (&o, hr) in c.stored.iter().zip(hs.chunks_exact(tri)) {
-                        let wgt = if o < ns { mu[o] } else { div_weight };
-                        for (v, &x) in out.iter_mut().zip(hr) {
-                            *v += wgt * x;
+            with_buffer(tri - kept, |tt| {
+                for (i, out) in points.chunks_exact_mut(kept).enumerate() {
+                    let div_weight = self.hs_point_weights(i, obj_factor, lambda, mu);
+                    if let Some(c) = cached {
+                        let e = self.hs_entry(k, i) * c.len;
+                        let hs = &c.data[e + nout * npt..e + c.len];
+                        out.fill(0.0);
+                        tt.fill(0.0);
+                        for (&o, hr) in c.stored.iter().zip(hs.chunks_exact(tri)) {
+                            let wgt = if o < ns { mu[o] } else { div_weight };
+                            let (hk, ht) = hr.split_at(kept);
+                            for (v, &x) in out.iter_mut().zip(hk) {
+                                *v += wgt * x;
+                            }
+                            for (v, &x) in tt.iter_mut().zip(ht) {
+                                *v += wgt * x;
+                            }
                         }
+                    } else {
+                        let (t, off, ..) = self.hs_points(k)[i];
+                        let f = PointFn { div_weight, mu: Some(mu), ..self.point_fn(t, local) };
+                        with_buffer(npt, |pl| {
+                            with_buffer(npt, |pg| {
+                                with_buffer(npt * npt, |ph| {
+                                    with_buffer(tri, |full| {
+                                        self.hs_point_local(local, off, pl);
+                                        ad::hessian_into(&f, pl, pg, ph);
+                                        pack_lower(ph, npt, full);
+                                        out.copy_from_slice(&full[..kept]);
+                                        tt.copy_from_slice(&full[kept..]);
+                                    })
+                                })
+                            })
+                        });
                     }
-                    continue;
+                    for (a, &v) in theta.iter_mut().zip(tt.iter()) {
+                        *a += v;
+                    }
                 }
-                let (t, off, ..) = self.hs_points(k)[i];
-                let f = PointFn { div_weight, mu: Some(mu), ..self.point_fn(t, local) };
-                with_buffer(npt, |pl| {
-                    with_buffer(npt, |pg| {
-                        with_buffer(npt * npt, |ph| {
-                            self.hs_point_local(local, off, pl);
-                            ad::hessian_into(&f, pl, pg, ph);
-                            pack_lower(ph, npt, out);
-                        })
-                    })
-                });
-            }
+            })
         });
         let (h, nx) = (self.grid.step, d.noisy);
         noise[..nx].fill(obj_factor * h);
@@ -913,12 +953,13 @@ fn hs_jacobian_constant(ns: usize, nx: usize, nv: usize, h: f64, g: &[f64]) -> V
 /// Length of the stack buffers of [`with_buffer`].
 const BUFFER_LEN: usize = 64;
 
-/// The lower triangle of the column-major n × n matrix `h`, row by row (entries (r, c), c ≤ r),
-/// into the first n(n + 1)/2 entries of `out`: the packed order of the Hessian blocks.
+/// The lower triangle of the column-major n × n matrix `h`, column by column
+/// ([`crate::model::packed_index`]), into the first n(n + 1)/2 entries of `out`: the packed order of the
+/// Hessian blocks.
 fn pack_lower(h: &[f64], n: usize, out: &mut [f64]) {
     let mut q = 0;
-    for r in 0..n {
-        for c in 0..=r {
+    for c in 0..n {
+        for r in c..n {
             out[q] = h[r + c * n];
             q += 1;
         }
@@ -941,7 +982,7 @@ fn with_buffer<R>(len: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
 /// each Lobatto point, once per grid node (shared by the two pieces that meet there) and once
 /// per midpoint, at `e · len` (entry e = [`PathNlp::hs_entry`]), the Jacobian of the outputs
 /// [f; h] and, for Onsager–Machlup, div_x f in (s_i, θ_d) (outputs × npt, column-major), then
-/// the packed lower triangles (row by row) of the Hessians of the `stored` outputs: the others
+/// the packed lower triangles (column by column, [`crate::model::packed_index`]) of the Hessians of the `stored` outputs: the others
 /// (h = x and div_x f = −d for Duffing) are linear at every point seen so far.
 /// Filled by `gradient`, which the solver calls first at each new iterate; `jacobian_values`
 /// and `hessian_values` at the same `w` read it instead of differentiating again.
@@ -1318,13 +1359,26 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
 
     fn hessian_structure(&self) -> Vec<(usize, usize)> {
         let mut s = Vec::with_capacity(self.n_hess);
+        // Hermite–Simpson: the (θ_d, θ_d) block summed over all Lobatto points first, so that
+        // the KKT slots receive the same sums in the same order as from one entry per point
+        if self.hs_theta_tri() > 0 {
+            let theta0 = self.n_vars - self.problem.estimate.len();
+            let v = |j: usize| theta0 + self.point_theta[j];
+            let nt = self.point_theta.len();
+            for c in 0..nt {
+                for r in c..nt {
+                    s.push((v(r).max(v(c)), v(r).min(v(c))));
+                }
+            }
+        }
         for b in &self.blocks {
             if self.hs_piece(b).is_some() {
                 self.hs_hessian_structure(b, &mut s);
                 continue;
             }
-            for (i, &vi) in b.vars.iter().enumerate() {
-                for &vj in &b.vars[..=i] {
+            // packed column by column, as `pack_lower` writes the values
+            for (j, &vj) in b.vars.iter().enumerate() {
+                for &vi in &b.vars[j..] {
                     s.push((vi.max(vj), vi.min(vj)));
                 }
             }
@@ -1334,19 +1388,22 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
 
     fn hessian_values(&mut self, w: &[f64], obj_factor: f64, lambda: &[f64], values: &mut [f64]) {
         let cached = self.cache.at(w);
+        let t0 = self.hs_theta_tri();
+        let (theta, values) = values.split_at_mut(t0);
+        theta.fill(0.0);
         for (bi, b) in self.blocks.iter().enumerate() {
             let lam = &lambda[b.row0..b.row0 + b.rows];
-            let end = self.blocks.get(bi + 1).map_or(values.len(), |n| n.hess0);
-            let out = &mut values[b.hess0..end];
+            let end = self.blocks.get(bi + 1).map_or(values.len() + t0, |n| n.hess0);
+            let out = &mut values[b.hess0 - t0..end - t0];
             if let (Some(k), Some(_)) = (self.hs_piece(b), cached) {
                 // the cached path does not read the local vector
-                self.hs_hessian_into(k, &[], obj_factor, lam, out, cached);
+                self.hs_hessian_into(k, &[], obj_factor, lam, out, theta, cached);
                 continue;
             }
             with_buffer(b.vars.len(), |local| {
                 Self::locals_into(b, w, local);
                 match self.hs_piece(b) {
-                    Some(k) => self.hs_hessian_into(k, local, obj_factor, lam, out, cached),
+                    Some(k) => self.hs_hessian_into(k, local, obj_factor, lam, out, theta, cached),
                     None => {
                         let nv = b.vars.len();
                         let f = LagFn { nlp: self, block: b, obj_factor, lambda: lam };

@@ -521,7 +521,7 @@ impl crate::model::ad::VectorFn for PointOutputs<'_> {
 #[test]
 fn closed_form_drift_derivatives_equal_automatic_differentiation() {
     use crate::model::ad::hessians_into;
-    use crate::model::DriftDerivatives;
+    use crate::model::{packed_index, DriftDerivatives};
     for_every_model(|p, pt| {
         let d = p.dims();
         let (ns, n) = (d.states(), d.states() + d.params);
@@ -548,7 +548,7 @@ fn closed_form_drift_derivatives_equal_automatic_differentiation() {
                         p.name
                     );
                     for (b, &j) in kept.iter().enumerate().take(a + 1) {
-                        let (u, v) = (ch[o * tri + a * (a + 1) / 2 + b], hess[o * n * n + i + j * n]);
+                        let (u, v) = (ch[o * tri + packed_index(k, a, b)], hess[o * n * n + i + j * n]);
                         assert!(
                             relative_eq!(u, v, epsilon = 1e-12, max_relative = 1e-12),
                             "{} d2{o}/d{i}d{j}: {u} vs {v}",
