@@ -151,6 +151,29 @@ fn jacobian_and_hessian_without_and_with_the_gradients_cache_agree() {
     }
 }
 
+/// The Hermite–Simpson Hessian holds each (θ_i, θ_j) pair of the estimated θ that enter the
+/// dynamics once for all pieces (their summed block), not once per Lobatto point: on Duffing
+/// with θ = (a, b, d, σ_y) estimated and 4 pieces, the pairs of (a, b, d) appear in that block,
+/// the prior block and one block per measurement, whatever the number of pieces.
+/// (`derivatives_match_finite_differences` checks the summed values.)
+#[test]
+fn hermite_simpson_theta_pairs_are_one_block_for_all_pieces() {
+    let p = preset("duffing").unwrap();
+    let data = data_for(&p, &[0.0, 0.3, 0.6]);
+    let prob = p.problem(&data, &[0, 1, 2, 5]);
+    for step in [0.15, 0.075] {
+        let nlp = build_nlp(&prob, &PathOptions::default().with_step(step)).unwrap();
+        let theta0 = nlp.num_variables() - 4;
+        let pattern = nlp.hessian_structure();
+        let count = |i: usize, j: usize| pattern.iter().filter(|&&e| e == (theta0 + i, theta0 + j)).count();
+        // a, b, d enter the drift; the prior block and the 3 measurement blocks are dense in θ
+        assert_eq!(count(0, 0), 1 + 1 + 3);
+        assert_eq!(count(2, 1), 1 + 1 + 3);
+        // σ_y enters only the likelihood and the prior
+        assert_eq!(count(3, 3), 1 + 3);
+    }
+}
+
 /// With noise w(t) = sin 2t + ½ on [0, 2] (piece coefficients a_k = w at the midpoint,
 /// b_k = the change of w across the piece), the Hermite–Simpson energy part converges to
 /// −∫½w² dt = −½[1 − sin(8)/8 + (1 − cos 4)/2 + ½] (closed form), at second order in h.
