@@ -134,13 +134,13 @@ impl BandLdlt {
         let lower = |a: usize, b: usize| if a >= b { (a, b) } else { (b, a) };
         let slot = |(r, c): (usize, usize)| (c >= first[r]).then(|| row_ptr[r] + (c - first[r]));
         let in_range = |&(i, j): &(usize, usize), rows: usize| i < rows && j < n;
-        if !s.hessian.iter().all(|e| in_range(e, n)) || !s.jacobian.iter().all(|e| in_range(e, m)) {
+        if !s.hessian_entries().all(|e| in_range(&e, n)) || !s.jacobian_entries().all(|e| in_range(&e, m)) {
             return false;
         }
         let hess: Option<Vec<usize>> =
-            s.hessian.iter().map(|&(i, j)| slot(lower(iperm[i], iperm[j]))).collect();
+            s.hessian_entries().map(|(i, j)| slot(lower(iperm[i], iperm[j]))).collect();
         let jac: Option<Vec<usize>> =
-            s.jacobian.iter().map(|&(r, c)| slot(lower(iperm[n + r], iperm[c]))).collect();
+            s.jacobian_entries().map(|(r, c)| slot(lower(iperm[n + r], iperm[c]))).collect();
         let (Some(hess), Some(jac)) = (hess, jac) else {
             return false;
         };
@@ -304,15 +304,14 @@ fn rcm_order(s: &KktStructure<'_>, dense_var: &[bool], dense_row: &[bool]) -> Ve
     let keep = |i: usize| !dense_var[i];
     // Hessian neighbours (both directions, no diagonal)
     let hess_pairs = s
-        .hessian
-        .iter()
-        .filter(move |&&(i, j)| i != j && keep(i) && keep(j))
-        .flat_map(|&(i, j)| [(i, j), (j, i)]);
+        .hessian_entries()
+        .filter(move |&(i, j)| i != j && keep(i) && keep(j))
+        .flat_map(|(i, j)| [(i, j), (j, i)]);
     let (h_ptr, h_idx) = compress(n, hess_pairs);
     // constraint rows of each variable and variables of each row
-    let jac = s.jacobian.iter().filter(|&&(r, c)| !dense_row[r] && keep(c));
-    let (v_ptr, v_rows) = compress(n, jac.clone().map(|&(r, c)| (c, r)));
-    let (r_ptr, r_vars) = compress(s.m, jac.map(|&(r, c)| (r, c)));
+    let jac = s.jacobian_entries().filter(|&(r, c)| !dense_row[r] && keep(c));
+    let (v_ptr, v_rows) = compress(n, jac.clone().map(|(r, c)| (c, r)));
+    let (r_ptr, r_vars) = compress(s.m, jac);
     let degree: Vec<usize> = (0..n)
         .map(|i| {
             h_ptr[i + 1] - h_ptr[i]
@@ -453,10 +452,9 @@ impl KktSolver for BandLdlt {
         let mut first: Vec<usize> = (0..dim).collect();
         let lower = |a: usize, b: usize| if a >= b { (a, b) } else { (b, a) };
         let entries = s
-            .hessian
-            .iter()
-            .map(|&(i, j)| lower(iperm[i], iperm[j]))
-            .chain(s.jacobian.iter().map(|&(r, c)| lower(iperm[n + r], iperm[c])));
+            .hessian_entries()
+            .map(|(i, j)| lower(iperm[i], iperm[j]))
+            .chain(s.jacobian_entries().map(|(r, c)| lower(iperm[n + r], iperm[c])));
         for (r, c) in entries.clone() {
             first[r] = first[r].min(c);
         }
@@ -476,8 +474,8 @@ impl KktSolver for BandLdlt {
         let slot = |(r, c): (usize, usize)| row_ptr[r] + (c - first[r]);
         self.slots = SlotMap::try_new(
             size,
-            s.hessian.iter().map(|&(i, j)| slot(lower(iperm[i], iperm[j]))),
-            s.jacobian.iter().map(|&(r, c)| slot(lower(iperm[n + r], iperm[c]))),
+            s.hessian_entries().map(|(i, j)| slot(lower(iperm[i], iperm[j]))),
+            s.jacobian_entries().map(|(r, c)| slot(lower(iperm[n + r], iperm[c]))),
             (0..dim).map(|g| row_ptr[iperm[g] + 1] - 1),
         )?;
         self.groups = row_groups(&first);
@@ -701,6 +699,8 @@ mod tests {
                 m += 1;
             }
         }
+        let as_u32 = |p: &[(usize, usize)]| p.iter().map(|&(a, b)| (a as u32, b as u32)).collect::<Vec<_>>();
+        let (hess, jac) = (as_u32(&hess), as_u32(&jac));
         let structure = KktStructure::new(n, m, &hess, &jac);
         let mut band = BandLdlt::new();
         band.analyse(&structure).unwrap();

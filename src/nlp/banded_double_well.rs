@@ -71,9 +71,9 @@ impl NlpProblem for DoubleWell {
             c[j] = w[j + 1] - x - self.h * (x - x * x * x) - self.h * w[k + 1 + j];
         }
     }
-    fn jacobian_structure(&self) -> Vec<(usize, usize)> {
+    fn jacobian_structure(&self) -> Vec<(u32, u32)> {
         let k = self.k;
-        (0..k).flat_map(|j| [(j, j), (j, j + 1), (j, k + 1 + j)]).collect()
+        (0..k as u32).flat_map(|j| [(j, j), (j, j + 1), (j, k as u32 + 1 + j)]).collect()
     }
     fn jacobian_values(&mut self, w: &[f64], values: &mut [f64]) {
         for j in 0..self.k {
@@ -83,8 +83,8 @@ impl NlpProblem for DoubleWell {
             values[3 * j + 2] = -self.h;
         }
     }
-    fn hessian_structure(&self) -> Vec<(usize, usize)> {
-        (0..2 * self.k + 1).map(|i| (i, i)).collect()
+    fn hessian_structure(&self) -> Vec<(u32, u32)> {
+        (0..2 * self.k as u32 + 1).map(|i| (i, i)).collect()
     }
     fn hessian_values(&mut self, w: &[f64], s: f64, lambda: &[f64], values: &mut [f64]) {
         let k = self.k;

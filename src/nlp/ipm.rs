@@ -160,10 +160,9 @@ struct Ipm<'a, P: ?Sized, K: ?Sized> {
     /// them skip the free variables (all of a transcription's states and noises).
     bounded: Vec<usize>,
     n_bounds: usize,
-    /// Row and column of each Jacobian pattern entry (`u32`: half the memory of `usize` on the
-    /// largest transcriptions; [`Ipm::new`] checks that n and m fit).
-    jac_rows: Vec<u32>,
-    jac_cols: Vec<u32>,
+    /// The Jacobian pattern, (row, column) of each entry, as the problem gave it (kept for the
+    /// products with J and the row scaling).
+    jac_pat: Vec<(u32, u32)>,
     // scaling (Sect. 3.8)
     sf: f64,
     sc: Vec<f64>,
@@ -281,11 +280,11 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         }
         let mut hess_pat = problem.hessian_structure();
         for p in hess_pat.iter_mut() {
-            if p.0 >= n || p.1 >= n {
+            if p.0 as usize >= n || p.1 as usize >= n {
                 return Err(Error::DimensionMismatch {
                     what: format!("Hessian pattern entry ({}, {}) index", p.0, p.1),
                     expected: n,
-                    got: p.0.max(p.1),
+                    got: p.0.max(p.1) as usize,
                 });
             }
             if p.0 < p.1 {
@@ -294,18 +293,18 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         }
         let jac_pat = problem.jacobian_structure();
         for &(r, c) in &jac_pat {
-            if r >= m {
+            if r as usize >= m {
                 return Err(Error::DimensionMismatch {
                     what: format!("Jacobian pattern entry ({r}, {c}) row"),
                     expected: m,
-                    got: r,
+                    got: r as usize,
                 });
             }
-            if c >= n {
+            if c as usize >= n {
                 return Err(Error::DimensionMismatch {
                     what: format!("Jacobian pattern entry ({r}, {c}) column"),
                     expected: n,
-                    got: c,
+                    got: c as usize,
                 });
             }
         }
@@ -358,8 +357,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             has_u,
             bounded,
             n_bounds,
-            jac_rows: jac_pat.iter().map(|p| p.0 as u32).collect(),
-            jac_cols: jac_pat.iter().map(|p| p.1 as u32).collect(),
+            jac_pat,
             sf: 1.0,
             sc: vec![1.0; m],
             x,
@@ -439,7 +437,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         let t = Instant::now();
         self.counts.jacobian += 1;
         self.problem.jacobian_values(x, out);
-        for (v, &r) in out.iter_mut().zip(&self.jac_rows) {
+        for (v, &(r, _)) in out.iter_mut().zip(&self.jac_pat) {
             *v *= self.sc[r as usize];
         }
         self.times.evaluation += t.elapsed();
@@ -507,7 +505,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
 
     /// out += Jᵀ v (scaled Jacobian).
     fn jt_times(&self, v: &[f64], out: &mut [f64]) {
-        for ((&a, &c), &r) in self.jac.iter().zip(&self.jac_cols).zip(&self.jac_rows) {
+        for (&a, &(r, c)) in self.jac.iter().zip(&self.jac_pat) {
             out[c as usize] += a * v[r as usize];
         }
     }
@@ -822,7 +820,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             let gmax = norm_inf(&g);
             self.sf = if gmax > G_MAX { G_MAX / gmax } else { 1.0 };
             let mut row_max = vec![0.0f64; self.m];
-            for (k, &r) in self.jac_rows.iter().enumerate() {
+            for (k, &(r, _)) in self.jac_pat.iter().enumerate() {
                 let r = r as usize;
                 row_max[r] = row_max[r].max(jac[k].abs());
             }
@@ -833,7 +831,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         for v in g.iter_mut() {
             *v *= self.sf;
         }
-        for (v, &r) in jac.iter_mut().zip(&self.jac_rows) {
+        for (v, &(r, _)) in jac.iter_mut().zip(&self.jac_pat) {
             *v *= self.sc[r as usize];
         }
         self.grad = g;
@@ -1282,7 +1280,8 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             // predicted decrease of ½‖c‖²: ½‖c‖² − ½‖c + a J d‖²
             let mut jd = vec![0.0; self.m];
             for k in 0..self.jac.len() {
-                jd[self.jac_rows[k] as usize] += self.jac[k] * d[self.jac_cols[k] as usize];
+                let (r, c) = self.jac_pat[k];
+                jd[r as usize] += self.jac[k] * d[c as usize];
             }
             let c2: f64 = self.c.iter().map(|v| v * v).sum::<f64>() * 0.5;
             let pred = c2 - 0.5 * self.c.iter().zip(&jd).map(|(c, j)| (c + a * j).powi(2)).sum::<f64>();

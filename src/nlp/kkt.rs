@@ -68,9 +68,9 @@ pub struct KktStructure<'a> {
     /// Number of equality constraints $m$.
     pub m: usize,
     /// Lower-triangular Hessian pattern, `(row, column)` with `row >= column`, indices `< n`.
-    pub hessian: &'a [(usize, usize)],
+    pub hessian: &'a [(u32, u32)],
     /// Jacobian pattern, `(row, column)` with `row < m`, `column < n`.
-    pub jacobian: &'a [(usize, usize)],
+    pub jacobian: &'a [(u32, u32)],
     /// An elimination order of the KKT matrix known to the problem
     /// ([`NlpProblem::kkt_order`](super::NlpProblem::kkt_order)): `order[p]` is the KKT row at
     /// position `p` (variable `i` as `i`, constraint `r` as `n + r`), a permutation of
@@ -82,13 +82,23 @@ pub struct KktStructure<'a> {
 impl<'a> KktStructure<'a> {
     /// The structure of patterns `hessian` and `jacobian` of a problem with `n` variables and
     /// `m` constraints, without an ordering hint.
-    pub fn new(n: usize, m: usize, hessian: &'a [(usize, usize)], jacobian: &'a [(usize, usize)]) -> Self {
+    pub fn new(n: usize, m: usize, hessian: &'a [(u32, u32)], jacobian: &'a [(u32, u32)]) -> Self {
         KktStructure { n, m, hessian, jacobian, order: None }
     }
 
     /// The same structure with the ordering hint `order` (see [`KktStructure::order`]).
     pub fn with_order(self, order: Option<&'a [usize]>) -> Self {
         KktStructure { order, ..self }
+    }
+
+    /// The Hessian pattern's entries as `usize` pairs.
+    pub fn hessian_entries(&self) -> impl ExactSizeIterator<Item = (usize, usize)> + Clone + 'a {
+        self.hessian.iter().map(|&(i, j)| (i as usize, j as usize))
+    }
+
+    /// The Jacobian pattern's entries as `usize` pairs.
+    pub fn jacobian_entries(&self) -> impl ExactSizeIterator<Item = (usize, usize)> + Clone + 'a {
+        self.jacobian.iter().map(|&(r, c)| (r as usize, c as usize))
     }
 }
 
@@ -356,7 +366,7 @@ pub(crate) fn dense_variables_and_rows(s: &KktStructure<'_>) -> Result<(Vec<bool
     // the variables of each row (compressed rows by counting, then sorted and deduplicated
     // within each row)
     let mut ptr = vec![0usize; m + 1];
-    for &(r, _) in s.jacobian {
+    for (r, _) in s.jacobian_entries() {
         ptr[r + 1] += 1;
     }
     for r in 0..m {
@@ -365,7 +375,7 @@ pub(crate) fn dense_variables_and_rows(s: &KktStructure<'_>) -> Result<(Vec<bool
     // u32 variable indices: half the memory of the pattern's
     let mut vars = vec![0u32; s.jacobian.len()];
     let mut fill = ptr[..m].to_vec();
-    for &(r, c) in s.jacobian {
+    for (r, c) in s.jacobian_entries() {
         vars[fill[r]] = c as u32;
         fill[r] += 1;
     }
@@ -385,7 +395,7 @@ pub(crate) fn dense_variables_and_rows(s: &KktStructure<'_>) -> Result<(Vec<bool
     let dense_limit = 32.max((10.0 * (n as f64).sqrt()) as usize);
     let dense_row: Vec<bool> = len.iter().map(|&l| l > dense_limit).collect();
     let mut degree = vec![0usize; n];
-    for &(i, j) in s.hessian {
+    for (i, j) in s.hessian_entries() {
         if i != j {
             degree[i] += 1;
             degree[j] += 1;
@@ -414,7 +424,7 @@ pub(crate) fn place_constraints(
     let (n, m) = (s.n, s.m);
     let np = order.len();
     let mut last_pos = vec![usize::MAX; m];
-    for &(r, c) in s.jacobian {
+    for (r, c) in s.jacobian_entries() {
         if !dense_row[r] && !dense_var[c] {
             let p = pos[c];
             if last_pos[r] == usize::MAX || p > last_pos[r] {
@@ -462,13 +472,13 @@ fn kkt_ordering(s: &KktStructure<'_>) -> Result<Vec<usize>> {
     // the primal graph without the dense variables and rows; AMD needs a deduplicated upper
     // CSC pattern, built by counting sorts (column-major, then rows within each column)
     let mut edges: Vec<(usize, usize)> = Vec::new();
-    for &(i, j) in s.hessian {
+    for (i, j) in s.hessian_entries() {
         if i != j && !dense_var[i] && !dense_var[j] {
             edges.push((i.min(j), i.max(j)));
         }
     }
     let mut row_vars: Vec<Vec<usize>> = vec![Vec::new(); s.m];
-    for &(r, c) in s.jacobian {
+    for (r, c) in s.jacobian_entries() {
         if !dense_row[r] && !dense_var[c] {
             row_vars[r].push(c);
         }
@@ -642,8 +652,8 @@ impl KktSolver for FaerLdlt {
         }
         let upper = |a: usize, b: usize| (a.min(b), a.max(b));
         let mut entries: Vec<(usize, usize)> = Vec::with_capacity(s.hessian.len() + s.jacobian.len() + dim);
-        entries.extend(s.hessian.iter().map(|&(i, j)| upper(iperm[i], iperm[j])));
-        entries.extend(s.jacobian.iter().map(|&(r, c)| upper(iperm[n + r], iperm[c])));
+        entries.extend(s.hessian_entries().map(|(i, j)| upper(iperm[i], iperm[j])));
+        entries.extend(s.jacobian_entries().map(|(r, c)| upper(iperm[n + r], iperm[c])));
         entries.extend((0..dim).map(|g| (iperm[g], iperm[g])));
         let (col_ptr, row_idx) = upper_csc(dim, &entries);
         drop(entries);
@@ -656,8 +666,8 @@ impl KktSolver for FaerLdlt {
         };
         self.slots = SlotMap::try_new(
             self.row_idx.len(),
-            s.hessian.iter().map(|&(i, j)| slot(self, iperm[i], iperm[j])),
-            s.jacobian.iter().map(|&(r, c)| slot(self, iperm[n + r], iperm[c])),
+            s.hessian_entries().map(|(i, j)| slot(self, iperm[i], iperm[j])),
+            s.jacobian_entries().map(|(r, c)| slot(self, iperm[n + r], iperm[c])),
             (0..dim).map(|g| slot(self, iperm[g], iperm[g])),
         )?;
         self.values = vec![0.0; self.row_idx.len()];

@@ -44,8 +44,11 @@ pub trait NlpProblem {
     fn constraints(&mut self, w: &[f64], c: &mut [f64]);
 
     /// The pattern of the Jacobian $\partial c / \partial w$ as `(row, column)` pairs,
-    /// `row < m`, `column < n`. Queried once.
-    fn jacobian_structure(&self) -> Vec<(usize, usize)>;
+    /// `row < m`, `column < n`. Queried once. Indices are `u32`, as IPOPT's `Index` is 32-bit:
+    /// the patterns of the largest transcriptions have millions of entries, and the solver
+    /// keeps the Jacobian's (the solver rejects problems with more than 2³² − 1 variables or
+    /// constraints).
+    fn jacobian_structure(&self) -> Vec<(u32, u32)>;
 
     /// Writes the Jacobian values in the order of
     /// [`jacobian_structure`](Self::jacobian_structure).
@@ -53,8 +56,8 @@ pub trait NlpProblem {
 
     /// The pattern of the lower triangle of the Hessian of the Lagrangian as `(row, column)`
     /// pairs with `row >= column` (a pair with `row < column` is read as its mirror image).
-    /// Queried once.
-    fn hessian_structure(&self) -> Vec<(usize, usize)>;
+    /// Queried once; `u32` indices as in [`jacobian_structure`](Self::jacobian_structure).
+    fn hessian_structure(&self) -> Vec<(u32, u32)>;
 
     /// Writes the values of
     /// $\sigma_f \nabla^2 f(w) + \sum_j \lambda_j \nabla^2 c_j(w)$

@@ -63,14 +63,14 @@ impl NlpProblem for Dense {
     fn constraints(&mut self, w: &[f64], c: &mut [f64]) {
         (self.c)(w, c)
     }
-    fn jacobian_structure(&self) -> Vec<(usize, usize)> {
-        (0..self.m).flat_map(|r| (0..self.n).map(move |c| (r, c))).collect()
+    fn jacobian_structure(&self) -> Vec<(u32, u32)> {
+        pairs((0..self.m).flat_map(|r| (0..self.n).map(move |c| (r, c))))
     }
     fn jacobian_values(&mut self, w: &[f64], values: &mut [f64]) {
         (self.j)(w, values)
     }
-    fn hessian_structure(&self) -> Vec<(usize, usize)> {
-        (0..self.n).flat_map(|i| (0..=i).map(move |j| (i, j))).collect()
+    fn hessian_structure(&self) -> Vec<(u32, u32)> {
+        pairs((0..self.n).flat_map(|i| (0..=i).map(move |j| (i, j))))
     }
     fn hessian_values(&mut self, w: &[f64], obj_factor: f64, lambda: &[f64], values: &mut [f64]) {
         (self.h)(w, obj_factor, lambda, values)
@@ -81,6 +81,11 @@ impl NlpProblem for Dense {
 }
 
 fn none(_: &[f64], _: &mut [f64]) {}
+
+/// A pattern of `usize` pairs as the `u32` pairs of [`NlpProblem`].
+pub(super) fn pairs(p: impl IntoIterator<Item = (usize, usize)>) -> Vec<(u32, u32)> {
+    p.into_iter().map(|(a, b)| (a as u32, b as u32)).collect()
+}
 
 fn run(p: &mut Dense) -> NlpSolution {
     let mut options = NlpOptions::default();
@@ -459,7 +464,7 @@ fn large_banded_double_well() {
     let mut jv = vec![0.0; pattern.len()];
     p.jacobian_values(&sol.w, &mut jv);
     for (&(row, col), v) in pattern.iter().zip(&jv) {
-        g[col] += v * sol.lambda[row];
+        g[col as usize] += v * sol.lambda[row as usize];
     }
     let dual = g.iter().fold(0.0f64, |a, b| a.max(b.abs()));
     let primal = c.iter().fold(0.0f64, |a, b| a.max(b.abs()));
@@ -509,9 +514,9 @@ impl NlpProblem for JointDoubleWell {
             c[j] = w[j + 1] - x - h * theta * (x - x * x * x) - h * w[k + 1 + j];
         }
     }
-    fn jacobian_structure(&self) -> Vec<(usize, usize)> {
+    fn jacobian_structure(&self) -> Vec<(u32, u32)> {
         let (k, p) = (self.dw.k, 2 * self.dw.k + 1);
-        (0..k).flat_map(|j| [(j, j), (j, j + 1), (j, k + 1 + j), (j, p)]).collect()
+        pairs((0..k).flat_map(|j| [(j, j), (j, j + 1), (j, k + 1 + j), (j, p)]))
     }
     fn jacobian_values(&mut self, w: &[f64], values: &mut [f64]) {
         let (k, h, theta) = (self.dw.k, self.dw.h, w[w.len() - 1]);
@@ -523,11 +528,9 @@ impl NlpProblem for JointDoubleWell {
             values[4 * j + 3] = -h * (x - x * x * x);
         }
     }
-    fn hessian_structure(&self) -> Vec<(usize, usize)> {
+    fn hessian_structure(&self) -> Vec<(u32, u32)> {
         let (k, p) = (self.dw.k, 2 * self.dw.k + 1);
-        let mut pattern: Vec<(usize, usize)> = (0..=p).map(|i| (i, i)).collect();
-        pattern.extend((0..k).map(|j| (p, j)));
-        pattern
+        pairs((0..=p).map(|i| (i, i)).chain((0..k).map(|j| (p, j))))
     }
     fn hessian_values(&mut self, w: &[f64], s: f64, lambda: &[f64], values: &mut [f64]) {
         let (k, h, p) = (self.dw.k, self.dw.h, 2 * self.dw.k + 1);
@@ -571,7 +574,7 @@ fn joint_parameter_dense_column() {
     let mut jv = vec![0.0; pattern.len()];
     p.jacobian_values(&sol.w, &mut jv);
     for (&(row, col), v) in pattern.iter().zip(&jv) {
-        g[col] += v * sol.lambda[row];
+        g[col as usize] += v * sol.lambda[row as usize];
     }
     for (gi, (zl, zu)) in g.iter_mut().zip(sol.z_lower.iter().zip(&sol.z_upper)) {
         *gi += zu - zl;
@@ -614,13 +617,13 @@ impl NlpProblem for OmDoubleWell {
     fn constraints(&mut self, w: &[f64], c: &mut [f64]) {
         self.dw.constraints(w, c)
     }
-    fn jacobian_structure(&self) -> Vec<(usize, usize)> {
+    fn jacobian_structure(&self) -> Vec<(u32, u32)> {
         self.dw.jacobian_structure()
     }
     fn jacobian_values(&mut self, w: &[f64], values: &mut [f64]) {
         self.dw.jacobian_values(w, values)
     }
-    fn hessian_structure(&self) -> Vec<(usize, usize)> {
+    fn hessian_structure(&self) -> Vec<(u32, u32)> {
         self.dw.hessian_structure()
     }
     fn hessian_values(&mut self, w: &[f64], s: f64, lambda: &[f64], values: &mut [f64]) {
@@ -654,7 +657,7 @@ fn nonconvex_om_merit_iteration_count() {
     let mut jv = vec![0.0; pattern.len()];
     p.jacobian_values(&sol.w, &mut jv);
     for (&(row, col), v) in pattern.iter().zip(&jv) {
-        g[col] += v * sol.lambda[row];
+        g[col as usize] += v * sol.lambda[row as usize];
     }
     let dual = g.iter().fold(0.0f64, |a, b| a.max(b.abs()));
     let primal = c.iter().fold(0.0f64, |a, b| a.max(b.abs()));
@@ -1011,13 +1014,13 @@ fn misuse_is_an_error() {
         fn constraints(&mut self, _: &[f64], c: &mut [f64]) {
             c.fill(0.0);
         }
-        fn jacobian_structure(&self) -> Vec<(usize, usize)> {
+        fn jacobian_structure(&self) -> Vec<(u32, u32)> {
             vec![(0, 2)]
         }
         fn jacobian_values(&mut self, _: &[f64], v: &mut [f64]) {
             v.fill(0.0);
         }
-        fn hessian_structure(&self) -> Vec<(usize, usize)> {
+        fn hessian_structure(&self) -> Vec<(u32, u32)> {
             vec![]
         }
         fn hessian_values(&mut self, _: &[f64], _: f64, _: &[f64], _: &mut [f64]) {}
@@ -1107,7 +1110,7 @@ fn report_display_is_a_table() {
 /// A random KKT pattern: a banded Hessian (bandwidth 3, plus a few long-range entries) and
 /// constraint rows on nearby variables, with one dense variable (column of every row).
 /// Lists of `(row, column)` pairs.
-type Pattern = Vec<(usize, usize)>;
+type Pattern = Vec<(u32, u32)>;
 
 fn random_kkt(rng: &mut impl rand::RngExt, n: usize, m: usize) -> (Pattern, Pattern) {
     let mut hess = Vec::new();
@@ -1132,7 +1135,7 @@ fn random_kkt(rng: &mut impl rand::RngExt, n: usize, m: usize) -> (Pattern, Patt
         }
         jac.push((r, n - 1)); // the dense (parameter) column
     }
-    (hess, jac)
+    (pairs(hess), pairs(jac))
 }
 
 #[test]

@@ -396,6 +396,16 @@ pub fn build_nlp<'a, S: Sde + ?Sized, O: Observation + ?Sized>(
     let t0 = options.t0.unwrap_or_else(|| crate::estimate::default_initial_time(problem.data));
     let step = options.step.unwrap_or_else(|| default_step(t0, problem.data));
     let grid = Grid::try_new(t0, step, &problem.data.times)?;
+    // the NLP's patterns index variables and constraints as `u32` (`nlp::NlpProblem`); the
+    // Hermite–Simpson bound (nodes, midpoints, noise coefficients, θ) covers the other two
+    let n = grid.intervals;
+    let unknowns = (2 * n + 1) * d.states() + 2 * n * d.noisy + problem.estimate.len();
+    if unknowns.max(2 * n * d.states()) > u32::MAX as usize {
+        return Err(Error::InvalidOption {
+            name: "step".into(),
+            reason: format!("{n} intervals give more than 2^32 - 1 unknowns; take a longer step"),
+        });
+    }
     let guess = guess_on_grid(options.initial_path.as_ref(), &grid, d.states())?;
     Ok(PathNlp::new(problem, options.merit, options.transcription, grid, &guess))
 }

@@ -34,7 +34,7 @@ fn check_derivatives<P: NlpProblem>(nlp: &mut P) {
     nlp.jacobian_values(&w, &mut jv);
     let mut jac = nalgebra::DMatrix::<f64>::zeros(m, n);
     for (&(r, c), v) in js.iter().zip(&jv) {
-        jac[(r, c)] += v;
+        jac[(r as usize, c as usize)] += v;
     }
     // Hessian (dense, symmetric)
     let hs = nlp.hessian_structure();
@@ -42,6 +42,7 @@ fn check_derivatives<P: NlpProblem>(nlp: &mut P) {
     nlp.hessian_values(&w, sigma, &lambda, &mut hv);
     let mut hess = nalgebra::DMatrix::<f64>::zeros(n, n);
     for (&(r, c), v) in hs.iter().zip(&hv) {
+        let (r, c) = (r as usize, c as usize);
         hess[(r, c)] += v;
         if r != c {
             hess[(c, r)] += v;
@@ -54,7 +55,7 @@ fn check_derivatives<P: NlpProblem>(nlp: &mut P) {
         nlp.jacobian_values(w, &mut jv);
         let mut out: Vec<f64> = g.iter().map(|v| v * sigma).collect();
         for (&(r, c), v) in js.iter().zip(&jv) {
-            out[c] += lambda[r] * v;
+            out[c as usize] += lambda[r as usize] * v;
         }
         out
     };
@@ -165,7 +166,8 @@ fn hermite_simpson_theta_pairs_are_one_block_for_all_pieces() {
         let nlp = build_nlp(&prob, &PathOptions::default().with_step(step)).unwrap();
         let theta0 = nlp.num_variables() - 4;
         let pattern = nlp.hessian_structure();
-        let count = |i: usize, j: usize| pattern.iter().filter(|&&e| e == (theta0 + i, theta0 + j)).count();
+        let at = |i: usize| (theta0 + i) as u32;
+        let count = |i: usize, j: usize| pattern.iter().filter(|&&e| e == (at(i), at(j))).count();
         // a, b, d enter the drift; the prior block and the 3 measurement blocks are dense in θ
         assert_eq!(count(0, 0), 1 + 1 + 3);
         assert_eq!(count(2, 1), 1 + 1 + 3);
@@ -211,6 +213,17 @@ fn measurement_off_the_grid_is_an_error() {
     assert!(err.to_string().contains("not on the grid"), "{err}");
 }
 
+/// A grid with more unknowns than the NLP's `u32` pattern indices can number is an error before
+/// anything is allocated per node.
+#[test]
+fn a_grid_too_fine_for_u32_indices_is_an_error() {
+    let p = preset("ou").unwrap();
+    let data = data_for(&p, &[0.0, 1.0]);
+    let prob = p.problem(&data, &[]);
+    let err = build_nlp(&prob, &PathOptions::default().with_step(1e-10)).err().unwrap();
+    assert!(err.to_string().contains("2^32 - 1 unknowns"), "{err}");
+}
+
 #[test]
 fn initial_theta_outside_its_bounds_is_an_error() {
     let mut p = preset("ou").unwrap();
@@ -250,7 +263,7 @@ fn multipliers_satisfy_stationarity_at_the_optimum() {
     let mut jv = vec![0.0; js.len()];
     nlp.jacobian_values(&sol.w, &mut jv);
     for (&(r, c), v) in js.iter().zip(&jv) {
-        g[c] += sol.lambda[r] * v;
+        g[c as usize] += sol.lambda[r as usize] * v;
     }
     let norm = g.iter().fold(0.0f64, |a, v| a.max(v.abs()));
     assert!(norm < 1e-6, "‖∇f + Jᵀλ‖∞ = {norm}");

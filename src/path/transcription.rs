@@ -795,7 +795,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
     /// otherwise be a KKT entry of its own, summed into the same few slots as every other
     /// point's: on Duffing with 36,000 pieces and θ = (a, b, d, σ_y) 648,000 of its 1.7 million
     /// Hessian entries.
-    fn hs_hessian_structure(&self, b: &Block, out: &mut Vec<(usize, usize)>) {
+    fn hs_hessian_structure(&self, b: &Block, out: &mut Vec<(u32, u32)>) {
         let d = self.problem.sde.dims();
         let (ns, nx) = (d.states(), d.noisy);
         // packed column by column (`packed_index`): the states' columns, then those of θ_d,
@@ -804,14 +804,13 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
             for (c, &lc) in idx[..ns].iter().enumerate() {
                 let vc = b.vars[lc];
                 for &lr in &idx[c..] {
-                    let vr = b.vars[lr];
-                    out.push((vr.max(vc), vr.min(vc)));
+                    out.push(lower_pair(b.vars[lr], vc));
                 }
             }
         }
         for i in 0..2 * nx {
             let v = b.vars[3 * ns + i];
-            out.push((v, v));
+            out.push(lower_pair(v, v));
         }
     }
 
@@ -948,6 +947,12 @@ fn hs_jacobian_constant(ns: usize, nx: usize, nv: usize, h: f64, g: &[f64]) -> V
         }
     }
     jac
+}
+
+/// The Hessian pattern entry of variables a and b: (row, column) in the lower triangle, as
+/// `u32` (`super::build_nlp` checks that the variables fit).
+fn lower_pair(a: usize, b: usize) -> (u32, u32) {
+    (a.max(b) as u32, a.min(b) as u32)
 }
 
 /// Length of the stack buffers of [`with_buffer`].
@@ -1257,12 +1262,12 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
         }
     }
 
-    fn jacobian_structure(&self) -> Vec<(usize, usize)> {
+    fn jacobian_structure(&self) -> Vec<(u32, u32)> {
         let mut s = Vec::with_capacity(self.n_jac);
         for b in &self.blocks {
             for r in 0..b.rows {
                 for &v in &b.vars {
-                    s.push((b.row0 + r, v));
+                    s.push(((b.row0 + r) as u32, v as u32));
                 }
             }
         }
@@ -1357,7 +1362,7 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
         Some(order)
     }
 
-    fn hessian_structure(&self) -> Vec<(usize, usize)> {
+    fn hessian_structure(&self) -> Vec<(u32, u32)> {
         let mut s = Vec::with_capacity(self.n_hess);
         // Hermite–Simpson: the (θ_d, θ_d) block summed over all Lobatto points first, so that
         // the KKT slots receive the same sums in the same order as from one entry per point
@@ -1367,7 +1372,7 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
             let nt = self.point_theta.len();
             for c in 0..nt {
                 for r in c..nt {
-                    s.push((v(r).max(v(c)), v(r).min(v(c))));
+                    s.push(lower_pair(v(r), v(c)));
                 }
             }
         }
@@ -1379,7 +1384,7 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
             // packed column by column, as `pack_lower` writes the values
             for (j, &vj) in b.vars.iter().enumerate() {
                 for &vi in &b.vars[j..] {
-                    s.push((vi.max(vj), vi.min(vj)));
+                    s.push(lower_pair(vi, vj));
                 }
             }
         }

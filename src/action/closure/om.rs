@@ -238,21 +238,22 @@ impl<S: Sde + ?Sized> NlpProblem for MomentPath<'_, S> {
         self.value_grad(w, grad);
     }
     fn constraints(&mut self, _w: &[f64], _c: &mut [f64]) {}
-    fn jacobian_structure(&self) -> Vec<(usize, usize)> {
+    fn jacobian_structure(&self) -> Vec<(u32, u32)> {
         Vec::new()
     }
     fn jacobian_values(&mut self, _w: &[f64], _values: &mut [f64]) {}
-    fn hessian_structure(&self) -> Vec<(usize, usize)> {
-        let mut s = Vec::new();
+    fn hessian_structure(&self) -> Vec<(u32, u32)> {
+        let mut s: Vec<(u32, u32)> = Vec::new();
+        let v = |i: usize| i as u32; // a moment path has far fewer than 2³² variables
         for j in 0..self.times.len() - 1 {
             for a in 0..4 {
                 for b in 0..=a {
-                    s.push((2 * j + a, 2 * j + b));
+                    s.push((v(2 * j + a), v(2 * j + b)));
                 }
             }
         }
         for i in self.nodes_with_cost() {
-            s.extend([(2 * i, 2 * i), (2 * i + 1, 2 * i), (2 * i + 1, 2 * i + 1)]);
+            s.extend([(v(2 * i), v(2 * i)), (v(2 * i + 1), v(2 * i)), (v(2 * i + 1), v(2 * i + 1))]);
         }
         s
     }
@@ -572,9 +573,9 @@ mod tests {
             mp.hessian_values(&w, 1.0, &[], &mut vals);
             let mut hess = DMatrix::<f64>::zeros(n, n);
             for (&(r, c), v) in structure.iter().zip(&vals) {
-                hess[(r, c)] += v;
+                hess[(r as usize, c as usize)] += v;
                 if r != c {
-                    hess[(c, r)] += v;
+                    hess[(c as usize, r as usize)] += v;
                 }
             }
             let eps = 1e-6;
