@@ -843,46 +843,41 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         let kept = tri - self.hs_theta_tri();
         let (points, noise) = values.split_at_mut(3 * kept);
         with_buffer(ns, |mu| {
-            with_buffer(tri - kept, |tt| {
-                for (i, out) in points.chunks_exact_mut(kept).enumerate() {
-                    let div_weight = self.hs_point_weights(i, obj_factor, lambda, mu);
-                    if let Some(c) = cached {
-                        let e = self.hs_entry(k, i) * c.len;
-                        let hs = &c.data[e + nout * npt..e + c.len];
-                        out.fill(0.0);
-                        tt.fill(0.0);
-                        for (&o, hr) in c.stored.iter().zip(hs.chunks_exact(tri)) {
-                            let wgt = if o < ns { mu[o] } else { div_weight };
-                            let (hk, ht) = hr.split_at(kept);
-                            for (v, &x) in out.iter_mut().zip(hk) {
-                                *v += wgt * x;
-                            }
-                            for (v, &x) in tt.iter_mut().zip(ht) {
-                                *v += wgt * x;
-                            }
+            for (i, out) in points.chunks_exact_mut(kept).enumerate() {
+                let div_weight = self.hs_point_weights(i, obj_factor, lambda, mu);
+                let weight = |o: usize| if o < ns { mu[o] } else { div_weight };
+                if let Some(c) = cached {
+                    let e = self.hs_entry(k, i) * c.len;
+                    let hs = &c.data[e + nout * npt..e + c.len];
+                    out.fill(0.0);
+                    for (&o, hr) in c.stored.iter().zip(hs.chunks_exact(tri)) {
+                        let wgt = weight(o);
+                        for (v, &x) in out.iter_mut().zip(hr) {
+                            *v += wgt * x;
                         }
-                    } else {
-                        let (t, off, ..) = self.hs_points(k)[i];
-                        let f = PointFn { div_weight, mu: Some(mu), ..self.point_fn(t, local) };
-                        with_buffer(npt, |pl| {
-                            with_buffer(npt, |pg| {
-                                with_buffer(npt * npt, |ph| {
-                                    with_buffer(tri, |full| {
-                                        self.hs_point_local(local, off, pl);
-                                        ad::hessian_into(&f, pl, pg, ph);
-                                        pack_lower(ph, npt, full);
-                                        out.copy_from_slice(&full[..kept]);
-                                        tt.copy_from_slice(&full[kept..]);
-                                    })
-                                })
-                            })
-                        });
                     }
-                    for (a, &v) in theta.iter_mut().zip(tt.iter()) {
-                        *a += v;
+                    if kept < tri {
+                        add_theta_part(theta, &c.stored, hs, tri, kept, weight);
                     }
+                    continue;
                 }
-            })
+                let (t, off, ..) = self.hs_points(k)[i];
+                let f = PointFn { div_weight, mu: Some(mu), ..self.point_fn(t, local) };
+                with_buffer(npt, |pl| {
+                    with_buffer(npt, |pg| {
+                        with_buffer(npt * npt, |ph| {
+                            with_buffer(tri - kept, |tt| {
+                                self.hs_point_local(local, off, pl);
+                                ad::hessian_into(&f, pl, pg, ph);
+                                pack_lower_split(ph, npt, out, tt);
+                                for (a, &v) in theta.iter_mut().zip(tt.iter()) {
+                                    *a += v;
+                                }
+                            })
+                        })
+                    })
+                });
+            }
         });
         let (h, nx) = (self.grid.step, d.noisy);
         noise[..nx].fill(obj_factor * h);
@@ -912,6 +907,32 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
             *o = w[v];
         }
     }
+}
+
+/// Adds a Lobatto point's (θ_d, θ_d) part to the summed block `theta`: entry q is
+/// Σ_o weight(o) · (Hessian of stored output o)_{kept + q}, the tail after `kept` of the packed
+/// triangles (`tri` entries each) in `hs`, summed before it is added, as a separate entry of the
+/// KKT pattern would have been.
+#[inline(never)]
+fn add_theta_part(
+    theta: &mut [f64],
+    stored: &[usize],
+    hs: &[f64],
+    tri: usize,
+    kept: usize,
+    weight: impl Fn(usize) -> f64,
+) {
+    with_buffer(theta.len(), |part| {
+        for (&o, hr) in stored.iter().zip(hs.chunks_exact(tri)) {
+            let wgt = weight(o);
+            for (v, &x) in part.iter_mut().zip(&hr[kept..]) {
+                *v += wgt * x;
+            }
+        }
+        for (a, &v) in theta.iter_mut().zip(part.iter()) {
+            *a += v;
+        }
+    })
 }
 
 /// The weights (α, β, σ − ½) of the three Lobatto points of a Hermite–Simpson piece: Simpson's
@@ -962,10 +983,20 @@ const BUFFER_LEN: usize = 64;
 /// ([`crate::model::packed_index`]), into the first n(n + 1)/2 entries of `out`: the packed order of the
 /// Hessian blocks.
 fn pack_lower(h: &[f64], n: usize, out: &mut [f64]) {
+    pack_lower_split(h, n, out, &mut []);
+}
+
+/// [`pack_lower`] into two slices: the first `head.len()` entries into `head`, the others
+/// into `tail`.
+fn pack_lower_split(h: &[f64], n: usize, head: &mut [f64], tail: &mut [f64]) {
     let mut q = 0;
     for c in 0..n {
         for r in c..n {
-            out[q] = h[r + c * n];
+            let v = h[r + c * n];
+            match head.get_mut(q) {
+                Some(o) => *o = v,
+                None => tail[q - head.len()] = v,
+            }
             q += 1;
         }
     }
