@@ -57,6 +57,12 @@
 //! band 35.36 ms, kept 27.84 ms, Duffing 36k 514.9 ms. The fresh Van der Pol solve is at the
 //! 35 ms target and the Duffing call at 0.5 s, within the machine's noise; the kept solver is
 //! well under. docs/map.md ("Performance") has the details.
+//!
+//! Latest (main after 963f14d: no spare derivative arrays, one (θ_d, θ_d) Hessian block for all
+//! pieces, `u32` NLP patterns; load ≈ 1, 2026-11-25, same run): `path_duffing_joint_36k` 483.9 ms
+//! median (peak resident memory 198 MB, 54,600 page faults against 71,600); `path_van_der_pol`
+//! band 34.39 ms, faer 64.91 ms (band/faer 0.53), kept 27.86 ms. The Duffing call is under 0.5 s
+//! by about 3 %; the fresh Van der Pol call is unchanged, at the 35 ms line.
 
 use std::hint::black_box;
 use std::time::Duration;
