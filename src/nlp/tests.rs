@@ -157,30 +157,43 @@ fn rosenbrock_unconstrained() {
     assert_relative_eq!(sol.w[1], 1.0, epsilon = 1e-7);
 }
 
-#[test]
-fn hs6() {
-    // HS (1981) problem 6: min (1 − x₁)² s.t. 10(x₂ − x₁²) = 0, x₀ = (−1.2, 1);
-    // x* = (1, 1), f* = 0.
-    let mut p = Dense::free(
+/// HS (1981) problem 6, min (1 − x₁)² s.t. 10(x₂ − x₁²) = 0 (x* = (1, 1), f* = 0), from `x0`,
+/// with the constraint `c` and its Jacobian `j` (the tests alter them in some regions).
+fn hs6_with(x0: Vec<f64>, c: Fn1, j: Fn1) -> Dense {
+    Dense::free(
         2,
         1,
-        vec![-1.2, 1.0],
+        x0,
         |x| (1.0 - x[0]).powi(2),
         |x, g| {
             g[0] = -2.0 * (1.0 - x[0]);
             g[1] = 0.0;
         },
-        |x, c| c[0] = 10.0 * (x[1] - x[0] * x[0]),
-        |x, j| {
-            j[0] = -20.0 * x[0];
-            j[1] = 10.0;
-        },
+        c,
+        j,
         |_, s, l, h| {
             h[0] = 2.0 * s - 20.0 * l[0];
             h[1] = 0.0;
             h[2] = 0.0;
         },
-    );
+    )
+}
+
+/// HS6's constraint 10(x₂ − x₁²).
+fn hs6_c(x: &[f64], c: &mut [f64]) {
+    c[0] = 10.0 * (x[1] - x[0] * x[0]);
+}
+
+/// HS6's constraint Jacobian.
+fn hs6_j(x: &[f64], j: &mut [f64]) {
+    j[0] = -20.0 * x[0];
+    j[1] = 10.0;
+}
+
+#[test]
+fn hs6() {
+    // HS (1981) problem 6 from x₀ = (−1.2, 1)
+    let mut p = hs6_with(vec![-1.2, 1.0], hs6_c, hs6_j);
     let sol = run(&mut p);
     assert_eq!(sol.report.status, Status::Converged);
     assert_relative_eq!(sol.report.objective, 0.0, epsilon = 1e-7);
@@ -805,26 +818,13 @@ fn nan_trial_points_are_rejected() {
 #[test]
 fn nan_in_constraints_is_rejected() {
     // HS6 with the constraint returning ∞ for x₁ < −1.1: NaN/∞ trials are cut back.
-    let mut p = Dense::free(
-        2,
-        1,
-        vec![-1.0, 1.0],
-        |x| (1.0 - x[0]).powi(2),
-        |x, g| {
-            g[0] = -2.0 * (1.0 - x[0]);
-            g[1] = 0.0;
-        },
-        |x, c| c[0] = if x[0] < -1.1 { f64::INFINITY } else { 10.0 * (x[1] - x[0] * x[0]) },
-        |x, j| {
-            j[0] = -20.0 * x[0];
-            j[1] = 10.0;
-        },
-        |_, s, l, h| {
-            h[0] = 2.0 * s - 20.0 * l[0];
-            h[1] = 0.0;
-            h[2] = 0.0;
-        },
-    );
+    let c: Fn1 = |x, c| {
+        hs6_c(x, c);
+        if x[0] < -1.1 {
+            c[0] = f64::INFINITY;
+        }
+    };
+    let mut p = hs6_with(vec![-1.0, 1.0], c, hs6_j);
     let sol = run(&mut p);
     assert_eq!(sol.report.status, Status::Converged);
     assert_relative_eq!(sol.w[0], 1.0, epsilon = 1e-7);
@@ -857,26 +857,13 @@ fn nan_jacobian_at_trial_point_is_rejected_and_the_iterate_keeps_its_derivatives
     // first full step from (−1, 1) lands (x₁ = 0.053): a trial point there passes the objective and constraint checks, and its derivatives, written
     // over the iterate's, are not finite; the solver must evaluate the iterate's again and
     // shorten the step. Closed form x* = (1, 1).
-    let mut p = Dense::free(
-        2,
-        1,
-        vec![-1.0, 1.0],
-        |x| (1.0 - x[0]).powi(2),
-        |x, g| {
-            g[0] = -2.0 * (1.0 - x[0]);
-            g[1] = 0.0;
-        },
-        |x, c| c[0] = 10.0 * (x[1] - x[0] * x[0]),
-        |x, j| {
-            j[0] = if 0.0 < x[0] && x[0] < 0.1 { f64::NAN } else { -20.0 * x[0] };
-            j[1] = 10.0;
-        },
-        |_, s, l, h| {
-            h[0] = 2.0 * s - 20.0 * l[0];
-            h[1] = 0.0;
-            h[2] = 0.0;
-        },
-    );
+    let j: Fn1 = |x, j| {
+        hs6_j(x, j);
+        if 0.0 < x[0] && x[0] < 0.1 {
+            j[0] = f64::NAN;
+        }
+    };
+    let mut p = hs6_with(vec![-1.0, 1.0], hs6_c, j);
     let sol = run(&mut p);
     assert_eq!(sol.report.status, Status::Converged);
     assert!(sol.report.non_finite_trials > 0);
