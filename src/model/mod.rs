@@ -278,8 +278,8 @@ impl<'a> DriftDerivatives<'a> {
 
     /// Derivatives into `jac` (`outputs × n`, column-major) and `hess` (`outputs` packed lower
     /// triangles of n(n + 1)/2 entries, column by column: [`packed_index`]), both zeroed by the
-    /// caller; `cols` maps
-    /// each input of w = (x, z, θ) to its column 0..n or to [`Self::DROPPED`].
+    /// caller; `cols` maps each input of w = (x, z, θ) to its column 0..n or to
+    /// [`Self::DROPPED`].
     pub fn new(cols: &'a [usize], n: usize, outputs: usize, jac: &'a mut [f64], hess: &'a mut [f64]) -> Self {
         debug_assert!(jac.len() >= outputs * n);
         DriftDerivatives { cols, n, tri: n * (n + 1) / 2, outputs, slots: None, jac, hess, seconds: 0 }

@@ -699,8 +699,7 @@ mod tests {
                 m += 1;
             }
         }
-        let as_u32 = |p: &[(usize, usize)]| p.iter().map(|&(a, b)| (a as u32, b as u32)).collect::<Vec<_>>();
-        let (hess, jac) = (as_u32(&hess), as_u32(&jac));
+        let (hess, jac) = (crate::nlp::tests::pairs(hess), crate::nlp::tests::pairs(jac));
         let structure = KktStructure::new(n, m, &hess, &jac);
         let mut band = BandLdlt::new();
         band.analyse(&structure).unwrap();

@@ -1058,8 +1058,9 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             return true;
         }
         self.non_finite_trials += 1;
-        let current = self.x.clone();
+        let current = std::mem::take(&mut self.x);
         self.eval_derivatives_into_iterate(&current);
+        self.x = current;
         false
     }
 

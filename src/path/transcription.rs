@@ -102,6 +102,10 @@ pub struct PathNlp<'a, S: Sde + ?Sized, O: Observation + ?Sized> {
     /// Positions in `problem.estimate` of the estimated θ that may enter the dynamics
     /// ([`Sde::drift_uses_param`]): the θ part of a Lobatto point's local vector.
     point_theta: Vec<usize>,
+    /// Number of entries of the lower triangle of (θ_d, θ_d): the block of the Hermite–Simpson
+    /// Hessian that sums the points' (θ_d, θ_d) parts, first in its pattern (0 for the other
+    /// transcriptions, whose blocks are dense).
+    hs_theta_tri: usize,
     /// For each Lobatto point i of a Hermite–Simpson piece, the position in the piece's local
     /// vector of each entry of the point's (s_i, θ_d).
     point_index: [Vec<usize>; 3],
@@ -188,7 +192,6 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
             (0..ne).filter(|&j| problem.sde.drift_uses_param(problem.estimate[j])).collect();
         let npt = ns + point_theta.len();
         let theta_tri = if hs { point_theta.len() * (point_theta.len() + 1) / 2 } else { 0 };
-
         let (mut jac, mut hess) = (0, theta_tri);
         // piece-local vector: s0, sm, s1, (a, b), estimated θ
         let nv_piece = 3 * ns + 2 * nx + ne;
@@ -257,6 +260,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
             n_hess: hess,
             g_fixed,
             point_theta,
+            hs_theta_tri: theta_tri,
             point_index,
             point_cols,
             hs_jac_constant,
@@ -776,18 +780,6 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         }
     }
 
-    /// Number of entries of the lower triangle of (θ_d, θ_d), θ_d the estimated θ that enter
-    /// the dynamics: the block of the Hermite–Simpson Hessian that sums the points' (θ_d, θ_d)
-    /// parts (0 for the other transcriptions, whose blocks are dense).
-    fn hs_theta_tri(&self) -> usize {
-        let nt = self.point_theta.len();
-        if self.transcription == Transcription::HermiteSimpson {
-            nt * (nt + 1) / 2
-        } else {
-            0
-        }
-    }
-
     /// The Hessian pattern of a Hermite–Simpson piece, in the order of
     /// [`Self::hs_hessian_into`]: the lower triangle of each point's (s_i, θ_d) block without
     /// its (θ_d, θ_d) part (summed over all points into the block ahead of the pieces, see
@@ -840,7 +832,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         let tri = npt * (npt + 1) / 2;
         let nout = self.hs_point_outputs();
         // the point's packed triangle: the states' columns (kept), then the (θ_d, θ_d) part
-        let kept = tri - self.hs_theta_tri();
+        let kept = tri - self.hs_theta_tri;
         let (points, noise) = values.split_at_mut(3 * kept);
         with_buffer(ns, |mu| {
             for (i, out) in points.chunks_exact_mut(kept).enumerate() {
@@ -980,8 +972,8 @@ fn lower_pair(a: usize, b: usize) -> (u32, u32) {
 const BUFFER_LEN: usize = 64;
 
 /// The lower triangle of the column-major n × n matrix `h`, column by column
-/// ([`crate::model::packed_index`]), into the first n(n + 1)/2 entries of `out`: the packed order of the
-/// Hessian blocks.
+/// ([`crate::model::packed_index`]), into the first n(n + 1)/2 entries of `out`: the packed
+/// order of the Hessian blocks.
 fn pack_lower(h: &[f64], n: usize, out: &mut [f64]) {
     pack_lower_split(h, n, out, &mut []);
 }
@@ -989,16 +981,9 @@ fn pack_lower(h: &[f64], n: usize, out: &mut [f64]) {
 /// [`pack_lower`] into two slices: the first `head.len()` entries into `head`, the others
 /// into `tail`.
 fn pack_lower_split(h: &[f64], n: usize, head: &mut [f64], tail: &mut [f64]) {
-    let mut q = 0;
-    for c in 0..n {
-        for r in c..n {
-            let v = h[r + c * n];
-            match head.get_mut(q) {
-                Some(o) => *o = v,
-                None => tail[q - head.len()] = v,
-            }
-            q += 1;
-        }
+    let packed = (0..n).flat_map(|c| (c..n).map(move |r| h[r + c * n]));
+    for (o, v) in head.iter_mut().chain(tail.iter_mut()).zip(packed) {
+        *o = v;
     }
 }
 
@@ -1018,7 +1003,8 @@ fn with_buffer<R>(len: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
 /// each Lobatto point, once per grid node (shared by the two pieces that meet there) and once
 /// per midpoint, at `e · len` (entry e = [`PathNlp::hs_entry`]), the Jacobian of the outputs
 /// [f; h] and, for Onsager–Machlup, div_x f in (s_i, θ_d) (outputs × npt, column-major), then
-/// the packed lower triangles (column by column, [`crate::model::packed_index`]) of the Hessians of the `stored` outputs: the others
+/// the packed lower triangles (column by column, [`crate::model::packed_index`]) of the
+/// Hessians of the `stored` outputs: the others
 /// (h = x and div_x f = −d for Duffing) are linear at every point seen so far.
 /// Filled by `gradient`, which the solver calls first at each new iterate; `jacobian_values`
 /// and `hessian_values` at the same `w` read it instead of differentiating again.
@@ -1397,7 +1383,7 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
         let mut s = Vec::with_capacity(self.n_hess);
         // Hermite–Simpson: the (θ_d, θ_d) block summed over all Lobatto points first, so that
         // the KKT slots receive the same sums in the same order as from one entry per point
-        if self.hs_theta_tri() > 0 {
+        if self.hs_theta_tri > 0 {
             let theta0 = self.n_vars - self.problem.estimate.len();
             let v = |j: usize| theta0 + self.point_theta[j];
             let nt = self.point_theta.len();
@@ -1424,7 +1410,7 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
 
     fn hessian_values(&mut self, w: &[f64], obj_factor: f64, lambda: &[f64], values: &mut [f64]) {
         let cached = self.cache.at(w);
-        let t0 = self.hs_theta_tri();
+        let t0 = self.hs_theta_tri;
         let (theta, values) = values.split_at_mut(t0);
         theta.fill(0.0);
         for (bi, b) in self.blocks.iter().enumerate() {
