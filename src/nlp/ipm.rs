@@ -126,13 +126,25 @@ impl InteriorPoint {
     }
 }
 
-/// The search direction of one Newton step (scaled problem).
+/// The search direction of one Newton step (scaled problem): (dx, dy) as the KKT solve left
+/// them in one vector, and the bound-multiplier steps of the bounded variables only, in the
+/// order of [`Ipm::bounded`] (zero for a missing bound).
 #[derive(Clone, Debug, Default)]
 struct Direction {
-    dx: Vec<f64>,
-    dy: Vec<f64>,
+    n: usize,
+    dxy: Vec<f64>,
     dzl: Vec<f64>,
     dzu: Vec<f64>,
+}
+
+impl Direction {
+    fn dx(&self) -> &[f64] {
+        &self.dxy[..self.n]
+    }
+
+    fn dy(&self) -> &[f64] {
+        &self.dxy[self.n..]
+    }
 }
 
 /// An evaluated trial point: (w, f, c), scaled; its ∇f and J values are already in the
@@ -151,14 +163,16 @@ struct Ipm<'a, P: ?Sized, K: ?Sized> {
     start: Instant,
     n: usize,
     m: usize,
+    /// The variables with at least one finite bound, ascending: the barrier terms, Σ, the
+    /// bound multipliers and their steps are nonzero only there, so the per-iteration loops over
+    /// them skip the free variables (all of a transcription's states and noises). The bounds,
+    /// their flags and multipliers (`l`, `u`, `has_l`, `has_u`, `zl`, `zu`) are stored for
+    /// these variables only, in this order.
+    bounded: Vec<usize>,
     l: Vec<f64>,
     u: Vec<f64>,
     has_l: Vec<bool>,
     has_u: Vec<bool>,
-    /// The variables with at least one finite bound, ascending: the barrier terms, Σ, the
-    /// bound multipliers and their steps are nonzero only there, so the per-iteration loops over
-    /// them skip the free variables (all of a transcription's states and noises).
-    bounded: Vec<usize>,
     n_bounds: usize,
     /// The Jacobian pattern, (row, column) of each entry, as the problem gave it (kept for the
     /// products with J and the row scaling).
@@ -322,20 +336,22 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
                 u[i] += r;
             }
         }
+        let bounded: Vec<usize> = (0..n).filter(|&i| l[i].is_finite() || u[i].is_finite()).collect();
+        let l: Vec<f64> = bounded.iter().map(|&i| l[i]).collect();
+        let u: Vec<f64> = bounded.iter().map(|&i| u[i]).collect();
         let has_l: Vec<bool> = l.iter().map(|v| v.is_finite()).collect();
         let has_u: Vec<bool> = u.iter().map(|v| v.is_finite()).collect();
         let n_bounds = has_l.iter().filter(|&&b| b).count() + has_u.iter().filter(|&&b| b).count();
-        let bounded: Vec<usize> = (0..n).filter(|&i| has_l[i] || has_u[i]).collect();
         // Sect. 3.6: move the initial point strictly inside the bounds.
-        for i in 0..n {
-            let (lo, hi) = (l[i], u[i]);
-            if has_l[i] && has_u[i] {
+        for (j, &i) in bounded.iter().enumerate() {
+            let (lo, hi) = (l[j], u[j]);
+            if has_l[j] && has_u[j] {
                 let pl = (KAPPA_1 * lo.abs().max(1.0)).min(KAPPA_2 * (hi - lo));
                 let pu = (KAPPA_1 * hi.abs().max(1.0)).min(KAPPA_2 * (hi - lo));
                 x[i] = x[i].max(lo + pl).min(hi - pu);
-            } else if has_l[i] {
+            } else if has_l[j] {
                 x[i] = x[i].max(lo + KAPPA_1 * lo.abs().max(1.0));
-            } else if has_u[i] {
+            } else {
                 x[i] = x[i].min(hi - KAPPA_1 * hi.abs().max(1.0));
             }
         }
@@ -466,17 +482,17 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     /// Barrier function φ_μ(x) (eq. (3)) with the one-sided damping of Sect. 3.7.
     fn phi(&self, f: f64, x: &[f64]) -> f64 {
         let mut b = 0.0;
-        for &i in &self.bounded {
-            if self.has_l[i] {
-                b -= (x[i] - self.l[i]).ln();
-                if !self.has_u[i] {
-                    b += KAPPA_D * (x[i] - self.l[i]);
+        for (j, &i) in self.bounded.iter().enumerate() {
+            if self.has_l[j] {
+                b -= (x[i] - self.l[j]).ln();
+                if !self.has_u[j] {
+                    b += KAPPA_D * (x[i] - self.l[j]);
                 }
             }
-            if self.has_u[i] {
-                b -= (self.u[i] - x[i]).ln();
-                if !self.has_l[i] {
-                    b += KAPPA_D * (self.u[i] - x[i]);
+            if self.has_u[j] {
+                b -= (self.u[j] - x[i]).ln();
+                if !self.has_l[j] {
+                    b += KAPPA_D * (self.u[j] - x[i]);
                 }
             }
         }
@@ -486,16 +502,16 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     /// ∇φ_μ at the current point.
     fn grad_phi(&self) -> Vec<f64> {
         let mut g = self.grad.clone();
-        for &i in &self.bounded {
-            if self.has_l[i] {
-                g[i] -= self.mu / (self.x[i] - self.l[i]);
-                if !self.has_u[i] {
+        for (j, &i) in self.bounded.iter().enumerate() {
+            if self.has_l[j] {
+                g[i] -= self.mu / (self.x[i] - self.l[j]);
+                if !self.has_u[j] {
                     g[i] += KAPPA_D * self.mu;
                 }
             }
-            if self.has_u[i] {
-                g[i] += self.mu / (self.u[i] - self.x[i]);
-                if !self.has_l[i] {
+            if self.has_u[j] {
+                g[i] += self.mu / (self.u[j] - self.x[i]);
+                if !self.has_l[j] {
                     g[i] -= KAPPA_D * self.mu;
                 }
             }
@@ -514,8 +530,8 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     fn dual_residual(&self) -> Vec<f64> {
         let mut r = self.grad.clone();
         self.jt_times(&self.y, &mut r);
-        for &i in &self.bounded {
-            r[i] += self.zu[i] - self.zl[i];
+        for (j, &i) in self.bounded.iter().enumerate() {
+            r[i] += self.zu[j] - self.zl[j];
         }
         r
     }
@@ -531,14 +547,14 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         let primal = norm_inf(&self.c);
         let mut compl = 0.0f64;
         let mut z1 = 0.0;
-        for &i in &self.bounded {
-            if self.has_l[i] {
-                compl = compl.max((self.zl[i] * (self.x[i] - self.l[i]) - mu).abs());
-                z1 += self.zl[i].abs();
+        for (j, &i) in self.bounded.iter().enumerate() {
+            if self.has_l[j] {
+                compl = compl.max((self.zl[j] * (self.x[i] - self.l[j]) - mu).abs());
+                z1 += self.zl[j].abs();
             }
-            if self.has_u[i] {
-                compl = compl.max((self.zu[i] * (self.u[i] - self.x[i]) - mu).abs());
-                z1 += self.zu[i].abs();
+            if self.has_u[j] {
+                compl = compl.max((self.zu[j] * (self.u[j] - self.x[i]) - mu).abs());
+                z1 += self.zu[j].abs();
             }
         }
         let y1: f64 = self.y.iter().map(|v| v.abs()).sum();
@@ -558,12 +574,12 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
 
     fn unscaled_compl(&self) -> f64 {
         let mut v = 0.0f64;
-        for &i in &self.bounded {
-            if self.has_l[i] {
-                v = v.max(self.zl[i] * (self.x[i] - self.l[i]));
+        for (j, &i) in self.bounded.iter().enumerate() {
+            if self.has_l[j] {
+                v = v.max(self.zl[j] * (self.x[i] - self.l[j]));
             }
-            if self.has_u[i] {
-                v = v.max(self.zu[i] * (self.u[i] - self.x[i]));
+            if self.has_u[j] {
+                v = v.max(self.zu[j] * (self.u[j] - self.x[i]));
             }
         }
         v / self.sf
@@ -633,8 +649,11 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             return;
         }
         let mut rhs = vec![0.0; self.n + self.m];
-        for i in 0..self.n {
-            rhs[i] = -(self.grad[i] - self.zl[i] + self.zu[i]);
+        for (r, g) in rhs.iter_mut().zip(&self.grad) {
+            *r = -g;
+        }
+        for (j, &i) in self.bounded.iter().enumerate() {
+            rhs[i] = -(self.grad[i] - self.zl[j] + self.zu[j]);
         }
         self.kkt_solve(&mut rhs);
         let y = &rhs[self.n..];
@@ -647,13 +666,13 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
 
     /// Σ = X_L⁻¹ Z_L + X_U⁻¹ Z_U.
     fn update_sigma(&mut self) {
-        for &i in &self.bounded {
+        for (j, &i) in self.bounded.iter().enumerate() {
             let mut s = 0.0;
-            if self.has_l[i] {
-                s += self.zl[i] / (self.x[i] - self.l[i]);
+            if self.has_l[j] {
+                s += self.zl[j] / (self.x[i] - self.l[j]);
             }
-            if self.has_u[i] {
-                s += self.zu[i] / (self.u[i] - self.x[i]);
+            if self.has_u[j] {
+                s += self.zu[j] / (self.u[j] - self.x[i]);
             }
             self.sigma[i] = s;
         }
@@ -743,24 +762,24 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         if !all_finite(&rhs) {
             return (None, residual);
         }
-        let dx = rhs[..n].to_vec();
-        let dy = rhs[n..].to_vec();
-        let (dzl, dzu) = self.bound_steps(&dx);
-        (Some(Direction { dx, dy, dzl, dzu }), residual)
+        let (dzl, dzu) = self.bound_steps(&rhs[..n]);
+        (Some(Direction { n, dxy: rhs, dzl, dzu }), residual)
     }
 
+    /// The bound-multiplier steps (eq. (11)) of the bounded variables, in the order of
+    /// [`Self::bounded`].
     fn bound_steps(&self, dx: &[f64]) -> (Vec<f64>, Vec<f64>) {
-        let n = self.n;
-        let mut dzl = vec![0.0; n];
-        let mut dzu = vec![0.0; n];
-        for &i in &self.bounded {
-            if self.has_l[i] {
-                let s = self.x[i] - self.l[i];
-                dzl[i] = (self.mu - self.zl[i] * s - self.zl[i] * dx[i]) / s;
+        let nb = self.bounded.len();
+        let mut dzl = vec![0.0; nb];
+        let mut dzu = vec![0.0; nb];
+        for (j, &i) in self.bounded.iter().enumerate() {
+            if self.has_l[j] {
+                let s = self.x[i] - self.l[j];
+                dzl[j] = (self.mu - self.zl[j] * s - self.zl[j] * dx[i]) / s;
             }
-            if self.has_u[i] {
-                let s = self.u[i] - self.x[i];
-                dzu[i] = (self.mu - self.zu[i] * s + self.zu[i] * dx[i]) / s;
+            if self.has_u[j] {
+                let s = self.u[j] - self.x[i];
+                dzu[j] = (self.mu - self.zu[j] * s + self.zu[j] * dx[i]) / s;
             }
         }
         (dzl, dzu)
@@ -769,12 +788,12 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     /// Largest α ≤ 1 keeping x + α dx at least a fraction (1 − τ) inside the bounds (eq. (15)).
     fn max_step_primal(&self, x: &[f64], dx: &[f64], tau: f64) -> f64 {
         let mut a = 1.0f64;
-        for &i in &self.bounded {
-            if self.has_l[i] && dx[i] < 0.0 {
-                a = a.min(-tau * (x[i] - self.l[i]) / dx[i]);
+        for (j, &i) in self.bounded.iter().enumerate() {
+            if self.has_l[j] && dx[i] < 0.0 {
+                a = a.min(-tau * (x[i] - self.l[j]) / dx[i]);
             }
-            if self.has_u[i] && dx[i] > 0.0 {
-                a = a.min(tau * (self.u[i] - x[i]) / dx[i]);
+            if self.has_u[j] && dx[i] > 0.0 {
+                a = a.min(tau * (self.u[j] - x[i]) / dx[i]);
             }
         }
         a
@@ -782,12 +801,12 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
 
     fn max_step_dual(&self, dzl: &[f64], dzu: &[f64]) -> f64 {
         let mut a = 1.0f64;
-        for &i in &self.bounded {
-            if self.has_l[i] && dzl[i] < 0.0 {
-                a = a.min(-self.tau * self.zl[i] / dzl[i]);
+        for j in 0..self.bounded.len() {
+            if self.has_l[j] && dzl[j] < 0.0 {
+                a = a.min(-self.tau * self.zl[j] / dzl[j]);
             }
-            if self.has_u[i] && dzu[i] < 0.0 {
-                a = a.min(-self.tau * self.zu[i] / dzu[i]);
+            if self.has_u[j] && dzu[j] < 0.0 {
+                a = a.min(-self.tau * self.zu[j] / dzu[j]);
             }
         }
         a
@@ -930,12 +949,13 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             self.note(|| "no usable direction; restoration".into());
             return self.restore();
         };
-        self.last_step_norm = norm_inf(&dir.dx);
+        self.last_step_norm = norm_inf(dir.dx());
         // Sect. 3.9: tiny steps
-        let tiny = (0..self.n).all(|i| dir.dx[i].abs() <= 10.0 * f64::EPSILON * (1.0 + self.x[i].abs()));
+        let tiny =
+            dir.dx().iter().zip(&self.x).all(|(d, x)| d.abs() <= 10.0 * f64::EPSILON * (1.0 + x.abs()));
         if tiny {
             self.tiny_step = true;
-            let alpha = self.max_step_primal(&self.x, &dir.dx, self.tau);
+            let alpha = self.max_step_primal(&self.x, dir.dx(), self.tau);
             self.accept(&dir, alpha, None)?;
             return Ok(());
         }
@@ -961,8 +981,8 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
                 self.c = c;
             }
             None => {
-                for i in 0..self.n {
-                    self.x[i] += alpha * dir.dx[i];
+                for (x, dx) in self.x.iter_mut().zip(dir.dx()) {
+                    *x += alpha * dx;
                 }
                 let x = self.x.clone();
                 self.f = self.eval_f(&x);
@@ -979,15 +999,15 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
                 }
             }
         }
-        for r in 0..self.m {
-            self.y[r] += alpha * dir.dy[r];
+        for (y, dy) in self.y.iter_mut().zip(dir.dy()) {
+            *y += alpha * dy;
         }
-        for &i in &self.bounded {
-            if self.has_l[i] {
-                self.zl[i] += alpha_z * dir.dzl[i];
+        for j in 0..self.bounded.len() {
+            if self.has_l[j] {
+                self.zl[j] += alpha_z * dir.dzl[j];
             }
-            if self.has_u[i] {
-                self.zu[i] += alpha_z * dir.dzu[i];
+            if self.has_u[j] {
+                self.zu[j] += alpha_z * dir.dzu[j];
             }
         }
         self.reset_bound_multipliers();
@@ -1002,22 +1022,22 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     fn reset_bound_multipliers(&mut self) {
         let tiny = f64::EPSILON * self.mu;
         let shift = f64::EPSILON.powf(0.75);
-        for &i in &self.bounded {
-            if self.has_l[i] && self.x[i] - self.l[i] < tiny {
-                self.l[i] -= shift * self.l[i].abs().max(1.0);
+        for (j, &i) in self.bounded.iter().enumerate() {
+            if self.has_l[j] && self.x[i] - self.l[j] < tiny {
+                self.l[j] -= shift * self.l[j].abs().max(1.0);
             }
-            if self.has_u[i] && self.u[i] - self.x[i] < tiny {
-                self.u[i] += shift * self.u[i].abs().max(1.0);
+            if self.has_u[j] && self.u[j] - self.x[i] < tiny {
+                self.u[j] += shift * self.u[j].abs().max(1.0);
             }
         }
-        for &i in &self.bounded {
-            if self.has_l[i] {
-                let s = self.x[i] - self.l[i];
-                self.zl[i] = self.zl[i].min(KAPPA_SIGMA * self.mu / s).max(self.mu / (KAPPA_SIGMA * s));
+        for (j, &i) in self.bounded.iter().enumerate() {
+            if self.has_l[j] {
+                let s = self.x[i] - self.l[j];
+                self.zl[j] = self.zl[j].min(KAPPA_SIGMA * self.mu / s).max(self.mu / (KAPPA_SIGMA * s));
             }
-            if self.has_u[i] {
-                let s = self.u[i] - self.x[i];
-                self.zu[i] = self.zu[i].min(KAPPA_SIGMA * self.mu / s).max(self.mu / (KAPPA_SIGMA * s));
+            if self.has_u[j] {
+                let s = self.u[j] - self.x[i];
+                self.zu[j] = self.zu[j].min(KAPPA_SIGMA * self.mu / s).max(self.mu / (KAPPA_SIGMA * s));
             }
         }
     }
@@ -1077,8 +1097,8 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         if !phi.is_finite() {
             return Ok(LineSearch::Failed);
         }
-        let gd: f64 = gphi.iter().zip(&dir.dx).map(|(a, b)| a * b).sum();
-        let alpha_max = self.max_step_primal(&self.x, &dir.dx, self.tau);
+        let gd: f64 = gphi.iter().zip(dir.dx()).map(|(a, b)| a * b).sum();
+        let alpha_max = self.max_step_primal(&self.x, dir.dx(), self.tau);
         // eq. (23): minimum step
         let alpha_min = GAMMA_ALPHA
             * if gd < 0.0 {
@@ -1097,15 +1117,18 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         let mut x_trial = vec![0.0; self.n];
         loop {
             // the step has become negligible: x + α d_x would not move x
-            let negligible = (0..self.n)
-                .all(|i| (alpha * dir.dx[i]).abs() <= 10.0 * f64::EPSILON * (1.0 + self.x[i].abs()));
+            let negligible = dir
+                .dx()
+                .iter()
+                .zip(&self.x)
+                .all(|(d, x)| (alpha * d).abs() <= 10.0 * f64::EPSILON * (1.0 + x.abs()));
             if (alpha < alpha_min || negligible) && trials > 0 {
                 self.last_trials = trials;
                 return Ok(LineSearch::Failed);
             }
             trials += 1;
-            for i in 0..self.n {
-                x_trial[i] = self.x[i] + alpha * dir.dx[i];
+            for ((xt, x), d) in x_trial.iter_mut().zip(&self.x).zip(dir.dx()) {
+                *xt = x + alpha * d;
             }
             let Some((f_t, c_t)) = self.eval_trial(&x_trial) else {
                 alpha *= 0.5;
@@ -1206,8 +1229,8 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             let Some(soc) = self.direction_from_rhs(rx, &c_soc).0 else {
                 return Ok(None);
             };
-            let a_soc = self.max_step_primal(&self.x, &soc.dx, self.tau);
-            let x_soc: Vec<f64> = (0..self.n).map(|i| self.x[i] + a_soc * soc.dx[i]).collect();
+            let a_soc = self.max_step_primal(&self.x, soc.dx(), self.tau);
+            let x_soc: Vec<f64> = self.x.iter().zip(soc.dx()).map(|(x, d)| x + a_soc * d).collect();
             let Some((f_s, c_s)) = self.eval_trial(&x_soc) else {
                 return Ok(None);
             };
@@ -1333,8 +1356,12 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         let mut g = vec![0.0; self.n];
         self.jt_times(&self.c, &mut g);
         let mut pg = 0.0f64;
+        let mut bounds = self.bounded.iter().zip(self.l.iter().zip(&self.u)).peekable();
         for i in 0..self.n {
-            let p = (self.x[i] - g[i]).max(self.l[i]).min(self.u[i]);
+            let mut p = self.x[i] - g[i];
+            if let Some((_, (&l, &u))) = bounds.next_if(|&(&b, _)| b == i) {
+                p = p.max(l).min(u);
+            }
             pg = pg.max((self.x[i] - p).abs());
         }
         pg / norm_inf(&self.c).max(f64::MIN_POSITIVE)
@@ -1416,6 +1443,16 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         matches!(cb(&summary), ControlFlow::Break(()))
     }
 
+    /// The unscaled bound multipliers `z` (stored for the bounded variables) as a vector over
+    /// all variables, zero for the free ones.
+    fn full_length(&self, z: &[f64]) -> Vec<f64> {
+        let mut out = vec![0.0; self.n];
+        for (&i, z) in self.bounded.iter().zip(z) {
+            out[i] = z / self.sf;
+        }
+        out
+    }
+
     fn finish(mut self, status: Status) -> NlpSolution {
         // never report a non-finite point as a success
         let finite = all_finite(&self.x)
@@ -1456,8 +1493,8 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         NlpSolution {
             w: std::mem::take(&mut self.x),
             lambda,
-            z_lower: self.zl.iter().map(|z| z / self.sf).collect(),
-            z_upper: self.zu.iter().map(|z| z / self.sf).collect(),
+            z_lower: self.full_length(&self.zl),
+            z_upper: self.full_length(&self.zu),
             report,
         }
     }
