@@ -54,16 +54,17 @@ pub const DEFAULT_MAX_MEAN_WIDTH: usize = 64;
 pub struct BandLdlt {
     n: usize,
     m: usize,
-    /// `perm[p]` = original row of position `p`.
-    perm: Vec<usize>,
+    /// `perm[p]` = original row of position `p`. The index arrays are `u32`, as the KKT
+    /// patterns are ([`KktStructure`]); the analysis rejects an envelope of 2³² entries or more.
+    perm: Vec<u32>,
     /// `iperm[g]` = position of original row `g`.
-    iperm: Vec<usize>,
+    iperm: Vec<u32>,
     /// Number of [`KktSolver::analyse`] calls answered by reusing the previous analysis.
     reused: usize,
     /// First stored column of each row.
-    first: Vec<usize>,
+    first: Vec<u32>,
     /// Start of each row in `values` / `factor`; the row's diagonal is at `row_ptr[p + 1] − 1`.
-    row_ptr: Vec<usize>,
+    row_ptr: Vec<u32>,
     /// Row groups `(p0, end)`, ascending: at least two consecutive rows with the same first
     /// column f < p0 (for example the defect constraints of one transcription interval), so
     /// that the factorisation handles the columns f..p0 before the group once for up to four
@@ -131,8 +132,11 @@ impl BandLdlt {
             return false;
         }
         let (iperm, first, row_ptr) = (&self.iperm, &self.first, &self.row_ptr);
-        let lower = |a: usize, b: usize| if a >= b { (a, b) } else { (b, a) };
-        let slot = |(r, c): (usize, usize)| (c >= first[r]).then(|| row_ptr[r] + (c - first[r]));
+        let lower = |a: u32, b: u32| if a >= b { (a as usize, b as usize) } else { (b as usize, a as usize) };
+        let slot = |(r, c): (usize, usize)| {
+            let f = first[r] as usize;
+            (c >= f).then(|| row_ptr[r] as usize + (c - f))
+        };
         let in_range = |&(i, j): &(usize, usize), rows: usize| i < rows && j < n;
         if !s.hessian_entries().all(|e| in_range(&e, n)) || !s.jacobian_entries().all(|e| in_range(&e, m)) {
             return false;
@@ -157,14 +161,20 @@ impl BandLdlt {
     }
 
     /// The ordering: `perm[p]` = original row at position `p`.
-    pub fn permutation(&self) -> &[usize] {
+    pub fn permutation(&self) -> &[u32] {
         &self.perm
+    }
+
+    /// Row p's first column, start in `values` / `factor`, and diagonal slot.
+    #[inline]
+    fn row(&self, p: usize) -> (usize, usize, usize) {
+        (self.first[p] as usize, self.row_ptr[p] as usize, self.row_ptr[p + 1] as usize - 1)
     }
 
     /// y = K x in permuted coordinates, from the stored lower envelope.
     fn sym_matvec(&self, x: &[f64], y: &mut [f64]) {
         for p in 0..x.len() {
-            let (f, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1] - 1);
+            let (f, start, end) = self.row(p);
             let xp = x[p];
             let mut acc = self.values[end] * xp;
             if f < p {
@@ -181,7 +191,7 @@ impl BandLdlt {
     fn solve_permuted(&self, x: &mut [f64]) {
         let dim = x.len();
         for p in 0..dim {
-            let (f, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1] - 1);
+            let (f, start, end) = self.row(p);
             if f < p {
                 x[p] -= dot(&self.factor[start..end], &x[f..p]);
             }
@@ -190,7 +200,7 @@ impl BandLdlt {
             *xp *= inv;
         }
         for p in (0..dim).rev() {
-            let (f, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1] - 1);
+            let (f, start, end) = self.row(p);
             if f < p {
                 let xp = x[p];
                 let (head, _) = x.split_at_mut(p);
@@ -226,7 +236,7 @@ fn multi_dot<const R: usize>(rows: [&[f64]; R], x: &[f64]) -> [f64; R] {
 
 /// The runs of at least two consecutive rows with the same first column f < p0 (see
 /// [`BandLdlt`]'s `groups`).
-fn row_groups(first: &[usize]) -> Vec<(usize, usize)> {
+fn row_groups(first: &[u32]) -> Vec<(usize, usize)> {
     let mut groups = Vec::new();
     let mut p0 = 0;
     while p0 < first.len() {
@@ -234,7 +244,7 @@ fn row_groups(first: &[usize]) -> Vec<(usize, usize)> {
         while end < first.len() && first[end] == first[p0] {
             end += 1;
         }
-        if first[p0] < p0 && end - p0 >= 2 {
+        if (first[p0] as usize) < p0 && end - p0 >= 2 {
             groups.push((p0, end));
         }
         p0 = end;
@@ -251,8 +261,8 @@ fn factor_shared_columns<const R: usize>(
     rows: &mut [f64],
     lens: [usize; R],
     done: &[f64],
-    first: &[usize],
-    row_ptr: &[usize],
+    first: &[u32],
+    row_ptr: &[u32],
     f: usize,
     p0: usize,
 ) {
@@ -263,12 +273,12 @@ fn factor_shared_columns<const R: usize>(
         a
     });
     for j in f + 1..p0 {
-        let k0 = f.max(first[j]);
+        let k0 = f.max(first[j] as usize);
         if k0 >= j {
             continue; // row j starts at its diagonal: nothing to subtract
         }
         let (a, b) = (k0 - f, j - f);
-        let dj = row_ptr[j + 1] - 1;
+        let dj = row_ptr[j + 1] as usize - 1;
         let lj = &done[dj - (b - a)..dj];
         let s = multi_dot(rows.each_ref().map(|r| &r[a..b]), lj);
         for i in 0..R {
@@ -429,10 +439,16 @@ impl KktSolver for BandLdlt {
         self.n = n;
         self.m = m;
         self.factored = false;
+        if dim > u32::MAX as usize {
+            return Err(Error::InvalidOption {
+                name: "linear_solver".into(),
+                reason: format!("the band solver indexes at most 2^32 - 1 rows, not {dim}"),
+            });
+        }
         self.perm = match s.order {
             Some(hint) => {
                 super::kkt::check_order(hint, dim)?;
-                hint.to_vec()
+                hint.iter().map(|&g| g as u32).collect()
             }
             None => {
                 let (dense_var, dense_row) = super::kkt::dense_variables_and_rows(s)?;
@@ -441,16 +457,17 @@ impl KktSolver for BandLdlt {
                 for (p, &v) in order.iter().enumerate() {
                     pos[v] = p;
                 }
-                super::kkt::place_constraints(s, &order, &pos, &dense_var, &dense_row)
+                let perm = super::kkt::place_constraints(s, &order, &pos, &dense_var, &dense_row);
+                perm.into_iter().map(|g| g as u32).collect()
             }
         };
-        let mut iperm = vec![0usize; dim];
+        let mut iperm = vec![0u32; dim];
         for (p, &g) in self.perm.iter().enumerate() {
-            iperm[g] = p;
+            iperm[g as usize] = p as u32;
         }
         // envelope: first stored column of each row
-        let mut first: Vec<usize> = (0..dim).collect();
-        let lower = |a: usize, b: usize| if a >= b { (a, b) } else { (b, a) };
+        let mut first: Vec<u32> = (0..dim as u32).collect();
+        let lower = |a: u32, b: u32| if a >= b { (a as usize, b) } else { (b as usize, a) };
         let entries = s
             .hessian_entries()
             .map(|(i, j)| lower(iperm[i], iperm[j]))
@@ -458,12 +475,8 @@ impl KktSolver for BandLdlt {
         for (r, c) in entries.clone() {
             first[r] = first[r].min(c);
         }
-        let mut row_ptr = vec![0usize; dim + 1];
-        for p in 0..dim {
-            row_ptr[p + 1] = row_ptr[p] + (p - first[p] + 1);
-        }
-        let size = row_ptr[dim];
-        if size > self.max_mean_width.saturating_mul(dim.max(1)) {
+        let size: usize = (0..dim).map(|p| p - first[p] as usize + 1).sum();
+        if size > self.max_mean_width.saturating_mul(dim.max(1)) || size > u32::MAX as usize {
             return Err(Error::InvalidOption {
                 name: "linear_solver".into(),
                 reason: format!(
@@ -471,12 +484,16 @@ impl KktSolver for BandLdlt {
                 ),
             });
         }
-        let slot = |(r, c): (usize, usize)| row_ptr[r] + (c - first[r]);
+        let mut row_ptr = vec![0u32; dim + 1];
+        for p in 0..dim {
+            row_ptr[p + 1] = row_ptr[p] + (p as u32 - first[p] + 1);
+        }
+        let slot = |(r, c): (usize, u32)| row_ptr[r] as usize + (c - first[r]) as usize;
         self.slots = SlotMap::try_new(
             size,
             s.hessian_entries().map(|(i, j)| slot(lower(iperm[i], iperm[j]))),
             s.jacobian_entries().map(|(r, c)| slot(lower(iperm[n + r], iperm[c]))),
-            (0..dim).map(|g| row_ptr[iperm[g] + 1] - 1),
+            (0..dim).map(|g| row_ptr[iperm[g] as usize + 1] as usize - 1),
         )?;
         self.groups = row_groups(&first);
         self.first = first;
@@ -507,7 +524,8 @@ impl KktSolver for BandLdlt {
         let mut total = 0.0f64;
         let mut row_sums = std::mem::take(&mut self.work_r);
         for p in 0..dim {
-            let (f, start, end) = (self.first[p], self.row_ptr[p], self.row_ptr[p + 1]);
+            let (f, start, diag_slot) = self.row(p);
+            let end = diag_slot + 1;
             let (src, dst) = (&self.values[start..end], &mut self.factor[start..end]);
             let (&diag, offdiag) = src.split_last().expect("a row holds its diagonal");
             let mut s = diag.abs();
@@ -541,10 +559,10 @@ impl KktSolver for BandLdlt {
         // turns row p (u_p· for the columns f_p..p, then a_pp) into l_p· and d_p; None for a
         // non-finite pivot
         let mut finish = |p: usize, row: &mut [f64]| -> Option<()> {
-            let w = p - first[p];
-            let (offdiag, diag) = row.split_at_mut(w);
+            let fp = first[p] as usize;
+            let (offdiag, diag) = row.split_at_mut(p - fp);
             let mut d = diag[0];
-            for (u, &inv) in offdiag.iter_mut().zip(&inv_d[first[p]..p]) {
+            for (u, &inv) in offdiag.iter_mut().zip(&inv_d[fp..p]) {
                 let l = *u * inv;
                 d -= *u * l;
                 *u = l;
@@ -571,14 +589,14 @@ impl KktSolver for BandLdlt {
             // `len` entries before the diagonal of row j against the entries of row p before
             // column j (row p holds u_p· for the columns already done)
             for q in p..p0 {
-                let (done, rest) = factor.split_at_mut(row_ptr[q]);
-                let row = &mut rest[..row_ptr[q + 1] - row_ptr[q]];
-                let fq = first[q];
+                let (done, rest) = factor.split_at_mut(row_ptr[q] as usize);
+                let row = &mut rest[..(row_ptr[q + 1] - row_ptr[q]) as usize];
+                let fq = first[q] as usize;
                 for jj in 1..q - fq {
                     let j = fq + jj;
-                    let len = jj.min(j - first[j]);
+                    let len = jj.min(j - first[j] as usize);
                     if len > 0 {
-                        let dj = row_ptr[j + 1] - 1;
+                        let dj = row_ptr[j + 1] as usize - 1;
                         row[jj] -= dot(&row[jj - len..jj], &done[dj - len..dj]);
                     }
                 }
@@ -587,17 +605,18 @@ impl KktSolver for BandLdlt {
             if p0 == dim {
                 break;
             }
-            let f = first[p0];
+            let f = first[p0] as usize;
             // a group: the columns f + 1..p0 before it (column f needs nothing), up to four
             // rows at a time
-            let (done, rest) = factor.split_at_mut(row_ptr[p0]);
-            let mut seg = &mut rest[..row_ptr[end] - row_ptr[p0]];
+            let (done, rest) = factor.split_at_mut(row_ptr[p0] as usize);
+            let mut seg = &mut rest[..(row_ptr[end] - row_ptr[p0]) as usize];
             let mut t = p0;
             while t < end {
                 let r = (end - t).min(4);
-                let (chunk, tail) = std::mem::take(&mut seg).split_at_mut(row_ptr[t + r] - row_ptr[t]);
+                let (chunk, tail) =
+                    std::mem::take(&mut seg).split_at_mut((row_ptr[t + r] - row_ptr[t]) as usize);
                 seg = tail;
-                let len = |i: usize| row_ptr[t + i + 1] - row_ptr[t + i];
+                let len = |i: usize| (row_ptr[t + i + 1] - row_ptr[t + i]) as usize;
                 let (fr, rp) = (first, row_ptr);
                 match r {
                     4 => factor_shared_columns(chunk, [len(0), len(1), len(2), len(3)], done, fr, rp, f, p0),
@@ -611,11 +630,12 @@ impl KktSolver for BandLdlt {
             // rows of the group were finished; finish row q and update the later rows t of the
             // group at column q: u_tq = a_tq − Σ_{k=f}^{q−1} u_tk l_qk
             for q in p0..end {
-                let (head, tail) = factor.split_at_mut(row_ptr[q + 1]);
-                finish(q, &mut head[row_ptr[q]..])?;
+                let (q0, q1) = (row_ptr[q] as usize, row_ptr[q + 1] as usize);
+                let (head, tail) = factor.split_at_mut(q1);
+                finish(q, &mut head[q0..])?;
                 let w = q - f;
-                let lq = &head[row_ptr[q]..row_ptr[q + 1] - 1];
-                let mut seg = &mut tail[..row_ptr[end] - row_ptr[q + 1]];
+                let lq = &head[q0..q1 - 1];
+                let mut seg = &mut tail[..row_ptr[end] as usize - q1];
                 for t in q + 1..end {
                     let (rt, rest) = std::mem::take(&mut seg).split_at_mut(t - f + 1);
                     seg = rest;
@@ -641,7 +661,7 @@ impl KktSolver for BandLdlt {
         let mut r = std::mem::take(&mut self.work_r);
         let mut prev = std::mem::take(&mut self.work_prev);
         for p in 0..dim {
-            b[p] = rhs[self.perm[p]];
+            b[p] = rhs[self.perm[p] as usize];
         }
         self.last_residual = super::kkt::refine(
             &b,
@@ -655,7 +675,7 @@ impl KktSolver for BandLdlt {
             |x| self.solve_permuted(x),
         );
         for p in 0..dim {
-            rhs[self.perm[p]] = x[p];
+            rhs[self.perm[p] as usize] = x[p];
         }
         self.work_b = b;
         self.work_x = x;
@@ -717,7 +737,9 @@ mod tests {
             KktValues { hessian: &hv, jacobian: &jv, primal_diagonal: &sigma, delta_w: 0.5, delta_c: 1e-3 };
         let info = band.factorize(&values).unwrap();
         assert_eq!(info.regularized_pivots, 0);
-        let (first, ptr, l) = (&band.first, &band.row_ptr, &band.factor);
+        let first: Vec<usize> = band.first.iter().map(|&f| f as usize).collect();
+        let ptr: Vec<usize> = band.row_ptr.iter().map(|&r| r as usize).collect();
+        let l = &band.factor;
         let entry = |p: usize, k: usize| if k < first[p] { 0.0 } else { l[ptr[p] + k - first[p]] };
         let scale = band.values.iter().fold(0.0f64, |a, v| a.max(v.abs()));
         for p in 0..n + m {

@@ -1266,6 +1266,7 @@ fn band_ordering_is_a_permutation() {
         band.analyse(&structure).unwrap();
         let mut seen = vec![false; n + m];
         for &g in band.permutation() {
+            let g = g as usize;
             assert!(!seen[g], "trial {trial}: {g} placed twice");
             seen[g] = true;
         }
