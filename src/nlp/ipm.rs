@@ -826,12 +826,15 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     // ---------------------------------------------------------------- main loop
 
     fn initialize(&mut self) -> Option<Status> {
-        let x = self.x.clone();
-        let mut g = vec![0.0; self.n];
+        // evaluated into the iterate's arrays (the scaling below is 1 until set)
+        let x = std::mem::take(&mut self.x);
+        let mut g = std::mem::take(&mut self.grad);
         self.eval_grad(&x, &mut g);
-        let mut jac = vec![0.0; self.jac.len()];
+        let mut jac = std::mem::take(&mut self.jac);
         self.eval_jac(&x, &mut jac);
+        self.x = x;
         if !all_finite(&g) || !all_finite(&jac) {
+            (self.grad, self.jac) = (g, jac);
             return Some(Status::EvaluationError);
         }
         // Sect. 3.8: gradient-based scaling
@@ -855,10 +858,12 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         }
         self.grad = g;
         self.jac = jac;
+        let x = std::mem::take(&mut self.x);
         self.f = self.eval_f(&x);
-        let mut c = vec![0.0; self.m];
+        let mut c = std::mem::take(&mut self.c);
         self.eval_c(&x, &mut c);
         self.c = c;
+        self.x = x;
         if !self.f.is_finite() || !all_finite(&self.c) {
             return Some(Status::EvaluationError);
         }
