@@ -119,8 +119,9 @@ pub struct PathNlp<'a, S: Sde + ?Sized, O: Observation + ?Sized> {
     /// `jacobian_values` and `hessian_values` at the same variable vector.
     cache: PointCache,
     initial: Vec<f64>,
-    lower: Vec<f64>,
-    upper: Vec<f64>,
+    /// The finite bounds, (variable, lower, upper): those of the initial-state priors and of
+    /// the estimated parameters; every other variable is free.
+    bounds: Vec<(usize, f64, f64)>,
 }
 
 impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
@@ -237,17 +238,15 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         for (j, &i) in problem.estimate.iter().enumerate() {
             initial[theta0 + j] = problem.theta[i];
         }
-        let mut lower = vec![f64::NEG_INFINITY; n_vars];
-        let mut upper = vec![f64::INFINITY; n_vars];
+        let mut bounds = Vec::new();
         for (i, p) in problem.x0_prior.iter().chain(problem.z0_prior).enumerate() {
-            lower[i] = p.lower;
-            upper[i] = p.upper;
+            bounds.push((i, p.lower, p.upper));
             initial[i] = initial[i].clamp(p.lower, p.upper);
         }
         for (j, &i) in problem.estimate.iter().enumerate() {
-            lower[theta0 + j] = problem.theta_prior[i].lower;
-            upper[theta0 + j] = problem.theta_prior[i].upper;
+            bounds.push((theta0 + j, problem.theta_prior[i].lower, problem.theta_prior[i].upper));
         }
+        bounds.retain(|&(_, l, u)| l.is_finite() || u.is_finite());
         PathNlp {
             problem,
             merit,
@@ -266,8 +265,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
             hs_jac_constant,
             cache: PointCache::default(),
             initial,
-            lower,
-            upper,
+            bounds,
         }
     }
 
@@ -1225,8 +1223,12 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
     }
 
     fn bounds(&self, lower: &mut [f64], upper: &mut [f64]) {
-        lower.copy_from_slice(&self.lower);
-        upper.copy_from_slice(&self.upper);
+        lower.fill(f64::NEG_INFINITY);
+        upper.fill(f64::INFINITY);
+        for &(i, l, u) in &self.bounds {
+            lower[i] = l;
+            upper[i] = u;
+        }
     }
 
     fn initial_point(&self, w: &mut [f64]) {
