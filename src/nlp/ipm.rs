@@ -880,7 +880,8 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         }
         loop {
             // convergence test (Sect. 2.1)
-            let dual = norm_inf(&self.dual_residual());
+            let residual = self.dual_residual();
+            let dual = norm_inf(&residual);
             let e0 = self.optimality_error_with(0.0, dual);
             let primal_unscaled = self.unscaled_primal();
             let f_unscaled = self.f / self.sf;
@@ -936,18 +937,25 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             if !self.eval_hess() {
                 return Status::EvaluationError;
             }
-            let status = self.step().err();
+            let status = self.step(residual).err();
             if let Some(s) = status {
                 return s;
             }
         }
     }
 
-    /// One iteration: direction, line search (or restoration), update.
-    fn step(&mut self) -> std::result::Result<(), Status> {
+    /// One iteration: direction, line search (or restoration), update. `dual_residual` is
+    /// ∇f + Jᵀy − z_L + z_U at the iterate ([`Self::dual_residual`]).
+    fn step(&mut self, dual_residual: Vec<f64>) -> std::result::Result<(), Status> {
         let gphi = self.grad_phi();
-        let mut rx = gphi.clone();
-        self.jt_times(&self.y, &mut rx);
+        // r_x = ∇φ_μ + Jᵀy, which without bounds is the dual residual, entry for entry
+        let rx = if self.bounded.is_empty() {
+            dual_residual
+        } else {
+            let mut rx = gphi.clone();
+            self.jt_times(&self.y, &mut rx);
+            rx
+        };
         let rc = self.c.clone();
         let dir = self.direction_with_inertia_correction(&rx, &rc);
         let Some(dir) = dir else {
@@ -1060,12 +1068,11 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         }
     }
 
-    /// ∇f and the Jacobian values at `x` into the iterate's arrays (zeroed first).
+    /// ∇f and the Jacobian values at `x` into the iterate's arrays, which the problem
+    /// overwrites ([`NlpProblem::gradient`], [`NlpProblem::jacobian_values`]).
     fn eval_derivatives_into_iterate(&mut self, x: &[f64]) {
         let mut g = std::mem::take(&mut self.grad);
         let mut j = std::mem::take(&mut self.jac);
-        g.fill(0.0);
-        j.fill(0.0);
         self.eval_grad(x, &mut g);
         self.eval_jac(x, &mut j);
         self.grad = g;

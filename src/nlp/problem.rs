@@ -37,10 +37,11 @@ pub trait NlpProblem {
     /// The objective $f(w)$.
     fn objective(&mut self, w: &[f64]) -> f64;
 
-    /// Writes the gradient $\nabla f(w)$ (length $n$).
+    /// Writes the gradient $\nabla f(w)$ (length $n$): every entry, since `grad` holds the
+    /// values of an earlier call (or zeros).
     fn gradient(&mut self, w: &[f64], grad: &mut [f64]);
 
-    /// Writes the constraint values $c(w)$ (length $m$).
+    /// Writes the constraint values $c(w)$ (length $m$), every entry.
     fn constraints(&mut self, w: &[f64], c: &mut [f64]);
 
     /// The pattern of the Jacobian $\partial c / \partial w$ as `(row, column)` pairs,
@@ -51,7 +52,8 @@ pub trait NlpProblem {
     fn jacobian_structure(&self) -> Vec<(u32, u32)>;
 
     /// Writes the Jacobian values in the order of
-    /// [`jacobian_structure`](Self::jacobian_structure).
+    /// [`jacobian_structure`](Self::jacobian_structure): every entry, since `values` holds
+    /// those of an earlier call (or zeros).
     fn jacobian_values(&mut self, w: &[f64], values: &mut [f64]);
 
     /// The pattern of the lower triangle of the Hessian of the Lagrangian as `(row, column)`
@@ -61,7 +63,8 @@ pub trait NlpProblem {
 
     /// Writes the values of
     /// $\sigma_f \nabla^2 f(w) + \sum_j \lambda_j \nabla^2 c_j(w)$
-    /// in the order of [`hessian_structure`](Self::hessian_structure).
+    /// in the order of [`hessian_structure`](Self::hessian_structure): every entry, since
+    /// `values` holds those of an earlier call (or zeros).
     fn hessian_values(&mut self, w: &[f64], obj_factor: f64, lambda: &[f64], values: &mut [f64]);
 
     /// An elimination order of the KKT matrix that keeps it banded, when the problem knows one
