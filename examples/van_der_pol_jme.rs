@@ -11,7 +11,9 @@
 //! Run with `cargo run --release --example van_der_pol_jme [REPEATS] [jme|mee] [auto|band|faer] [keep]`
 //! (the third argument chooses the KKT solver, default auto; `keep` passes one solver to every
 //! repeat through `estimate_path_with`, so that the band solver analyses the KKT pattern once,
-//! as a Monte Carlo run can).
+//! as a Monte Carlo run can). An argument `--data-out=PATH` also writes the data as CSV, so that
+//! the same problem can be timed through the CLI (`onsager estimate --model van-der-pol --data
+//! PATH --method jme --likelihood student-t:nu=4,scale=0.5 --step 0.005 --report R.json`).
 
 use rand::SeedableRng;
 
@@ -44,6 +46,9 @@ fn main() -> onsager::Result<()> {
     let truth =
         simulate(&p.model, &p.theta, &[0.0, 0.0], &[], &SimulateOptions::new(0.0, 16.0, 5e-4), &mut rng)?;
     let data = sample_measurements(&p.observation, &p.theta, &truth, 2, 0.1, &mut rng)?;
+    if let Some(path) = std::env::args().find_map(|a| a.strip_prefix("--data-out=").map(String::from)) {
+        data.write_csv(&path)?;
+    }
     let mut observation = p.observation.clone();
     observation.noise = Noise::StudentT { nu: Param::Fixed(4.0), scale: Param::Fixed(0.5) };
     let problem = EstimationProblem {
