@@ -476,7 +476,15 @@ impl KktSolver for BandLdlt {
             first[r] = first[r].min(c);
         }
         let size: usize = (0..dim).map(|p| p - first[p] as usize + 1).sum();
-        if size > self.max_mean_width.saturating_mul(dim.max(1)) || size > u32::MAX as usize {
+        if size > u32::MAX as usize {
+            return Err(Error::InvalidOption {
+                name: "linear_solver".into(),
+                reason: format!(
+                    "the KKT matrix's envelope has {size} entries, more than the band solver's 2^32 - 1"
+                ),
+            });
+        }
+        if size > self.max_mean_width.saturating_mul(dim.max(1)) {
             return Err(Error::InvalidOption {
                 name: "linear_solver".into(),
                 reason: format!(
