@@ -66,10 +66,10 @@
 //!
 //! Latest (main at ec6eba3: bounds and bound multipliers stored for the bounded variables only,
 //! `u32` band indices, no zeroing of the derivative arrays, one Jᵀy pass per iteration fewer;
-//! 2026-11-25, same run): `path_van_der_pol` band 31.20 ms, faer 66.22 ms (band/faer 0.47),
-//! kept 27.61 ms; `path_duffing_joint_36k` 448.6 ms (peak resident memory 178 MB). Callgrind of
-//! `van_der_pol_jme 1`: 533.5 → 499.8 × 10⁶ instructions. Both targets are met in this run:
-//! Van der Pol by 11 %, Duffing by 10 %.
+//! 2026-11-25, two runs): `path_van_der_pol` band 31.20 / 32.64 ms, faer 66.22 / 67.79 ms
+//! (band/faer 0.47 / 0.48), kept 27.61 / 30.10 ms; `path_duffing_joint_36k` 448.6 / 476.5 ms (peak
+//! resident memory 178 MB). Callgrind of `van_der_pol_jme 1`: 533.5 → 499.8 × 10⁶ instructions.
+//! Both targets are met in both runs: Van der Pol by 7–11 %, Duffing by 5–10 %.
 
 use std::hint::black_box;
 use std::time::Duration;
