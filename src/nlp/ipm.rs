@@ -826,51 +826,58 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     // ---------------------------------------------------------------- main loop
 
     fn initialize(&mut self) -> Option<Status> {
-        // evaluated into the iterate's arrays (the scaling below is 1 until set)
         let x = std::mem::take(&mut self.x);
-        let mut g = std::mem::take(&mut self.grad);
-        self.eval_grad(&x, &mut g);
-        let mut jac = std::mem::take(&mut self.jac);
-        self.eval_jac(&x, &mut jac);
+        let status = self.evaluate_start(&x);
         self.x = x;
-        if !all_finite(&g) || !all_finite(&jac) {
-            (self.grad, self.jac) = (g, jac);
-            return Some(Status::EvaluationError);
-        }
-        // Sect. 3.8: gradient-based scaling
-        if self.opt.scaling {
-            let gmax = norm_inf(&g);
-            self.sf = if gmax > G_MAX { G_MAX / gmax } else { 1.0 };
-            let mut row_max = vec![0.0f64; self.m];
-            for (k, &(r, _)) in self.jac_pat.iter().enumerate() {
-                let r = r as usize;
-                row_max[r] = row_max[r].max(jac[k].abs());
-            }
-            for r in 0..self.m {
-                self.sc[r] = if row_max[r] > G_MAX { G_MAX / row_max[r] } else { 1.0 };
-            }
-        }
-        for v in g.iter_mut() {
-            *v *= self.sf;
-        }
-        for (v, &(r, _)) in jac.iter_mut().zip(&self.jac_pat) {
-            *v *= self.sc[r as usize];
-        }
-        self.grad = g;
-        self.jac = jac;
-        let x = std::mem::take(&mut self.x);
-        self.f = self.eval_f(&x);
-        let mut c = std::mem::take(&mut self.c);
-        self.eval_c(&x, &mut c);
-        self.c = c;
-        self.x = x;
-        if !self.f.is_finite() || !all_finite(&self.c) {
-            return Some(Status::EvaluationError);
+        if status.is_some() {
+            return status;
         }
         let theta0 = Self::theta(&self.c);
         self.theta_max = 1e4 * theta0.max(1.0);
         self.theta_min = 1e-4 * theta0.max(1.0);
         self.least_squares_multipliers();
+        None
+    }
+
+    /// f, ∇f, c and J at the starting point `x`, into the iterate's arrays, and the scaling
+    /// (Sect. 3.8) they determine.
+    fn evaluate_start(&mut self, x: &[f64]) -> Option<Status> {
+        // the scaling is 1 until set below
+        let mut g = std::mem::take(&mut self.grad);
+        self.eval_grad(x, &mut g);
+        self.grad = g;
+        let mut jac = std::mem::take(&mut self.jac);
+        self.eval_jac(x, &mut jac);
+        self.jac = jac;
+        if !all_finite(&self.grad) || !all_finite(&self.jac) {
+            return Some(Status::EvaluationError);
+        }
+        // Sect. 3.8: gradient-based scaling
+        if self.opt.scaling {
+            let gmax = norm_inf(&self.grad);
+            self.sf = if gmax > G_MAX { G_MAX / gmax } else { 1.0 };
+            let mut row_max = vec![0.0f64; self.m];
+            for (&(r, _), v) in self.jac_pat.iter().zip(&self.jac) {
+                let r = r as usize;
+                row_max[r] = row_max[r].max(v.abs());
+            }
+            for r in 0..self.m {
+                self.sc[r] = if row_max[r] > G_MAX { G_MAX / row_max[r] } else { 1.0 };
+            }
+        }
+        for v in self.grad.iter_mut() {
+            *v *= self.sf;
+        }
+        for (v, &(r, _)) in self.jac.iter_mut().zip(&self.jac_pat) {
+            *v *= self.sc[r as usize];
+        }
+        self.f = self.eval_f(x);
+        let mut c = std::mem::take(&mut self.c);
+        self.eval_c(x, &mut c);
+        self.c = c;
+        if !self.f.is_finite() || !all_finite(&self.c) {
+            return Some(Status::EvaluationError);
+        }
         None
     }
 
