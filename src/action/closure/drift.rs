@@ -211,8 +211,74 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
         &self.family
     }
 
-    /// W(λ, t) generic over the scalar (see the type's documentation).
+    /// W(λ, t) generic over the scalar (see the type's documentation); one state by
+    /// [`GaussianDrift::w_one_state`].
     fn w_generic<D: Scalar>(
+        &self,
+        t: f64,
+        lambda: &[D],
+        out: &mut [D],
+    ) -> std::result::Result<(), Unrealizable> {
+        if self.family.dim() == 1 {
+            self.w_one_state(t, lambda, out)
+        } else {
+            self.w_any_dimension(t, lambda, out)
+        }
+    }
+
+    /// W(λ, t) of [`GaussianDrift::w_any_dimension`] written out for one state, where the
+    /// matrices are scalars: with λ = (a, b), P = −2b, v = 1/P, m = av and the nodes m + √v ξ_k,
+    /// ṁ = ⟨f⟩, v̇ = 2⟨f(x − m)⟩ + 2D, Ṗ = −P²v̇, W = (Ṗm + Pṁ, −½Ṗ). The same operations on
+    /// the same values as the general form, without its buffers, Cholesky factors and matrix
+    /// loops (this runs at every Runge–Kutta stage, in dual numbers).
+    fn w_one_state<D: Scalar>(
+        &self,
+        t: f64,
+        lambda: &[D],
+        out: &mut [D],
+    ) -> std::result::Result<(), Unrealizable> {
+        let q = self.family.quadratic_index(0, 0).expect("one state");
+        let p = -(lambda[q] * 2.0);
+        if !(p.re() > 0.0 && p.re().is_finite() && lambda[0].re().is_finite()) {
+            return Err(Unrealizable(
+                "the precision matrix P (P_ii = -2 b_ii, P_ij = -b_ij) is not positive definite".into(),
+            ));
+        }
+        let v = p.recip();
+        let m = v * lambda[0];
+        let sd = v.sqrt();
+        if !(m.re().is_finite() && v.re().is_finite()) {
+            return Err(Unrealizable("the mean or covariance overflows".into()));
+        }
+        let nt = self.theta.len();
+        crate::model::ad::with_zeros(nt + 2, |buf: &mut [D]| {
+            let (theta, rest) = buf.split_at_mut(nt);
+            let (x, f) = rest.split_at_mut(1);
+            for (t, &v) in theta.iter_mut().zip(&self.theta) {
+                *t = D::from(v);
+            }
+            let (mut fbar, mut fx) = (D::zero(), D::zero());
+            for (xi, w) in self.family.standard_rule().iter() {
+                let dx = sd * xi[0];
+                x[0] = m + dx;
+                self.sde.state_drift(D::from(t), x, theta, f);
+                let fw = f[0] * w;
+                fbar += fw;
+                fx += fw * dx;
+            }
+            let vdot = fx + fx + self.diffusion[0] * 2.0;
+            let pdot = -(p * vdot * p);
+            out[0] = pdot * m + p * fbar;
+            out[q] = -pdot * 0.5;
+            if out.iter().any(|v| !v.re().is_finite()) {
+                return Err(Unrealizable("the Gaussian closure drift is not finite".into()));
+            }
+            Ok(())
+        })
+    }
+
+    /// W(λ, t) in any dimension, generic over the scalar (see the type's documentation).
+    fn w_any_dimension<D: Scalar>(
         &self,
         t: f64,
         lambda: &[D],
@@ -1097,6 +1163,43 @@ mod tests {
             }
         }
         compare(&l63, &lambda, &[0.7, -1.3, 0.2, 0.4, -0.6, 0.1, 0.9, -0.2, 0.5]);
+    }
+
+    /// The one-state form of the Gaussian closure drift gives what the general form gives, with
+    /// the first and second derivatives (fixed-size duals through both), on the double well
+    /// with its exact 3-point rule and with the 16-point rule, and an error where P ≤ 0.
+    #[test]
+    fn one_state_gaussian_drift_equals_the_general_form() {
+        fn pass<S: Sde, D: Scalar>(g: &GaussianDrift<'_, S>, lambda: &[D], general: bool) -> Vec<D> {
+            let mut out = crate::model::ad::zeros::<D, 2>().to_vec();
+            if general {
+                g.w_any_dimension(0.3, lambda, &mut out).unwrap();
+            } else {
+                g.w_one_state(0.3, lambda, &mut out).unwrap();
+            }
+            out
+        }
+        for points in [None, Some(16)] {
+            let g = GaussianDrift::try_with_points(&DoubleWell, &[0.5], points).unwrap();
+            for lambda in [[0.4 / 0.3, -0.5 / 0.3], [-25.0, -12.5], [0.0, -0.01]] {
+                let ld: [Dual2SVec64<2>; 2] =
+                    std::array::from_fn(|i| Dual2SVec64::<2>::from_re(lambda[i]).derivative(i));
+                let (one, general) = (pass(&g, &ld, false), pass(&g, &ld, true));
+                for (a, b) in one.iter().zip(&general) {
+                    let (a1, b1) = (a.v1.0.unwrap(), b.v1.0.unwrap());
+                    let (a2, b2) = (a.v2.0.unwrap(), b.v2.0.unwrap());
+                    let pairs = [(a.re, b.re)].into_iter().chain(a1.iter().copied().zip(b1.iter().copied()));
+                    for (x, y) in pairs.chain(a2.iter().copied().zip(b2.iter().copied())) {
+                        // (Σ = 1/P and √Σ are formed by other operations than the Cholesky
+                        // factors and inverse of the general form: round-off apart.)
+                        assert_relative_eq!(x, y, epsilon = 1e-10, max_relative = 1e-10);
+                    }
+                }
+            }
+            let mut out = [0.0; 2];
+            assert!(g.w_one_state(0.0, &[1.0, 0.0], &mut out).is_err());
+            assert!(g.w_one_state(0.0, &[1.0, 0.5], &mut out).is_err());
+        }
     }
 
     #[test]
