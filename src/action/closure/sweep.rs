@@ -18,9 +18,10 @@
 //! depends on λ through the error control, so F has tolerance-sized jumps where it changes) and
 //! that of the continuous (II.47) to the ODE tolerance.
 //! ∇²F (and the cross-covariances of the dispersion) are the exact derivatives of the computed
-//! gradient: a tangent-linear forward sweep for all multipliers at once and the tangent of the
-//! discrete adjoint, which needs the Hessians of the stage-adjoint contractions k̄ᵀW
-//! ([`ClosureDrift::w_second`]).
+//! gradient: per interval between events, the flow's Jacobian by a tangent-linear sweep and its
+//! adjoint-weighted Hessian by the tangent of the discrete adjoint (which needs the Hessians of
+//! the stage-adjoint contractions k̄ᵀW, [`ClosureDrift::w_second`]), chained over the events for
+//! all multipliers at once.
 //! A step whose stage leaves the family's moment space (W not defined) is rejected and
 //! retried smaller; a sweep that cannot proceed returns a non-finite F, which the dual solver
 //! treats by backtracking (never a NaN path in a result).
@@ -47,9 +48,6 @@ const B: [f64; 6] = [35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 /
 /// B − B̂ (fifth minus fourth order), seven stages.
 const E: [f64; 7] =
     [71.0 / 57600.0, 0.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253.0 / 339200.0, 22.0 / 525.0, -1.0 / 40.0];
-
-/// The default of [`ClosureAction::with_stage_tangent_budget`]: 2²³ values (64 MB).
-pub const STAGE_TANGENT_BUDGET: usize = 1 << 23;
 
 /// The accepted Runge–Kutta steps of one sweep, flat: start time and size of step s, its six
 /// stage arguments Y_i (6R values from `6Rs`) and stage Jacobians J_i = ∂W/∂λ(Y_i) (6 R × R
@@ -130,6 +128,17 @@ struct StepDerivs {
     hess: Vec<f64>,
 }
 
+/// The workspace of [`ClosureAction::interval_derivatives`]: the stage tangents of the
+/// interval's steps (6 R × R per step) and the step routines' buffers.
+#[derive(Debug, Default)]
+struct IntervalWork {
+    dys: Vec<f64>,
+    dks: Vec<f64>,
+    stage_tangents: Vec<f64>,
+    dk: Vec<f64>,
+    dyb: Vec<f64>,
+}
+
 /// How the forward sweep picks the multiplier of measurement k from λ(t_k−).
 type Choose<'c> = dyn FnMut(usize, &[f64]) -> std::result::Result<Vec<f64>, SweepFailure> + 'c;
 
@@ -157,7 +166,6 @@ pub struct ClosureAction<D: ClosureDrift> {
     cache: Option<(Vec<f64>, Forward, Vec<Vec<f64>>)>,
     sweeps: usize,
     steps: usize,
-    stage_tangent_budget: usize,
 }
 
 impl<D: ClosureDrift> std::fmt::Debug for ClosureAction<D> {
@@ -245,19 +253,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             cache: None,
             sweeps: 0,
             steps: 0,
-            stage_tangent_budget: STAGE_TANGENT_BUDGET,
         })
-    }
-
-    /// Sets how many stage tangents (values, 8 bytes each) the tangent sweeps of
-    /// [`EffectiveAction::hessian`] and of the dispersion may keep from their forward pass for
-    /// their backward pass: 6 R × (multipliers) per Runge–Kutta step. Above it (long records, many
-    /// multipliers) the backward pass recomputes them, an interval at a time, at the cost of a
-    /// second forward tangent pass; the values are the same either way. Default
-    /// [`STAGE_TANGENT_BUDGET`].
-    pub fn with_stage_tangent_budget(mut self, values: usize) -> Self {
-        self.stage_tangent_budget = values;
-        self
     }
 
     /// The drift.
@@ -563,8 +559,13 @@ impl<D: ClosureDrift> ClosureAction<D> {
     /// (Y_i = y + hΣ_j a_ij K_j) and δk̄_i = hb_iδγ + Σ_{l>i} h a_li δȲ_l the tangents of its stage
     /// adjoints, δȲ_i = J_iᵀδk̄_i + H_iδY_i with H_i = ∇²(k̄_iᵀW)(Y_i); across a measurement
     /// δγ(t_k−) = δγ(t_k+) + C(t_k+)δλ(t_k+) − C(t_k−)δλ(t_k−) (the tangent of (II.50)), and
-    /// δm = Cδλ + δγ (of (II.48)). Cost: one sweep with second-order stage derivatives and
-    /// O(R² n) work per stage for n multipliers.
+    /// δm = Cδλ + δγ (of (II.48)). The steps are not swept once per multiplier: each interval
+    /// between events is reduced to its flow's Jacobian J_e and adjoint-weighted Hessian Q_e
+    /// ([`Self::interval_derivatives`], R tangent columns each way), and the multipliers' tangents
+    /// are chained over the events: δλ(end) = J_e δλ(start), δγ(start) = J_eᵀδγ(end) +
+    /// Q_eδλ(start); the same derivatives as a sweep of all multipliers through every step
+    /// (the products associate differently). Cost: one sweep with second-order stage
+    /// derivatives, O(R³) work per stage and O(R² n) per event for n multipliers.
     fn tangents(
         &mut self,
         events: &Events,
@@ -598,48 +599,44 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let r = self.drift.n_params();
         let rr = r * r;
         let nm = lambda.len();
-        let s = self.measured.len();
         let ne = events.times.len();
+        // Per interval (e − 1, e): its flow's J_e and Q_e (R × R each).
+        let mut flow = vec![0.0; 2 * rr * ne];
+        let mut work = IntervalWork::default();
+        for e in 1..ne {
+            let (je, qe) = flow[2 * rr * e..2 * rr * (e + 1)].split_at_mut(rr);
+            // The small sizes of the common families get their own copy with r a constant,
+            // so that the loops over R are unrolled.
+            let f = Self::interval_derivatives;
+            let (st, d, w) = (&fw.steps, &derivs, &mut work);
+            match r {
+                2 => f(st, e - 1, d, 2, w, je, qe),
+                3 => f(st, e - 1, d, 3, w, je, qe),
+                4 => f(st, e - 1, d, 4, w, je, qe),
+                5 => f(st, e - 1, d, 5, w, je, qe),
+                _ => f(st, e - 1, d, r, w, je, qe),
+            }
+        }
         // Forward tangent δλ (R × nm, row-major) after each event; before each measurement's jump.
         let mut dl = vec![0.0; r * nm];
         let mut dl_after = Vec::with_capacity(ne);
         let mut dl_before = Vec::new();
-        // Active columns (multipliers at or before the event) after each event.
-        let mut active = vec![0usize; ne];
-        let mut ncol = 0;
-        let (mut dys, mut dks) = (Vec::new(), Vec::new());
-        // The stage tangents of every step (6 R × nm per step), kept for the backward tangent
-        // sweep when they fit in the budget (values); otherwise it recomputes them, one
-        // interval at a time, from δλ after the interval's first event (the same values).
-        let block = 6 * r * nm;
-        let keep = fw.steps.len() * block <= self.stage_tangent_budget;
-        let mut kept = Vec::with_capacity(if keep { fw.steps.len() * block } else { 0 });
-        for (e, (act, meas)) in active.iter_mut().zip(&events.meas).enumerate() {
+        for (e, meas) in events.meas.iter().enumerate() {
             if e > 0 {
-                for st in fw.steps.interval(e - 1) {
-                    let jac = &derivs.jac[6 * rr * st..6 * rr * (st + 1)];
-                    Self::tangent_step(fw.steps.h[st], jac, r, nm, ncol, &mut dl, &mut dys, &mut dks);
-                    if keep {
-                        kept.extend_from_slice(&dys);
-                    }
-                }
+                let j = &flow[2 * rr * e..2 * rr * e + rr];
+                dl = Self::mat_mul(j, &dl, r, nm, false);
             }
             if let Some(k) = *meas {
                 dl_before.push(dl.clone());
                 for (b, &a) in self.measured.iter().enumerate() {
-                    dl[a * nm + k * s + b] += 1.0;
+                    dl[a * nm + k * self.measured.len() + b] += 1.0;
                 }
-                ncol = (k + 1) * s;
             }
-            *act = ncol;
             dl_after.push(dl.clone());
         }
-        // Backward tangent δγ (R × nm).
+        // Backward tangent δγ (R × nm), γ after the jump at each event.
         let mut out = vec![vec![vec![0.0; r]; ne]; nm];
         let mut dg = vec![0.0; r * nm];
-        let mut dk = vec![0.0; 6 * r * nm];
-        let mut dyb = vec![0.0; r * nm];
-        let mut stage_tangents = Vec::new();
         for e in (0..ne).rev() {
             let c = &fw.cov[e];
             for (j, oj) in out.iter_mut().enumerate() {
@@ -664,69 +661,13 @@ impl<D: ClosureDrift> ClosureAction<D> {
             if e == 0 {
                 break;
             }
-            // The stage tangents of the interval (e − 1, e): kept, or recomputed from δλ after
-            // event e − 1.
-            let ncol = active[e - 1];
-            let interval = fw.steps.interval(e - 1);
-            let stages: &[f64] = if keep {
-                &kept[interval.start * block..interval.end * block]
-            } else {
-                let mut y = dl_after[e - 1].clone();
-                stage_tangents.clear();
-                for st in interval.clone() {
-                    let jac = &derivs.jac[6 * rr * st..6 * rr * (st + 1)];
-                    Self::tangent_step(fw.steps.h[st], jac, r, nm, ncol, &mut y, &mut dys, &mut dks);
-                    stage_tangents.extend_from_slice(&dys);
-                }
-                &stage_tangents
-            };
-            for (st, dy) in interval.zip(stages.chunks_exact(block)).rev() {
-                let h = fw.steps.h[st];
-                let (jac, hess) = (
-                    &derivs.jac[6 * rr * st..6 * rr * (st + 1)],
-                    &derivs.hess[6 * rr * st..6 * rr * (st + 1)],
-                );
-                for i in 0..6 {
-                    for q in 0..r * nm {
-                        dk[i * r * nm + q] = h * B[i] * dg[q];
-                    }
-                }
-                for i in (0..6).rev() {
-                    let ji = &jac[i * rr..(i + 1) * rr];
-                    let hi = &hess[i * rr..(i + 1) * rr];
-                    let dki = &dk[i * r * nm..(i + 1) * r * nm];
-                    let dyi = &dy[i * r * nm..(i + 1) * r * nm];
-                    // δȲ_i = J_iᵀ δk̄_i + H_i δY_i (δY_i vanishes outside the active columns),
-                    // row by row.
-                    for b in 0..r {
-                        let row = &mut dyb[b * nm..(b + 1) * nm];
-                        row.fill(0.0);
-                        for a in 0..r {
-                            let c = ji[a * r + b];
-                            for (v, &k) in row.iter_mut().zip(&dki[a * nm..(a + 1) * nm]) {
-                                *v += c * k;
-                            }
-                        }
-                        for a in 0..r {
-                            let c = hi[b * r + a];
-                            for (v, &y) in row[..ncol].iter_mut().zip(&dyi[a * nm..a * nm + ncol]) {
-                                *v += c * y;
-                            }
-                        }
-                    }
-                    for q in 0..r * nm {
-                        dg[q] += dyb[q];
-                    }
-                    for jj in 0..i {
-                        let cc = h * A[i][jj];
-                        if cc != 0.0 {
-                            for q in 0..r * nm {
-                                dk[jj * r * nm + q] += cc * dyb[q];
-                            }
-                        }
-                    }
-                }
+            // δγ(start) = J_eᵀ δγ(end) + Q_e δλ(start).
+            let (j, q) = (&flow[2 * rr * e..2 * rr * e + rr], &flow[2 * rr * e + rr..2 * rr * (e + 1)]);
+            let mut next = Self::mat_mul(j, &dg, r, nm, true);
+            for (v, w) in next.iter_mut().zip(Self::mat_mul(q, &dl_after[e - 1], r, nm, false)) {
+                *v += w;
             }
+            dg = next;
         }
         if let Some((l, g0)) = restore {
             self.cache = Some((l, fw, g0));
@@ -737,72 +678,181 @@ impl<D: ClosureDrift> ClosureAction<D> {
         Ok((base, out))
     }
 
-    /// One step (size `h`, stage Jacobians `jac`: 6 R × R blocks) of the tangent-linear
-    /// Runge–Kutta sweep on the first `ncol` columns of δy (R × nm): the stage tangents δY_i into `dys` (6 R × nm blocks), δy advanced in place;
-    /// `dks` is a workspace. Only the first `ncol` columns of `dys` and `dks` are written; the
-    /// others hold stale values of earlier calls, and callers read only columns < `ncol`.
-    #[allow(clippy::too_many_arguments)]
-    fn tangent_step(
-        h: f64,
-        jac: &[f64],
+    /// M X (or Mᵀ X with `transpose`) for an R × R matrix M and an R × n matrix X, row-major.
+    fn mat_mul(m: &[f64], x: &[f64], r: usize, n: usize, transpose: bool) -> Vec<f64> {
+        let mut out = vec![0.0; r * n];
+        for a in 0..r {
+            let row = &mut out[a * n..(a + 1) * n];
+            for b in 0..r {
+                let c = if transpose { m[b * r + a] } else { m[a * r + b] };
+                for (v, &w) in row.iter_mut().zip(&x[b * n..(b + 1) * n]) {
+                    *v += c * w;
+                }
+            }
+        }
+        out
+    }
+
+    /// The derivatives of the discrete flow y(t_{e+1}−) = Φ_e(y(t_e+)) of interval `e` (its
+    /// accepted steps), R × R row-major: J = ∂Φ_e/∂y into `jac` and Q = ∇²(γ(t_{e+1}−)ᵀΦ_e) into
+    /// `q`, with γ(t_{e+1}−) the base adjoint at the interval's end (which enters through the
+    /// stage Hessians H_i = ∇²(k̄_iᵀW) of `derivs`). J is the tangent-linear sweep and Q the
+    /// second-order adjoint sweep from δγ(end) = 0, each on the R unit directions of y(t_e+);
+    /// the tangent of the interval's adjoint is then δγ(start) = Jᵀδγ(end) + Qδy(start).
+    #[inline(always)]
+    fn interval_derivatives(
+        steps: &Steps,
+        e: usize,
+        derivs: &StepDerivs,
         r: usize,
-        nm: usize,
-        ncol: usize,
-        dy: &mut [f64],
-        dys: &mut Vec<f64>,
-        dks: &mut Vec<f64>,
+        work: &mut IntervalWork,
+        jac: &mut [f64],
+        q: &mut [f64],
     ) {
-        let rn = r * nm;
         let rr = r * r;
-        dys.resize(6 * rn, 0.0);
+        let IntervalWork { dys, dks, stage_tangents, dk, dyb } = work;
+        // J: δy from the identity through the steps, keeping the stage tangents.
+        jac.fill(0.0);
+        for a in 0..r {
+            jac[a * r + a] = 1.0;
+        }
+        stage_tangents.clear();
+        for st in steps.interval(e) {
+            Self::tangent_step(steps.h[st], &derivs.jac[6 * rr * st..6 * rr * (st + 1)], r, jac, dys, dks);
+            stage_tangents.extend_from_slice(dys);
+        }
+        // Q: δγ from zero back through the steps.
+        q.fill(0.0);
+        dk.resize(6 * rr, 0.0);
+        dyb.resize(rr, 0.0);
+        for (st, dy) in steps.interval(e).zip(stage_tangents.chunks_exact(6 * rr)).rev() {
+            let block = 6 * rr * st..6 * rr * (st + 1);
+            Self::adjoint_tangent_step(
+                steps.h[st],
+                &derivs.jac[block.clone()],
+                &derivs.hess[block],
+                r,
+                q,
+                dy,
+                dk,
+                dyb,
+            );
+        }
+    }
+
+    /// One step (size `h`, stage Jacobians `jac`: 6 R × R blocks) of the tangent-linear
+    /// Runge–Kutta sweep on the R columns of δy (R × R, row-major): the stage tangents δY_i into
+    /// `dys` (6 R × R), δy advanced in place; `dks` is a workspace.
+    #[inline(always)]
+    fn tangent_step(h: f64, jac: &[f64], r: usize, dy: &mut [f64], dys: &mut Vec<f64>, dks: &mut Vec<f64>) {
+        let rr = r * r;
+        dys.resize(6 * rr, 0.0);
         // Six stage blocks and one row of Σ_i b_i δK_i.
-        dks.resize(6 * rn + nm, 0.0);
-        // Row by row over the active columns (contiguous, so the loops vectorise); each entry is
-        // summed in the order of the stage formulas.
+        dks.resize(6 * rr + r, 0.0);
+        // Row by row; each entry is summed in the order of the stage formulas.
         for i in 0..6 {
-            let (done, rest) = dks.split_at_mut(i * rn);
+            let (done, rest) = dks.split_at_mut(i * rr);
             // δY_i = δy + h Σ_{l<i} a_il δK_l.
             for a in 0..r {
-                let yi = &mut dys[i * rn + a * nm..i * rn + a * nm + ncol];
-                yi.copy_from_slice(&dy[a * nm..a * nm + ncol]);
+                let yi = &mut dys[i * rr + a * r..i * rr + (a + 1) * r];
+                yi.copy_from_slice(&dy[a * r..(a + 1) * r]);
                 for l in 0..i {
                     let c = h * A[i][l];
-                    for (v, &k) in yi.iter_mut().zip(&done[l * rn + a * nm..l * rn + a * nm + ncol]) {
+                    for (v, &k) in yi.iter_mut().zip(&done[l * rr + a * r..l * rr + (a + 1) * r]) {
                         *v += c * k;
                     }
                 }
             }
             // δK_i = J_i δY_i.
             let ji = &jac[i * rr..(i + 1) * rr];
-            let yi = &dys[i * rn..(i + 1) * rn];
+            let yi = &dys[i * rr..(i + 1) * rr];
             for a in 0..r {
-                let ki = &mut rest[a * nm..a * nm + ncol];
+                let ki = &mut rest[a * r..(a + 1) * r];
                 let c = ji[a * r];
-                for (v, &y) in ki.iter_mut().zip(&yi[..ncol]) {
+                for (v, &y) in ki.iter_mut().zip(&yi[..r]) {
                     *v = c * y;
                 }
                 for b in 1..r {
                     let c = ji[a * r + b];
-                    for (v, &y) in ki.iter_mut().zip(&yi[b * nm..b * nm + ncol]) {
+                    for (v, &y) in ki.iter_mut().zip(&yi[b * r..(b + 1) * r]) {
                         *v += c * y;
                     }
                 }
             }
         }
         // δy += h Σ_i b_i δK_i.
-        let (stages, acc) = dks.split_at_mut(6 * rn);
-        let acc = &mut acc[..ncol];
+        let (stages, acc) = dks.split_at_mut(6 * rr);
+        let acc = &mut acc[..r];
         for a in 0..r {
-            for (v, &k) in acc.iter_mut().zip(&stages[a * nm..a * nm + ncol]) {
+            for (v, &k) in acc.iter_mut().zip(&stages[a * r..(a + 1) * r]) {
                 *v = B[0] * k;
             }
             for i in 1..6 {
-                for (v, &k) in acc.iter_mut().zip(&stages[i * rn + a * nm..i * rn + a * nm + ncol]) {
+                for (v, &k) in acc.iter_mut().zip(&stages[i * rr + a * r..i * rr + (a + 1) * r]) {
                     *v += B[i] * k;
                 }
             }
-            for (v, &s) in dy[a * nm..a * nm + ncol].iter_mut().zip(acc.iter()) {
+            for (v, &s) in dy[a * r..(a + 1) * r].iter_mut().zip(acc.iter()) {
                 *v += h * s;
+            }
+        }
+    }
+
+    /// One step of the tangent of the discrete adjoint (the second-order adjoint), backwards,
+    /// on R columns: with δγ (`dg`, R × R) after the step and the step's stage tangents δY_i
+    /// (`dy`, 6 R × R), δk̄_i = h b_i δγ + Σ_{l>i} h a_li δȲ_l, δȲ_i = J_iᵀ δk̄_i + H_i δY_i
+    /// (J_i, H_i: `jac`, `hess`, 6 R × R blocks) and δγ += Σ_i δȲ_i in place. `dk` (6 R × R) and
+    /// `dyb` (R × R) are workspaces.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn adjoint_tangent_step(
+        h: f64,
+        jac: &[f64],
+        hess: &[f64],
+        r: usize,
+        dg: &mut [f64],
+        dy: &[f64],
+        dk: &mut [f64],
+        dyb: &mut [f64],
+    ) {
+        let rr = r * r;
+        for i in 0..6 {
+            for q in 0..rr {
+                dk[i * rr + q] = h * B[i] * dg[q];
+            }
+        }
+        for i in (0..6).rev() {
+            let ji = &jac[i * rr..(i + 1) * rr];
+            let hi = &hess[i * rr..(i + 1) * rr];
+            let dki = &dk[i * rr..(i + 1) * rr];
+            let dyi = &dy[i * rr..(i + 1) * rr];
+            // δȲ_i = J_iᵀ δk̄_i + H_i δY_i, row by row.
+            for b in 0..r {
+                let row = &mut dyb[b * r..(b + 1) * r];
+                row.fill(0.0);
+                for a in 0..r {
+                    let c = ji[a * r + b];
+                    for (v, &k) in row.iter_mut().zip(&dki[a * r..(a + 1) * r]) {
+                        *v += c * k;
+                    }
+                }
+                for a in 0..r {
+                    let c = hi[b * r + a];
+                    for (v, &y) in row.iter_mut().zip(&dyi[a * r..(a + 1) * r]) {
+                        *v += c * y;
+                    }
+                }
+            }
+            for q in 0..rr {
+                dg[q] += dyb[q];
+            }
+            for jj in 0..i {
+                let cc = h * A[i][jj];
+                if cc != 0.0 {
+                    for q in 0..rr {
+                        dk[jj * rr + q] += cc * dyb[q];
+                    }
+                }
             }
         }
     }
