@@ -49,6 +49,34 @@ const B: [f64; 6] = [35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 /
 const E: [f64; 7] =
     [71.0 / 57600.0, 0.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253.0 / 339200.0, 22.0 / 525.0, -1.0 / 40.0];
 
+/// Evaluates `$body` with `$r` bound to the literal 2, 3, 4 or 5 when `$size` is one of them (the
+/// Gaussian family in one or two states, the cubic and quartic families), to `$size` otherwise:
+/// the step loops over R, in functions marked `#[inline(always)]`, are then compiled for a
+/// constant R and unrolled. The same code runs either way.
+macro_rules! with_size {
+    ($size:expr, $r:ident => $body:expr) => {
+        match $size {
+            2 => {
+                let $r = 2;
+                $body
+            }
+            3 => {
+                let $r = 3;
+                $body
+            }
+            4 => {
+                let $r = 4;
+                $body
+            }
+            5 => {
+                let $r = 5;
+                $body
+            }
+            $r => $body,
+        }
+    };
+}
+
 /// The accepted Runge–Kutta steps of one sweep, flat: start time and size of step s, its six
 /// stage arguments Y_i (6R values from `6Rs`) and stage Jacobians J_i = ∂W/∂λ(Y_i) (6 R × R
 /// row-major blocks from `6R²s`), formed with W in the forward sweep so that the adjoint sweep
@@ -288,7 +316,12 @@ impl<D: ClosureDrift> ClosureAction<D> {
     /// `work` (see [`RkWork`]): the stages, slopes and Jacobians into `work`, the new state into
     /// `work.arg`; returns the error norm, `None` when a stage is not realizable.
     fn rk_step(&self, t: f64, y: &[f64], h: f64, work: &mut RkWork) -> Option<f64> {
-        let r = y.len();
+        with_size!(y.len(), r => self.rk_step_sized(r, t, y, h, work))
+    }
+
+    /// [`Self::rk_step`] for R = `r` = `y.len()` (see [`with_size`]).
+    #[inline(always)]
+    fn rk_step_sized(&self, r: usize, t: f64, y: &[f64], h: f64, work: &mut RkWork) -> Option<f64> {
         let rr = r * r;
         let RkWork { k, jac, stages, arg, .. } = work;
         stages[..r].copy_from_slice(y);
@@ -451,7 +484,18 @@ impl<D: ClosureDrift> ClosureAction<D> {
         fw: &Forward,
         second: bool,
     ) -> std::result::Result<Adjoint, SweepFailure> {
-        let r = self.drift.n_params();
+        with_size!(self.drift.n_params(), r => self.backward_sized(r, events, fw, second))
+    }
+
+    /// [`Self::backward`] for R = `r` (see [`with_size`]).
+    #[inline(always)]
+    fn backward_sized(
+        &self,
+        r: usize,
+        events: &Events,
+        fw: &Forward,
+        second: bool,
+    ) -> std::result::Result<Adjoint, SweepFailure> {
         let rr = r * r;
         let ne = events.times.len();
         let mut gamma = vec![0.0; r];
@@ -605,17 +649,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let mut work = IntervalWork::default();
         for e in 1..ne {
             let (je, qe) = flow[2 * rr * e..2 * rr * (e + 1)].split_at_mut(rr);
-            // The small sizes of the common families get their own copy with r a constant,
-            // so that the loops over R are unrolled.
-            let f = Self::interval_derivatives;
-            let (st, d, w) = (&fw.steps, &derivs, &mut work);
-            match r {
-                2 => f(st, e - 1, d, 2, w, je, qe),
-                3 => f(st, e - 1, d, 3, w, je, qe),
-                4 => f(st, e - 1, d, 4, w, je, qe),
-                5 => f(st, e - 1, d, 5, w, je, qe),
-                _ => f(st, e - 1, d, r, w, je, qe),
-            }
+            with_size!(r, r => Self::interval_derivatives(&fw.steps, e - 1, &derivs, r, &mut work, je, qe));
         }
         // Forward tangent δλ (R × nm, row-major) after each event; before each measurement's jump.
         let mut dl = vec![0.0; r * nm];
