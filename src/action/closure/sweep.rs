@@ -651,14 +651,14 @@ impl<D: ClosureDrift> ClosureAction<D> {
             let (je, qe) = flow[2 * rr * e..2 * rr * (e + 1)].split_at_mut(rr);
             with_size!(r, r => Self::interval_derivatives(&fw.steps, e - 1, &derivs, r, &mut work, je, qe));
         }
+        let flow_of = |e: usize| flow[2 * rr * e..2 * rr * (e + 1)].split_at(rr);
         // Forward tangent δλ (R × nm, row-major) after each event; before each measurement's jump.
         let mut dl = vec![0.0; r * nm];
         let mut dl_after = Vec::with_capacity(ne);
         let mut dl_before = Vec::new();
         for (e, meas) in events.meas.iter().enumerate() {
             if e > 0 {
-                let j = &flow[2 * rr * e..2 * rr * e + rr];
-                dl = Self::mat_mul(j, &dl, r, nm, false);
+                dl = Self::mat_mul(flow_of(e).0, &dl, r, nm, false);
             }
             if let Some(k) = *meas {
                 dl_before.push(dl.clone());
@@ -696,7 +696,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 break;
             }
             // δγ(start) = J_eᵀ δγ(end) + Q_e δλ(start).
-            let (j, q) = (&flow[2 * rr * e..2 * rr * e + rr], &flow[2 * rr * e + rr..2 * rr * (e + 1)]);
+            let (j, q) = flow_of(e);
             let mut next = Self::mat_mul(j, &dg, r, nm, true);
             for (v, w) in next.iter_mut().zip(Self::mat_mul(q, &dl_after[e - 1], r, nm, false)) {
                 *v += w;
