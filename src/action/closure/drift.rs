@@ -257,15 +257,16 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
             for (t, &v) in theta.iter_mut().zip(&self.theta) {
                 *t = D::from(v);
             }
-            let (mut fbar, mut fx) = (D::zero(), D::zero());
+            // ⟨f⟩ and ⟨f(x − m)⟩ = √v Σ_k (w_k ξ_k) f(x_k): the node weights are numbers, so
+            // each node costs one product of two dual numbers less.
+            let (mut fbar, mut fxi) = (D::zero(), D::zero());
             for (xi, w) in self.family.standard_rule().iter() {
-                let dx = sd * xi[0];
-                x[0] = m + dx;
+                x[0] = m + sd * xi[0];
                 self.sde.state_drift(D::from(t), x, theta, f);
-                let fw = f[0] * w;
-                fbar += fw;
-                fx += fw * dx;
+                fbar += f[0] * w;
+                fxi += f[0] * (w * xi[0]);
             }
+            let fx = fxi * sd;
             let vdot = fx + fx + self.diffusion[0] * 2.0;
             let pdot = -(p * vdot * p);
             out[0] = pdot * m + p * fbar;
