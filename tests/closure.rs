@@ -147,7 +147,7 @@ fn check_hessian<A: EffectiveAction>(action: &mut A, lambda: &[f64]) {
 /// The cross-covariances of the history, ∂m_x(τ)/∂λ_j by the tangent sweeps chained over the
 /// intervals between events (output times between the measurements too), against central
 /// differences of m_x(τ); at the measurement times they form ∇²F, symmetric to round-off before
-/// any symmetrisation. Gaussian and quartic closures.
+/// any symmetrisation and equal to [`EffectiveAction::hessian`]'s. Gaussian and quartic closures.
 #[test]
 fn cross_covariances_are_the_derivatives_of_the_history() {
     let case = DoubleWellCase::new(3, 4.0);
@@ -173,6 +173,12 @@ fn cross_covariances_are_the_derivatives_of_the_history() {
         let hess = DMatrix::from_fn(lambda.len(), lambda.len(), |i, j| cross[meas[i]][(0, j)]);
         let asym = (&hess - hess.transpose()).amax();
         assert!(asym <= 1e-10 * hess.amax(), "∇²F asymmetric by {asym}: {hess}");
+        // The same ∇²F as `hessian`, whose sweep has the measurement times only as events
+        // (another step sequence: equal to the ODE tolerance).
+        let fit = action.hessian(lambda).unwrap();
+        for (a, b) in fit.iter().zip(((&hess + hess.transpose()) * 0.5).iter()) {
+            assert_relative_eq!(*a, *b, max_relative = 1e-7, epsilon = 1e-9);
+        }
     }
     let lambda = [1.5, -2.0, 0.7, 3.0];
     check(gaussian_closure_action(&problem, &options).unwrap(), &lambda);
