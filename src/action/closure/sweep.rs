@@ -599,8 +599,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
     /// ∂m(t)/∂λ_j at every event for every multiplier j, exactly (to round-off) for the computed
     /// sweep, `out[j][event][moment]`: the tangent-linear forward sweep δλ and the tangent of the
     /// discrete adjoint (second-order adjoint, "forward over reverse"), run per interval on the R
-    /// unit directions and chained over the events for all multipliers. With δY_i, δK_i = J_iδY_i the stage tangents of a step
-    /// (Y_i = y + hΣ_j a_ij K_j) and δk̄_i = hb_iδγ + Σ_{l>i} h a_li δȲ_l the tangents of its stage
+    /// unit directions and chained over the events for all multipliers. With δY_i,
+    /// δK_i = J_iδY_i the stage tangents of a step (Y_i = y + hΣ_j a_ij K_j) and δk̄_i = hb_iδγ + Σ_{l>i} h a_li δȲ_l the tangents of its stage
     /// adjoints, δȲ_i = J_iᵀδk̄_i + H_iδY_i with H_i = ∇²(k̄_iᵀW)(Y_i); across a measurement
     /// δγ(t_k−) = δγ(t_k+) + C(t_k+)δλ(t_k+) − C(t_k−)δλ(t_k−) (the tangent of (II.50)), and
     /// δm = Cδλ + δγ (of (II.48)). The steps are not swept once per multiplier: each interval
