@@ -11,8 +11,8 @@
 //! continuous across the jumps (`(II.44)`), and ∂F/∂λ_k = Eᵀ(μ_k+ + γ_k+) = Eᵀm(t_k)
 //! (`(A.30)`).
 //!
-//! The ODE is integrated by the Dormand–Prince 5(4) pair with error control (Hairer, Nørsett,
-//! Wanner, *Solving ODEs I*, 2nd ed., Sec. II.5, Table 5.2); the backward sweep is the exact
+//! The ODE is integrated by Tsitouras' 5(4) pair (the constants `A`, `C`, `E`) with error control (the step-size
+//! control of Hairer, Nørsett, Wanner, *Solving ODEs I*, 2nd ed., Sec. II.4); the backward sweep is the exact
 //! discrete adjoint of the accepted Runge–Kutta steps (the stages are stored), so the gradient
 //! is that of the computed F for the accepted step sequence to round-off (the sequence itself
 //! depends on λ through the error control, so F has tolerance-sized jumps where it changes) and
@@ -33,21 +33,33 @@ use crate::{Error, Result};
 
 use super::drift::ClosureDrift;
 
-const C: [f64; 7] = [0.0, 0.2, 0.3, 0.8, 8.0 / 9.0, 1.0, 1.0];
+/// Tsitouras' 5(4) pair (Ch. Tsitouras, "Runge–Kutta pairs of order 5(4) satisfying only the
+/// first column simplifying assumption", *Comput. Math. Appl.* 62 (2011) 770–775, Table 1): seven
+/// stages, first same as last, like Dormand–Prince but with smaller error coefficients (see
+/// `docs/closures.md`, "Integrator", for its steps and accuracy against Dormand–Prince here).
+/// The nodes C, the stage matrix A (its last row holds the fifth-order weights: FSAL).
+const C: [f64; 7] = [0.0, 0.161, 0.327, 0.9, 0.9800255409045097, 1.0, 1.0];
 const A: [[f64; 6]; 7] = [
     [0.0; 6],
-    [0.2, 0.0, 0.0, 0.0, 0.0, 0.0],
-    [3.0 / 40.0, 9.0 / 40.0, 0.0, 0.0, 0.0, 0.0],
-    [44.0 / 45.0, -56.0 / 15.0, 32.0 / 9.0, 0.0, 0.0, 0.0],
-    [19372.0 / 6561.0, -25360.0 / 2187.0, 64448.0 / 6561.0, -212.0 / 729.0, 0.0, 0.0],
-    [9017.0 / 3168.0, -355.0 / 33.0, 46732.0 / 5247.0, 49.0 / 176.0, -5103.0 / 18656.0, 0.0],
-    [35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0],
+    [0.161, 0.0, 0.0, 0.0, 0.0, 0.0],
+    [-0.008480655492356989, 0.335480655492357, 0.0, 0.0, 0.0, 0.0],
+    [2.8971530571054935, -6.359448489975075, 4.3622954328695815, 0.0, 0.0, 0.0],
+    [5.325864828439257, -11.748883564062828, 7.4955393428898365, -0.09249506636175525, 0.0, 0.0],
+    [5.86145544294642, -12.92096931784711, 8.159367898576159, -0.071584973281401, -0.028269050394068383, 0.0],
+    [0.09646076681806523, 0.01, 0.4798896504144996, 1.379008574103742, -3.290069515436081, 2.324710524099774],
 ];
 /// Fifth-order weights (= the last row of A; the seventh stage only serves the error estimate).
-const B: [f64; 6] = [35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0];
+const B: [f64; 6] = A[6];
 /// B − B̂ (fifth minus fourth order), seven stages.
-const E: [f64; 7] =
-    [71.0 / 57600.0, 0.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253.0 / 339200.0, 22.0 / 525.0, -1.0 / 40.0];
+const E: [f64; 7] = [
+    0.0017800110522257772,
+    0.0008164344596567469,
+    -0.007880878010261995,
+    0.1447110071732629,
+    -0.5823571654525552,
+    0.45808210592918697,
+    -1.0 / 66.0,
+];
 
 /// Evaluates `$body` with `$r` bound to the literal 2, 3, 4 or 5 when `$size` is one of them (the
 /// Gaussian family in one or two states, the cubic and quartic families), to `$size` otherwise:
@@ -312,7 +324,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         Ok(())
     }
 
-    /// One Dormand–Prince step from (t, y) of size h, with K_1 = W(t, y) and its Jacobian in
+    /// One Runge–Kutta step (Tsitouras 5(4)) from (t, y) of size h, with K_1 = W(t, y) and its Jacobian in
     /// `work` (see [`RkWork`]): the stages, slopes and Jacobians into `work`, the new state into
     /// `work.arg`; returns the error norm, `None` when a stage is not realizable.
     fn rk_step(&self, t: f64, y: &[f64], h: f64, work: &mut RkWork) -> Option<f64> {
@@ -1051,5 +1063,83 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
             })
             .collect();
         Ok(History { times: events.times, mean, variance, cross: cr })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{A, B, C, E};
+
+    /// Σ_i w_i φ_i for stage vectors w, φ.
+    fn sum(w: &[f64], phi: &[f64]) -> f64 {
+        w.iter().zip(phi).map(|(a, b)| a * b).sum()
+    }
+
+    /// (A φ)_i over the seven stages.
+    fn a_times(phi: &[f64]) -> Vec<f64> {
+        (0..7).map(|i| (0..i.min(6)).map(|j| A[i][j] * phi[j]).sum()).collect()
+    }
+
+    /// The 17 order conditions of order ≤ 5 for the weights `w` (Butcher trees; Hairer, Nørsett,
+    /// Wanner, *Solving ODEs I*, Sec. II.2, Table 2.2): the residuals Σ w Φ(t) − 1/γ(t),
+    /// grouped by order.
+    fn order_residuals(w: &[f64]) -> Vec<Vec<f64>> {
+        let c = C.to_vec();
+        let pow = |k: i32| c.iter().map(|x| x.powi(k)).collect::<Vec<_>>();
+        let mul = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).collect::<Vec<_>>();
+        let one = vec![1.0; 7];
+        let ac = a_times(&c);
+        let ac2 = a_times(&pow(2));
+        let aac = a_times(&ac);
+        vec![
+            vec![sum(w, &one) - 1.0],
+            vec![sum(w, &c) - 1.0 / 2.0],
+            vec![sum(w, &pow(2)) - 1.0 / 3.0, sum(w, &ac) - 1.0 / 6.0],
+            vec![
+                sum(w, &pow(3)) - 1.0 / 4.0,
+                sum(w, &mul(&c, &ac)) - 1.0 / 8.0,
+                sum(w, &ac2) - 1.0 / 12.0,
+                sum(w, &aac) - 1.0 / 24.0,
+            ],
+            vec![
+                sum(w, &pow(4)) - 1.0 / 5.0,
+                sum(w, &mul(&pow(2), &ac)) - 1.0 / 10.0,
+                sum(w, &mul(&c, &ac2)) - 1.0 / 15.0,
+                sum(w, &mul(&c, &aac)) - 1.0 / 30.0,
+                sum(w, &mul(&ac, &ac)) - 1.0 / 20.0,
+                sum(w, &a_times(&pow(3))) - 1.0 / 20.0,
+                sum(w, &a_times(&mul(&c, &ac))) - 1.0 / 40.0,
+                sum(w, &a_times(&ac2)) - 1.0 / 60.0,
+                sum(w, &a_times(&aac)) - 1.0 / 120.0,
+            ],
+        ]
+    }
+
+    #[test]
+    fn the_pair_has_orders_five_and_four() {
+        // Row sums of A are the nodes (the simplifying assumption every explicit pair uses).
+        for i in 0..7 {
+            assert!((A[i].iter().sum::<f64>() - C[i]).abs() < 1e-14, "row {i}");
+        }
+        let b: Vec<f64> = B.iter().copied().chain([0.0]).collect();
+        for (order, group) in order_residuals(&b).iter().enumerate() {
+            for (t, r) in group.iter().enumerate() {
+                assert!(r.abs() < 1e-13, "fifth-order weights, order {} tree {t}: residual {r:e}", order + 1);
+            }
+        }
+        // The embedded weights B̂ = B − E: order four exactly, order five not (else the error
+        // estimate would vanish to leading order).
+        let bhat: Vec<f64> = b.iter().zip(&E).map(|(x, e)| x - e).collect();
+        let res = order_residuals(&bhat);
+        for (order, group) in res[..4].iter().enumerate() {
+            for (t, r) in group.iter().enumerate() {
+                assert!(
+                    r.abs() < 1e-13,
+                    "fourth-order weights, order {} tree {t}: residual {r:e}",
+                    order + 1
+                );
+            }
+        }
+        assert!(res[4].iter().any(|r| r.abs() > 1e-4), "{:?}", res[4]);
     }
 }
