@@ -472,7 +472,7 @@ fn gaussian_points_option_is_validated() {
 /// ∂W/∂λ, faster than λ does there, so the history's steps resolve it (`ClosureAction::integrate`).
 /// Before they did, the differences on this record were: Gaussian path 1.1·10⁻², sd 1.3·10⁻³;
 /// quartic path 5.1·10⁻⁴, sd 1.1·10⁻² (at the last output times before some measurements). Now
-/// 5.8·10⁻⁶ / 1.6·10⁻⁵ and 4.1·10⁻⁶ / 1.0·10⁻⁵.
+/// 5.8·10⁻⁶ / 1.6·10⁻⁵ and 1.6·10⁻⁶ / 9·10⁻⁷.
 #[test]
 fn the_history_just_before_a_measurement_is_resolved() {
     let obs = gaussian_obs(0, 0.2);

@@ -62,7 +62,9 @@ const E: [f64; 7] = [
 ];
 
 /// How many relaxation times 1/ρ before a measurement the history's steps resolve the adjoint
-/// ([`ClosureAction::integrate`]): beyond, its transient has decayed to e⁻⁸ ≈ 3·10⁻⁴ of the jump.
+/// ([`ClosureAction::integrate`]): beyond, its transient has decayed to e⁻⁸ ≈ 3·10⁻⁴ of the jump,
+/// and a step of hρ ≤ 1.4 there errs by at most 3·10⁻⁶ of it (2.7, the largest seen on the
+/// benchmark record, by 10⁻³).
 const ADJOINT_WINDOW: f64 = 8.0;
 
 /// The largest z = hρ (at most the real-axis stability limit) at which one step of the pair
@@ -100,15 +102,24 @@ fn mode_step(rtol: f64) -> f64 {
     lo
 }
 
-/// The spectral radius of the row-major r × r matrix `m` (0 if its eigenvalues are not finite).
+/// The spectral radius of the row-major r × r matrix `m`, or an upper bound: the eigenvalues by
+/// a Schur decomposition of at most 200 iterations, ‖m‖∞ (≥ the spectral radius) if it does not
+/// converge; 0 if an entry is not finite (no eigen-solver runs on it: with NaN the QR iteration
+/// need not end).
 fn spectral_radius(m: &[f64], r: usize) -> f64 {
-    let rho =
-        DMatrix::from_row_slice(r, r, m).complex_eigenvalues().iter().map(|z| z.norm()).fold(0.0, f64::max);
-    if rho.is_finite() {
-        rho
-    } else {
-        0.0
+    if !m.iter().all(|v| v.is_finite()) {
+        return 0.0;
     }
+    let a = DMatrix::from_row_slice(r, r, m);
+    match nalgebra::Schur::try_new(a.clone(), f64::EPSILON, 200) {
+        Some(schur) => schur.complex_eigenvalues().iter().map(|z| z.norm()).fold(0.0, f64::max),
+        None => row_sum_norm(m, r),
+    }
+}
+
+/// ‖m‖∞, the largest absolute row sum of the row-major r × r matrix `m`.
+fn row_sum_norm(m: &[f64], r: usize) -> f64 {
+    m.chunks(r).map(|row| row.iter().map(|v| v.abs()).sum::<f64>()).fold(0.0, f64::max)
 }
 
 /// Evaluates `$body` with `$r` bound to the literal 2, 3, 4 or 5 when `$size` is one of them (the
@@ -423,9 +434,9 @@ impl<D: ClosureDrift> ClosureAction<D> {
     /// ∂W/∂λ at (t, y) are evaluated unless `work` holds them already (the seventh stage of the
     /// last step, ending exactly at t, with no jump since: an output time between measurements).
     ///
-    /// With `next_measurement` (the history's sweeps), the steps within [`ADJOINT_WINDOW`]
-    /// relaxation times 1/ρ of the next measurement are also limited to hρ ≤
-    /// [`ClosureAction::mode_step`], ρ the spectral radius of ∂W/∂λ at the step's start. The
+    /// With `next_measurement` (the history's sweeps), the steps that would end within
+    /// [`ADJOINT_WINDOW`] relaxation times 1/ρ of the next measurement are also limited to hρ ≤
+    /// `mode_step` ([`mode_step`] of rtol), ρ the spectral radius of ∂W/∂λ at the step's start. The
     /// error control sees λ only, but the adjoint γ (and the dispersion's second-order adjoint)
     /// relaxes backward from each measurement's jump at the rate of ∂W/∂λ, where λ has long
     /// relaxed and the steps are long: without the limit the history just before a measurement
@@ -459,9 +470,10 @@ impl<D: ClosureDrift> ClosureAction<D> {
             work.k1_time = Some(tc);
         }
         while tc < t_end {
+            // A step that would end within the window before the next measurement.
             if let Some(tm) = next_measurement {
                 let rho = spectral_radius(&work.jac[..rr], r);
-                if rho > 0.0 && (tm - tc) * rho < ADJOINT_WINDOW {
+                if rho > 0.0 && (tm - tc - h.min(t_end - tc)) * rho < ADJOINT_WINDOW {
                     h = h.min(self.mode_step / rho);
                 }
             }
@@ -524,13 +536,19 @@ impl<D: ClosureDrift> ClosureAction<D> {
         };
         let mut y = self.lambda0.clone();
         let mut work = RkWork::new(y.len());
-        for e in 0..ne {
-            if e > 0 {
-                let next_measurement = if events.resolve_adjoint {
-                    (e..ne).find(|&j| events.meas[j].is_some()).map(|j| events.times[j])
+        // For the history's sweeps, the next measurement time at or after each event.
+        let mut next = vec![None; ne];
+        if events.resolve_adjoint {
+            for j in (0..ne).rev() {
+                next[j] = if events.meas[j].is_some() {
+                    Some(events.times[j])
                 } else {
-                    None
+                    next.get(j + 1).copied().flatten()
                 };
+            }
+        }
+        for (e, &next_measurement) in next.iter().enumerate() {
+            if e > 0 {
                 self.integrate(
                     events.times[e - 1],
                     events.times[e],
@@ -709,7 +727,11 @@ impl<D: ClosureDrift> ClosureAction<D> {
         // The forward sweep of the last evaluation at λ (the accepted Newton iterate) is reused:
         // taken out of the cache and put back at the end.
         let kept = match self.cache.take() {
-            Some((l, fw, g)) if l.as_slice() == lambda && events.times == self.fit_events.times => {
+            Some((l, fw, g))
+                if l.as_slice() == lambda
+                    && events.times == self.fit_events.times
+                    && events.resolve_adjoint == self.fit_events.resolve_adjoint =>
+            {
                 Some((l, fw, g))
             }
             other => {
