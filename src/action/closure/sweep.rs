@@ -110,8 +110,7 @@ fn spectral_radius(m: &[f64], r: usize) -> f64 {
     if !m.iter().all(|v| v.is_finite()) {
         return 0.0;
     }
-    let a = DMatrix::from_row_slice(r, r, m);
-    match nalgebra::Schur::try_new(a.clone(), f64::EPSILON, 200) {
+    match nalgebra::Schur::try_new(DMatrix::from_row_slice(r, r, m), f64::EPSILON, 200) {
         Some(schur) => schur.complex_eigenvalues().iter().map(|z| z.norm()).fold(0.0, f64::max),
         None => row_sum_norm(m, r),
     }
@@ -391,9 +390,9 @@ impl<D: ClosureDrift> ClosureAction<D> {
         Ok(())
     }
 
-    /// One Runge–Kutta step (Tsitouras 5(4)) from (t, y) of size h, with K_1 = W(t, y) and its Jacobian in
-    /// `work` (see [`RkWork`]): the stages, slopes and Jacobians into `work`, the new state into
-    /// `work.arg`; returns the error norm, `None` when a stage is not realizable.
+    /// One Runge–Kutta step (Tsitouras 5(4)) from (t, y) of size h, with K_1 = W(t, y) and its
+    /// Jacobian in `work` (see [`RkWork`]): the stages, slopes and Jacobians into `work`, the new
+    /// state into `work.arg`; returns the error norm, `None` when a stage is not realizable.
     fn rk_step(&self, t: f64, y: &[f64], h: f64, work: &mut RkWork) -> Option<f64> {
         with_size!(y.len(), r => self.rk_step_sized(r, t, y, h, work))
     }
@@ -436,8 +435,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
     ///
     /// With `next_measurement` (the history's sweeps), the steps that would end within
     /// [`ADJOINT_WINDOW`] relaxation times 1/ρ of the next measurement are also limited to hρ ≤
-    /// `mode_step` ([`mode_step`] of rtol), ρ the spectral radius of ∂W/∂λ at the step's start. The
-    /// error control sees λ only, but the adjoint γ (and the dispersion's second-order adjoint)
+    /// `mode_step` ([`mode_step`] of rtol), ρ the spectral radius of ∂W/∂λ at the step's start.
+    /// The error control sees λ only, but the adjoint γ (and the dispersion's second-order adjoint)
     /// relaxes backward from each measurement's jump at the rate of ∂W/∂λ, where λ has long
     /// relaxed and the steps are long: without the limit the history just before a measurement
     /// was off by up to 5·10⁻³ in the sd and 2.5·10⁻² in the path at the default tolerance
