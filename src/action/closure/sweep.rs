@@ -102,6 +102,18 @@ fn mode_step(rtol: f64) -> f64 {
     lo
 }
 
+/// The grid of [`graded_mode_steps`]: steps of 1/4 relaxation time.
+const GRADE_STEP: f64 = 0.25;
+
+/// [`mode_step`] of rtol·e^{x} at x = 0, ¼, ½, …, [`ADJOINT_WINDOW`]: the largest hρ at which a
+/// step ending x relaxation times before a measurement resolves the adjoint's transient to rtol
+/// of the jump (the transient there is e^{−x} of it, so one step may err by rtol·e^{x} of its
+/// own size).
+fn graded_mode_steps(rtol: f64) -> Vec<f64> {
+    let n = (ADJOINT_WINDOW / GRADE_STEP).round() as usize;
+    (0..=n).map(|j| mode_step(rtol * (j as f64 * GRADE_STEP).exp())).collect()
+}
+
 /// The spectral radius of the row-major r × r matrix `m`, or an upper bound: the eigenvalues by
 /// a Schur decomposition of at most 200 iterations, ‖m‖∞ (≥ the spectral radius) if it does not
 /// converge; 0 if an entry is not finite (no eigen-solver runs on it: with NaN the QR iteration
@@ -147,6 +159,18 @@ macro_rules! with_size {
             $r => $body,
         }
     };
+}
+
+fn check_tolerances(rtol: f64, atol: f64) -> Result<()> {
+    for (name, v) in [("rtol", rtol), ("atol", atol)] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(Error::InvalidOption {
+                name: name.into(),
+                reason: format!("must be positive and finite, got {v}"),
+            });
+        }
+    }
+    Ok(())
 }
 
 /// The accepted Runge–Kutta steps of one sweep, flat: start time and size of step s, its six
@@ -262,8 +286,8 @@ pub struct ClosureAction<D: ClosureDrift> {
     /// Moment index of each measured component (the matrix E).
     measured: Vec<usize>,
     rtol: f64,
-    /// The largest hρ at which one step resolves a mode of rate ρ to `rtol` ([`mode_step`]).
-    mode_step: f64,
+    /// [`graded_mode_steps`] of `rtol`.
+    mode_step: Vec<f64>,
     atol: f64,
     cache: Option<(Vec<f64>, Forward, Vec<Vec<f64>>)>,
     sweeps: usize,
@@ -337,14 +361,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 reason: "must be strictly increasing".into(),
             });
         }
-        for (name, v) in [("rtol", rtol), ("atol", atol)] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(Error::InvalidOption {
-                    name: name.into(),
-                    reason: format!("must be positive and finite, got {v}"),
-                });
-            }
-        }
+        check_tolerances(rtol, atol)?;
         let outs: Vec<f64> = output_times.iter().copied().filter(|&t| t >= t0).collect();
         Ok(ClosureAction {
             fit_events: Events::new(t0, meas_times, &[]),
@@ -355,11 +372,34 @@ impl<D: ClosureDrift> ClosureAction<D> {
             measured,
             rtol,
             atol,
-            mode_step: mode_step(rtol),
+            mode_step: graded_mode_steps(rtol),
             cache: None,
             sweeps: 0,
             steps: 0,
         })
+    }
+
+    /// Sets the Runge–Kutta tolerances of the following sweeps (and forgets the cached sweep,
+    /// whose F belongs to the old ones). Errors as [`ClosureAction::try_new`].
+    pub fn set_tolerances(&mut self, rtol: f64, atol: f64) -> Result<()> {
+        check_tolerances(rtol, atol)?;
+        self.rtol = rtol;
+        self.atol = atol;
+        self.mode_step = graded_mode_steps(rtol);
+        self.cache = None;
+        Ok(())
+    }
+
+    /// The Runge–Kutta tolerances (rtol, atol).
+    pub fn tolerances(&self) -> (f64, f64) {
+        (self.rtol, self.atol)
+    }
+
+    /// The mode step x relaxation times before a measurement ([`graded_mode_steps`], at the grid
+    /// point below x).
+    fn graded_mode_step(&self, x: f64) -> f64 {
+        let j = ((x / GRADE_STEP).floor().max(0.0) as usize).min(self.mode_step.len() - 1);
+        self.mode_step[j]
     }
 
     /// The drift.
@@ -434,8 +474,13 @@ impl<D: ClosureDrift> ClosureAction<D> {
     /// last step, ending exactly at t, with no jump since: an output time between measurements).
     ///
     /// With `next_measurement` (the history's sweeps), the steps that would end within
-    /// [`ADJOINT_WINDOW`] relaxation times 1/ρ of the next measurement are also limited to hρ ≤
-    /// `mode_step` ([`mode_step`] of rtol), ρ the spectral radius of ∂W/∂λ at the step's start.
+    /// [`ADJOINT_WINDOW`] relaxation times 1/ρ of the next measurement are also limited to
+    /// hρ ≤ z(x), ρ the spectral radius of ∂W/∂λ at the step's start, x = ρ·(the step end's
+    /// distance to the measurement) and z(x) = [`mode_step`] of rtol·e^x ([`graded_mode_steps`]:
+    /// there the adjoint's transient is e^{−x} of the jump, so a step may err by rtol·e^x of it;
+    /// at rtol 10⁻⁶, 0.42 at the measurement, growing about like e^{x/6} since the pair errs on
+    /// e^{−z} by about a constant times z⁶). A
+    /// step shortened to end on an event leaves the proposed step size standing for the next one.
     /// The error control sees λ only, but the adjoint γ (and the dispersion's second-order adjoint)
     /// relaxes backward from each measurement's jump at the rate of ∂W/∂λ, where λ has long
     /// relaxed and the steps are long: without the limit the history just before a measurement
@@ -472,8 +517,15 @@ impl<D: ClosureDrift> ClosureAction<D> {
             // A step that would end within the window before the next measurement.
             if let Some(tm) = next_measurement {
                 let rho = spectral_radius(&work.jac[..rr], r);
-                if rho > 0.0 && (tm - tc - h.min(t_end - tc)) * rho < ADJOINT_WINDOW {
-                    h = h.min(self.mode_step / rho);
+                let h0 = h.min(t_end - tc);
+                if rho > 0.0 && (tm - tc - h0) * rho < ADJOINT_WINDOW {
+                    // The cap at the step's end, a fixed point of h = cap(tm − tc − h); the odd
+                    // iterates from the shortest distance are below it.
+                    let mut hc = h0;
+                    for _ in 0..3 {
+                        hc = h0.min(self.graded_mode_step((tm - tc - hc).max(0.0) * rho) / rho);
+                    }
+                    h = hc;
                 }
             }
             let last = tc + h >= t_end - 1e-12 * span.max(1.0);
@@ -490,7 +542,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
                     work.k1_time = Some(tc + C[6] * hh);
                     tc = if last { t_end } else { tc + hh };
                     let fac = if err == 0.0 { 5.0 } else { (0.9 * err.powf(-0.2)).clamp(0.2, 5.0) };
-                    h = hh * fac;
+                    // A step shortened to end on the event leaves the proposal h standing.
+                    h = if hh < h { h.max(hh * fac) } else { hh * fac };
                     *h_guess = h;
                 }
                 Some(err) => {
@@ -1060,6 +1113,10 @@ impl<D: ClosureDrift> ClosureAction<D> {
         self.sweeps += 1;
         let fw = self.forward_with(&events, &mut choose).ok()?;
         self.steps += fw.steps.len();
+        // The sweep is the forward sweep of F at the chosen multipliers: with its adjoint (no
+        // drift evaluations) it is the cached evaluation there.
+        let (g, _) = self.backward(&events, &fw, false).ok()?;
+        self.cache = Some((chosen.clone(), fw, g));
         Some(chosen)
     }
 
@@ -1237,6 +1294,18 @@ mod tests {
         // A tolerance that every z ≤ 3 meets: the search interval's end (below the real-axis
         // stability limit, 3.5).
         assert_eq!(super::mode_step(1e3), 3.0);
+        // The graded bounds: x relaxation times before a measurement a step may err by rtol·e^x
+        // of the transient there; they start at the mode step and grow with x.
+        let graded = super::graded_mode_steps(1e-6);
+        assert_eq!(graded.len(), 33);
+        assert_eq!(graded[0], z6);
+        assert!(graded.windows(2).all(|w| w[0] < w[1] || w[1] == 3.0), "{graded:?}");
+        for (j, &z) in graded.iter().enumerate() {
+            let tol = 1e-6 * (j as f64 * super::GRADE_STEP).exp();
+            // (to rounding: the bisection ends on the boundary of the polynomial's form)
+            let ok = err(z) <= tol * (1.0 + 1e-9) && (z == 3.0 || err(z * 1.01) > tol);
+            assert!(ok, "x = {}: z {z}, error {}, tolerance {tol}", j as f64 / 4.0, err(z));
+        }
     }
 
     #[test]
