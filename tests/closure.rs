@@ -91,6 +91,62 @@ fn filter_start_satisfies_the_filter_condition() {
     }
 }
 
+#[test]
+fn the_filter_start_leaves_the_evaluation_at_its_multipliers() {
+    // The filter's forward sweep is the forward sweep of F at the chosen multipliers, so the
+    // evaluation it caches equals a fresh one, bit for bit.
+    let case = DoubleWellCase::new(3, 6.0);
+    let problem = case.problem();
+    let dd = gaussian_dual_data(&problem).unwrap();
+    let options = ClosureOptions::new();
+    let mut cached = exponential_closure_action(&problem, 4, &options).unwrap();
+    let start = cached.filter_start(&dd).unwrap();
+    let sweeps = cached.sweeps();
+    let from_cache = cached.evaluate(&start).unwrap();
+    assert_eq!(cached.sweeps(), sweeps, "the evaluation at the filter start ran a sweep");
+    let mut fresh = exponential_closure_action(&problem, 4, &options).unwrap();
+    assert_eq!(from_cache, fresh.evaluate(&start).unwrap());
+    let mut gaussian = gaussian_closure_action(&problem, &options).unwrap();
+    let start = gaussian.filter_start(&dd).unwrap();
+    let mut fresh = gaussian_closure_action(&problem, &options).unwrap();
+    assert_eq!(gaussian.evaluate(&start).unwrap(), fresh.evaluate(&start).unwrap());
+}
+
+#[test]
+fn the_two_stage_dual_reaches_the_one_stage_maximiser() {
+    // closure_estimate runs the dual first with coarse sweeps, then chord steps at the requested
+    // tolerance; the one-stage iteration (the filter start, then `maximize_dual` with every sweep
+    // at the requested tolerance) reaches the same λ* (both to the optimality residual 10⁻⁹).
+    let case = DoubleWellCase::new(5, 20.0);
+    let problem = case.problem();
+    let dd = gaussian_dual_data(&problem).unwrap();
+    let options = ClosureOptions::new().with_dispersion(false);
+    for (kind, degree) in [(ClosureKind::Gaussian, None), (ClosureKind::Exponential { degree: 4 }, Some(4))] {
+        let est = closure_estimate(&problem, &kind, &options).unwrap();
+        assert_eq!(est.status, Status::Converged, "{kind:?}");
+        let coarse = &est.details["coarse_stage"];
+        assert_relative_eq!(coarse["rtol"].as_f64().unwrap(), 1e-4, max_relative = 1e-12);
+        assert!(coarse["iterations"].as_u64().unwrap() >= 1);
+        let staged: Vec<f64> =
+            est.details["lambda"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let one_stage = match degree {
+            None => {
+                let mut a = gaussian_closure_action(&problem, &options).unwrap();
+                let start = a.filter_start(&dd).unwrap();
+                maximize_dual(&mut a, &dd, &DualOptions::default(), Some(&start)).unwrap()
+            }
+            Some(d) => {
+                let mut a = exponential_closure_action(&problem, d, &options).unwrap();
+                let start = a.filter_start(&dd).unwrap();
+                maximize_dual(&mut a, &dd, &DualOptions::default(), Some(&start)).unwrap()
+            }
+        };
+        assert_eq!(one_stage.status, Status::Converged, "{kind:?}");
+        let diff = staged.iter().zip(&one_stage.lambda).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        assert!(diff < 1e-7, "{kind:?}: max |λ staged − λ one stage| = {diff}");
+    }
+}
+
 /// A double-well record (D = 0.5, x(0) = −1, y ~ N(x(k), 0.2²) at k = 1, …, t_end) and the
 /// closures' problem on it (x0 ~ N(−1, 0.3²)).
 struct DoubleWellCase {

@@ -159,11 +159,16 @@ pub struct DualOptions {
     pub tolerance: f64,
     /// Maximum Newton iterations. Default 50.
     pub max_iterations: usize,
+    /// When set to k: stop, as `Acceptable`, after k Newton iterations in a row (K positive
+    /// definite) none of which halved the smallest optimality residual reached since the start
+    /// or the last trust-region step, i.e. where the evaluation's own noise (e.g. coarse sweeps:
+    /// F is smooth only piecewise in λ) stops the convergence. Default `None`.
+    pub stall_iterations: Option<usize>,
 }
 
 impl Default for DualOptions {
     fn default() -> Self {
-        DualOptions { tolerance: 1e-9, max_iterations: 50 }
+        DualOptions { tolerance: 1e-9, max_iterations: 50, stall_iterations: None }
     }
 }
 
@@ -177,6 +182,12 @@ impl DualOptions {
     /// Sets the iteration limit.
     pub fn with_max_iterations(mut self, max_iterations: usize) -> Self {
         self.max_iterations = max_iterations;
+        self
+    }
+
+    /// Sets the stall limit ([`DualOptions::stall_iterations`]).
+    pub fn with_stall_iterations(mut self, stall_iterations: Option<usize>) -> Self {
+        self.stall_iterations = stall_iterations;
         self
     }
 
@@ -230,6 +241,22 @@ fn residual(lambda: &[f64], z: &[f64], data: &DualData, active: &[usize]) -> f64
     active.iter().map(|&m| (lambda[m] - (data.r[m] - z[m]) / data.variance[m]).abs()).fold(0.0, f64::max)
 }
 
+/// [`trust_region_step_with`] with its eigen-decomposition of K (`None` when it fails).
+#[cfg(test)]
+fn trust_region_step(k: &DMatrix<f64>, g: &DVector<f64>, radius: f64) -> Option<(DVector<f64>, f64)> {
+    let eig = eigen_of(k, g)?;
+    trust_region_step_with(&eig, k, g, radius)
+}
+
+/// The eigen-decomposition of K for [`trust_region_step_with`]; `None` when K or g has
+/// non-finite entries or the decomposition fails.
+fn eigen_of(k: &DMatrix<f64>, g: &DVector<f64>) -> Option<SymmetricEigen<f64, nalgebra::Dyn>> {
+    if k.iter().chain(g.iter()).any(|v| !v.is_finite()) {
+        return None;
+    }
+    SymmetricEigen::try_new(k.clone(), f64::EPSILON, 0)
+}
+
 /// The trust-region subproblem of the dual: the step p maximising the quadratic model
 /// m(p) = gᵀp − ½pᵀKp of Φ over ‖p‖ ≤ `radius` (K symmetric, possibly indefinite), with the
 /// model increase m(p). By Moré & Sorensen (1983) (Nocedal & Wright, 2nd ed., Thm 4.1) p solves
@@ -237,14 +264,19 @@ fn residual(lambda: &[f64], z: &[f64], data: &DualData, active: &[usize]) -> f64
 /// eigen-decomposition K = QΛQᵀ, p(σ) = Σ_i (q_iᵀg)/(Λ_i + σ) q_i and σ is the root of
 /// 1/‖p(σ)‖ = 1/radius (Newton's method safeguarded by bisection); in the "hard case" (g
 /// orthogonal to the eigenspace of the smallest eigenvalue) the step is completed along that
-/// eigenvector to the boundary (N&W Sec. 4.3). `None` when K has non-finite entries or the
-/// eigen-decomposition fails.
-fn trust_region_step(k: &DMatrix<f64>, g: &DVector<f64>, radius: f64) -> Option<(DVector<f64>, f64)> {
+/// eigenvector to the boundary (N&W Sec. 4.3). The eigen-decomposition `eig` of K is given
+/// ([`eigen_of`]), so that the retries with smaller radii of one iteration decompose K once.
+/// `None` for a radius that is not positive or a non-finite step.
+fn trust_region_step_with(
+    eig: &SymmetricEigen<f64, nalgebra::Dyn>,
+    k: &DMatrix<f64>,
+    g: &DVector<f64>,
+    radius: f64,
+) -> Option<(DVector<f64>, f64)> {
     let n = g.len();
-    if k.iter().chain(g.iter()).any(|v| !v.is_finite()) || radius.is_nan() || radius <= 0.0 {
+    if radius.is_nan() || radius <= 0.0 {
         return None;
     }
-    let eig = SymmetricEigen::try_new(k.clone(), f64::EPSILON, 0)?;
     let (lam, q) = (&eig.eigenvalues, &eig.eigenvectors);
     let c = q.transpose() * g;
     let lmin = lam.min();
@@ -331,7 +363,7 @@ fn update_radius(radius: f64, step_norm: f64, rho: f64) -> f64 {
 
 /// Maximises the dual Φ(λ) (see the [module documentation](self)) from `start` (default λ = 0):
 /// where K = ∇²F + R is positive definite, Newton's method (Hessian −K) with a backtracking
-/// (Armijo) line search; elsewhere a trust-region step ([`trust_region_step`], radius kept across
+/// (Armijo) line search; elsewhere a trust-region step ([`trust_region_step_with`], radius kept across
 /// iterations). Components of missing data stay at their starting values.
 ///
 /// Errors: misuse (lengths, invalid data or options). Non-convergence is a [`Status`]:
@@ -343,6 +375,56 @@ pub fn maximize_dual<A: EffectiveAction + ?Sized>(
     data: &DualData,
     options: &DualOptions,
     start: Option<&[f64]>,
+) -> Result<DualSolution> {
+    maximize(action, data, options, start, None)
+}
+
+/// The symmetric rank-one update of `h` with the secant pair (s, y), y ≈ ∇²F s: h + vvᵀ/(vᵀs),
+/// v = y − hs, skipped (h unchanged) when |vᵀs| < 10⁻⁸‖s‖‖v‖ (Nocedal & Wright, 2nd ed.,
+/// Sec. 6.2, (6.24)–(6.26)).
+fn sr1(mut h: DMatrix<f64>, s: &DVector<f64>, y: &DVector<f64>) -> DMatrix<f64> {
+    let v = y - &h * s;
+    let denom = v.dot(s);
+    if denom.abs() >= 1e-8 * s.norm() * v.norm() && denom != 0.0 {
+        h += &v * v.transpose() / denom;
+    }
+    h
+}
+
+/// The factor by which a chord step of [`maximize_dual_chord`] must reduce the optimality
+/// residual for the next iteration to keep its ∇²F approximation.
+pub const CHORD_CONTRACTION: f64 = 0.1;
+
+/// [`maximize_dual`] from `start` with a given approximation `hessian` of ∇²F (n·s × n·s), e.g.
+/// ∇²F of the same action computed with coarser sweeps: the chord method (Kelley, *Iterative
+/// Methods for Linear and Nonlinear Equations*, SIAM 1995, Sec. 5.4), whose Newton steps use
+/// `hessian` instead of a new ∇²F at every iterate, corrected after each step by the symmetric
+/// rank-one update with the step's secant pair (Δλ, Δz) (Nocedal & Wright, 2nd ed., Sec. 6.2;
+/// with the exact gradients z this makes the approximation exact along the directions the
+/// iteration has taken). It is kept while K = `hessian` + R is positive definite and every chord
+/// step is a full step (t = 1) that reduces the optimality residual by at least
+/// [`CHORD_CONTRACTION`]; from the first iteration where it is not, [`maximize_dual`]'s
+/// iteration takes over with ∇²F at every iterate, so the chord only saves Hessians and never
+/// changes what converges. Errors as [`maximize_dual`], and a `hessian` of the wrong size.
+pub fn maximize_dual_chord<A: EffectiveAction + ?Sized>(
+    action: &mut A,
+    data: &DualData,
+    options: &DualOptions,
+    start: &[f64],
+    hessian: DMatrix<f64>,
+) -> Result<DualSolution> {
+    let m = action.measurement_times().len() * action.output_dim();
+    crate::model::check_len("chord Hessian rows", m, hessian.nrows())?;
+    crate::model::check_len("chord Hessian columns", m, hessian.ncols())?;
+    maximize(action, data, options, Some(start), Some(hessian))
+}
+
+fn maximize<A: EffectiveAction + ?Sized>(
+    action: &mut A,
+    data: &DualData,
+    options: &DualOptions,
+    start: Option<&[f64]>,
+    mut chord: Option<DMatrix<f64>>,
 ) -> Result<DualSolution> {
     options.validate()?;
     let n = action.measurement_times().len();
@@ -383,16 +465,39 @@ pub fn maximize_dual<A: EffectiveAction + ?Sized>(
     // The trust-region radius (scaled multipliers), set when K is first not positive definite and
     // kept across iterations.
     let mut tr_radius: Option<f64> = None;
+    // Newton iterations in a row that did not halve the best residual since the last
+    // trust-region step (which may raise it) or the start.
+    let mut slow = 0;
+    let mut best = f64::INFINITY;
     let status = loop {
         let res = residual(&lambda, &cur.z, data, &active);
         if res <= options.tolerance {
             break Status::Converged;
         }
+        if options.stall_iterations.is_some_and(|k| slow >= k) {
+            reason = Some(format!(
+                "stalled: {slow} Newton iterations in a row did not halve the optimality residual ({res:.3e})"
+            ));
+            break Status::Acceptable;
+        }
         if iterations >= options.max_iterations {
             break Status::MaxIterations;
         }
         iterations += 1;
-        let h = action.hessian(&lambda)?;
+        // The chord's K must be positive definite; otherwise ∇²F at λ from here on.
+        let chord_k = chord.take().filter(|h| {
+            let mut k = h.clone();
+            for &m in &active {
+                k[(m, m)] += data.variance[m];
+            }
+            let ka = DMatrix::from_fn(active.len(), active.len(), |i, j| k[(active[i], active[j])]);
+            ka.cholesky().is_some()
+        });
+        let is_chord = chord_k.is_some();
+        let h = match chord_k {
+            Some(h) => h,
+            None => action.hessian(&lambda)?,
+        };
         let na = active.len();
         let mut k = DMatrix::zeros(na, na);
         let mut g = DVector::zeros(na);
@@ -406,9 +511,14 @@ pub fn maximize_dual<A: EffectiveAction + ?Sized>(
         hessian = Some(h);
         let phi0 = phi(&lambda, data, &active, cur.value);
         let res0 = residual(&lambda, &cur.z, data, &active);
+        // Whether the accepted step is the full Newton step (t = 1), and whether it is a Newton
+        // step at all (K positive definite).
+        let mut full = false;
+        let mut newton = false;
         let accepted = match k.clone().cholesky() {
             Some(ch) => {
                 // Φ locally concave: the Newton step with an Armijo backtracking line search.
+                newton = true;
                 let step = ch.solve(&g);
                 let slope = g.dot(&step);
                 let mut t = 1.0;
@@ -429,6 +539,7 @@ pub fn maximize_dual<A: EffectiveAction + ?Sized>(
                             || residual(&trial, &val.z, data, &active) < 0.5 * res0
                         {
                             accepted = Some((trial, val));
+                            full = t == 1.0;
                             break;
                         }
                     }
@@ -447,8 +558,11 @@ pub fn maximize_dual<A: EffectiveAction + ?Sized>(
                     1.0 + active.iter().zip(&sq).map(|(&m, q)| (q * lambda[m]).powi(2)).sum::<f64>().sqrt();
                 let radius = tr_radius.get_or_insert(INITIAL_RADIUS);
                 let mut outcome = Err("the trust region shrank to nothing without an increase of Φ");
+                let eig = eigen_of(&ks, &gs);
                 for _ in 0..60 {
-                    let Some((ps, predicted)) = trust_region_step(&ks, &gs, *radius) else {
+                    let Some((ps, predicted)) =
+                        eig.as_ref().and_then(|eig| trust_region_step_with(eig, &ks, &gs, *radius))
+                    else {
                         outcome = Err("non-finite ∇²F or a failed eigen-decomposition of ∇²F + R");
                         break;
                     };
@@ -482,8 +596,23 @@ pub fn maximize_dual<A: EffectiveAction + ?Sized>(
         };
         match accepted {
             Ok((l, v)) => {
+                let res1 = residual(&l, &v.z, data, &active);
+                // A chord step keeps its ∇²F only as a full step that contracted; then with the
+                // step's secant (s = Δλ, y = Δz) by the symmetric rank-one update.
+                if is_chord && full && res1 <= CHORD_CONTRACTION * res0 {
+                    chord = hessian.clone().map(|h| {
+                        let s = DVector::from_fn(mdim, |i, _| l[i] - lambda[i]);
+                        let y = DVector::from_fn(mdim, |i, _| v.z[i] - cur.z[i]);
+                        sr1(h, &s, &y)
+                    });
+                }
                 lambda = l;
                 cur = v;
+                if newton && res1 > 0.5 * best {
+                    slow += 1;
+                } else {
+                    (slow, best) = (0, res1);
+                }
             }
             Err(why) => {
                 reason = Some(format!("{why} (optimality residual {res0:.3e})"));
@@ -591,6 +720,141 @@ mod tests {
             }
             Fd(action).hessian(lambda).unwrap()
         }
+    }
+
+    /// A convex, not quadratic F: μᵀλ + ½λᵀCλ + sΣ_i(e^{λ_i} − 1 − λ_i), with its exact Hessian
+    /// C + s·diag(e^{λ_i}) and a count of Hessian evaluations.
+    struct Exponentials {
+        quadratic: Quadratic,
+        s: f64,
+        hessians: usize,
+    }
+
+    impl EffectiveAction for Exponentials {
+        fn measurement_times(&self) -> &[f64] {
+            &self.quadratic.times
+        }
+        fn output_dim(&self) -> usize {
+            1
+        }
+        fn evaluate(&mut self, lambda: &[f64]) -> Result<ActionValue> {
+            let mut v = self.quadratic.evaluate(lambda)?;
+            for (zi, &l) in v.z.iter_mut().zip(lambda) {
+                v.value += self.s * (l.exp() - 1.0 - l);
+                *zi += self.s * (l.exp() - 1.0);
+            }
+            Ok(v)
+        }
+        fn hessian(&mut self, lambda: &[f64]) -> Result<DMatrix<f64>> {
+            self.hessians += 1;
+            let mut h = self.quadratic.c.clone();
+            for (i, &l) in lambda.iter().enumerate() {
+                h[(i, i)] += self.s * l.exp();
+            }
+            Ok(h)
+        }
+        fn history(&mut self, lambda: &[f64], cross: bool) -> Result<History> {
+            self.quadratic.history(lambda, cross)
+        }
+    }
+
+    #[test]
+    fn chord_steps_save_hessians_and_reach_the_same_maximiser() {
+        let times = vec![0.0, 0.5, 1.5, 2.0];
+        let c = DMatrix::from_fn(4, 4, |i, j| (-(times[i] - times[j] as f64).abs()).exp());
+        let mut f = Exponentials {
+            quadratic: Quadratic { times, mu: DVector::from_element(4, 0.3), c },
+            s: 0.5,
+            hessians: 0,
+        };
+        let data = DualData { r: vec![1.0, -0.5, 2.0, 0.7], variance: vec![0.2; 4], output_dim: 1 };
+        let options = DualOptions::default();
+        let exact = maximize_dual(&mut f, &data, &options, None).unwrap();
+        assert_eq!(exact.status, Status::Converged);
+        assert!(exact.iterations >= 3, "not a test of the chord: {} Newton iterations", exact.iterations);
+        // From a nearby start with ∇²F there: Newton needs a Hessian per iteration, the chord none.
+        let start: Vec<f64> = exact.lambda.iter().map(|l| l + 0.01).collect();
+        let h_start = f.hessian(&start).unwrap();
+        f.hessians = 0;
+        let newton = maximize_dual(&mut f, &data, &options, Some(&start)).unwrap();
+        assert_eq!((newton.status, f.hessians), (Status::Converged, newton.iterations));
+        f.hessians = 0;
+        let chord = maximize_dual_chord(&mut f, &data, &options, &start, h_start.clone()).unwrap();
+        assert_eq!(chord.status, Status::Converged);
+        assert_eq!(f.hessians, 0, "the chord computed ∇²F");
+        for (a, b) in chord.lambda.iter().zip(&exact.lambda) {
+            assert_relative_eq!(a, b, epsilon = 1e-10);
+        }
+        // A poor approximation (∇²F × 4) contracts too slowly: fresh Hessians take over.
+        f.hessians = 0;
+        let poor = maximize_dual_chord(&mut f, &data, &options, &start, h_start * 4.0).unwrap();
+        assert_eq!(poor.status, Status::Converged);
+        assert!(f.hessians >= 1 && f.hessians < poor.iterations, "{} of {}", f.hessians, poor.iterations);
+        for (a, b) in poor.lambda.iter().zip(&exact.lambda) {
+            assert_relative_eq!(a, b, epsilon = 1e-10);
+        }
+        // A Hessian of the wrong size is misuse.
+        assert!(maximize_dual_chord(&mut f, &data, &options, &start, DMatrix::zeros(3, 3)).is_err());
+    }
+
+    /// [`Exponentials`] with a noisy gradient (z + ε sin(λ/δ), δ ≪ 1): a residual floor of
+    /// about ε/R, as coarse sweeps give.
+    struct Noisy(Exponentials, f64);
+
+    impl EffectiveAction for Noisy {
+        fn measurement_times(&self) -> &[f64] {
+            self.0.measurement_times()
+        }
+        fn output_dim(&self) -> usize {
+            1
+        }
+        fn evaluate(&mut self, lambda: &[f64]) -> Result<ActionValue> {
+            let mut v = self.0.evaluate(lambda)?;
+            for (zi, &l) in v.z.iter_mut().zip(lambda) {
+                *zi += self.1 * (l * 1e4).sin();
+            }
+            Ok(v)
+        }
+        fn hessian(&mut self, lambda: &[f64]) -> Result<DMatrix<f64>> {
+            self.0.hessian(lambda)
+        }
+        fn history(&mut self, lambda: &[f64], cross: bool) -> Result<History> {
+            self.0.history(lambda, cross)
+        }
+    }
+
+    #[test]
+    fn a_stalled_newton_iteration_stops_as_acceptable() {
+        let times = vec![0.0, 0.5, 1.5, 2.0];
+        let c = DMatrix::from_fn(4, 4, |i, j| (-(times[i] - times[j] as f64).abs()).exp());
+        let exps = Exponentials {
+            quadratic: Quadratic { times, mu: DVector::from_element(4, 0.3), c },
+            s: 0.5,
+            hessians: 0,
+        };
+        let mut noisy = Noisy(exps, 1e-3);
+        let data = DualData { r: vec![1.0, -0.5, 2.0, 0.7], variance: vec![0.2; 4], output_dim: 1 };
+        let plain = maximize_dual(&mut noisy, &data, &DualOptions::default(), None).unwrap();
+        assert!(!plain.status.is_success() || plain.iterations > 10, "{plain:?}");
+        let options = DualOptions::default().with_stall_iterations(Some(3));
+        let stalled = maximize_dual(&mut noisy, &data, &options, None).unwrap();
+        assert_eq!(stalled.status, Status::Acceptable);
+        assert!(stalled.reason.as_deref().unwrap().starts_with("stalled"));
+        assert!(stalled.iterations < plain.iterations, "{} vs {}", stalled.iterations, plain.iterations);
+        // At the noise floor: within a few ε/R of the optimality condition.
+        assert!(stalled.residual < 0.1, "residual {}", stalled.residual);
+    }
+
+    #[test]
+    fn sr1_meets_the_secant_condition_and_skips_a_degenerate_pair() {
+        let h = DMatrix::from_row_slice(2, 2, &[2.0, 0.3, 0.3, 1.0]);
+        let (s, y) = (DVector::from_vec(vec![0.5, -0.2]), DVector::from_vec(vec![1.4, 0.1]));
+        let u = sr1(h.clone(), &s, &y);
+        let secant = &u * &s - &y;
+        assert!(secant.amax() < 1e-14, "{secant}");
+        assert!((&u - u.transpose()).amax() == 0.0);
+        // y = hs: nothing to correct.
+        assert_eq!(sr1(h.clone(), &s, &(&h * &s)), h);
     }
 
     #[test]

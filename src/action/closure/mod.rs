@@ -29,13 +29,13 @@ use onsager_closures::{Exponential, LegendreOptions, TrialFamily};
 use serde_json::json;
 
 use crate::data::StatePath;
-use crate::estimate::{EstimationProblem, PathEstimate};
+use crate::estimate::{EstimationProblem, PathEstimate, Status};
 use crate::model::observation::StateMeasurement;
 use crate::model::prior::{Prior, PriorDensity};
 use crate::model::Sde;
 use crate::{Error, Result};
 
-use super::dual::{maximize_dual, DualData, DualOptions, DualSolution, EffectiveAction};
+use super::dual::{maximize_dual, maximize_dual_chord, DualData, DualOptions, DualSolution, EffectiveAction};
 use super::exact::gaussian_dual_data;
 
 /// Which closure.
@@ -112,7 +112,10 @@ pub struct ClosureOptions {
     /// Step of the output grid. Default: the mean measurement spacing / 10 (the horizon / 10
     /// with a single measurement).
     pub output_step: Option<f64>,
-    /// Relative tolerance of the Runge–Kutta integration. Default 1e-6.
+    /// Relative tolerance of the Runge–Kutta integration. Default 1e-6. Below 1e-4 the dual's
+    /// first iterations run at min(100 · rtol, 1e-4) (and atol × the same factor) and only the
+    /// last ones, the history and the dispersion at rtol (see `docs/closures.md`, "Two-stage
+    /// dual").
     pub rtol: f64,
     /// Absolute tolerance of the Runge–Kutta integration. Default 1e-9.
     pub atol: f64,
@@ -312,7 +315,22 @@ struct Solved {
     sweeps: usize,
     /// Accepted Runge–Kutta steps of those sweeps.
     rk_steps: usize,
+    /// The coarse first stage of the dual, when there was one: its status, Newton iterations and
+    /// relative tolerance.
+    coarse_stage: Option<(Status, usize, f64)>,
 }
+
+/// The dual's first stage runs its sweeps at this multiple of the relative (and absolute)
+/// tolerance, ...
+const COARSE_FACTOR: f64 = 100.0;
+/// ... but at a relative tolerance of at most this (at 10⁻³ the double-well duals no longer
+/// converged: the step-size noise in F defeats the line search).
+const COARSE_RTOL: f64 = 1e-4;
+/// The first stage's dual tolerance (optimality residual; the default's 10⁻⁹ is the second's).
+const COARSE_DUAL_TOLERANCE: f64 = 1e-3;
+/// The first stage ends when this many Newton iterations in a row leave more than half of the
+/// residual: the coarse sweeps' noise floor lies above its tolerance (`DualOptions::stall_iterations`).
+const COARSE_STALL: usize = 3;
 
 fn solve<D: ClosureDrift>(
     mut action: ClosureAction<D>,
@@ -324,6 +342,18 @@ fn solve<D: ClosureDrift>(
     // the earlier multipliers fixed): on long bistable records the closure's prior prediction
     // (λ = 0) is far from the data, and a non-convex Rayleigh–Ritz F lets Newton's method wander
     // from there. Fallback: λ_k = ½R⁻¹(r_k − z_k(0)).
+    //
+    // Two stages (inexact Newton, the sweeps' accuracy matched to the distance from the optimum):
+    // the filter start and the dual to a residual of 10⁻³ with coarse sweeps (rtol × 100, at most
+    // 10⁻⁴: about half the steps), then at the requested tolerances by chord steps with the first
+    // stage's last ∇²F (`maximize_dual_chord`; full Newton once a chord step does not contract).
+    // Without a coarser tolerance (rtol ≥ 10⁻⁴), or when the first stage fails, one stage.
+    let (rtol, atol) = action.tolerances();
+    let coarse = (COARSE_FACTOR * rtol).min(COARSE_RTOL);
+    let staged = coarse > rtol;
+    if staged {
+        action.set_tolerances(coarse, atol * coarse / rtol)?;
+    }
     let start: Vec<f64> = match action.filter_start(data) {
         Some(l) => l,
         None => {
@@ -344,7 +374,27 @@ fn solve<D: ClosureDrift>(
             }
         }
     };
-    let mut dual = maximize_dual(&mut action, data, &options.dual, Some(&start))?;
+    let mut coarse_stage = None;
+    let mut dual = if staged {
+        let loose = options
+            .dual
+            .clone()
+            .with_tolerance(options.dual.tolerance.max(COARSE_DUAL_TOLERANCE))
+            .with_stall_iterations(Some(COARSE_STALL));
+        let first = maximize_dual(&mut action, data, &loose, Some(&start))?;
+        coarse_stage = Some((first.status, first.iterations, coarse));
+        action.set_tolerances(rtol, atol)?;
+        let from = if first.status.is_success() { &first.lambda } else { &start };
+        let mut second = match (&first.hessian, first.status.is_success()) {
+            (Some(h), true) => maximize_dual_chord(&mut action, data, &options.dual, from, h.clone())?,
+            _ => maximize_dual(&mut action, data, &options.dual, Some(from))?,
+        };
+        second.iterations += first.iterations;
+        second.evaluations += first.evaluations;
+        second
+    } else {
+        maximize_dual(&mut action, data, &options.dual, Some(&start))?
+    };
     if !dual.status.is_success() {
         // Retry from λ = 0 (the closure's prior prediction).
         let retry = maximize_dual(&mut action, data, &options.dual, None)?;
@@ -392,7 +442,7 @@ fn solve<D: ClosureDrift>(
         (None, true) => "ensemble dispersion",
         (None, false) => "closure variance",
     };
-    Ok(Solved { history, sd, sd_kind, dual, sweeps: action.sweeps(), rk_steps: action.steps() })
+    Ok(Solved { history, sd, sd_kind, dual, sweeps: action.sweeps(), rk_steps: action.steps(), coarse_stage })
 }
 
 /// The closure's [`ClosureAction`] for a problem, built as [`closure_estimate`] builds it (for
@@ -620,6 +670,12 @@ pub fn closure_estimate<S: Sde + ?Sized>(
     }
     est.details.insert("sweeps".into(), json!(solved.sweeps));
     est.details.insert("rk_steps".into(), json!(solved.rk_steps));
+    if let Some((status, iterations, rtol)) = solved.coarse_stage {
+        est.details.insert(
+            "coarse_stage".into(),
+            json!({"status": status.name(), "iterations": iterations, "rtol": rtol}),
+        );
+    }
     est.details.insert("sd".into(), json!(solved.sd_kind));
     Ok(est)
 }
