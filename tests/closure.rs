@@ -108,8 +108,18 @@ fn the_filter_start_leaves_the_evaluation_at_its_multipliers() {
     assert_eq!(from_cache, fresh.evaluate(&start).unwrap());
     let mut gaussian = gaussian_closure_action(&problem, &options).unwrap();
     let start = gaussian.filter_start(&dd).unwrap();
+    let sweeps = gaussian.sweeps();
+    let from_cache = gaussian.evaluate(&start).unwrap();
+    assert_eq!(gaussian.sweeps(), sweeps, "the Gaussian evaluation at the filter start ran a sweep");
     let mut fresh = gaussian_closure_action(&problem, &options).unwrap();
-    assert_eq!(gaussian.evaluate(&start).unwrap(), fresh.evaluate(&start).unwrap());
+    assert_eq!(from_cache, fresh.evaluate(&start).unwrap());
+    // New tolerances forget the cached evaluation: F is that of the new sweeps.
+    gaussian.set_tolerances(1e-9, 1e-12).unwrap();
+    let tight = gaussian.evaluate(&start).unwrap();
+    assert_eq!(gaussian.sweeps(), sweeps + 1);
+    assert_ne!(tight, from_cache);
+    assert_relative_eq!(tight.value, from_cache.value, max_relative = 1e-4);
+    assert!(gaussian.set_tolerances(0.0, 1e-9).is_err());
 }
 
 #[test]
@@ -144,6 +154,11 @@ fn the_two_stage_dual_reaches_the_one_stage_maximiser() {
         assert_eq!(one_stage.status, Status::Converged, "{kind:?}");
         let diff = staged.iter().zip(&one_stage.lambda).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
         assert!(diff < 1e-7, "{kind:?}: max |λ staged − λ one stage| = {diff}");
+        // No coarser tolerance to run at: one stage.
+        let loose = ClosureOptions::new().with_dispersion(false).with_tolerances(1e-4, 1e-7);
+        let est = closure_estimate(&problem, &kind, &loose).unwrap();
+        assert_eq!(est.status, Status::Converged, "{kind:?}");
+        assert!(!est.details.contains_key("coarse_stage"));
     }
 }
 

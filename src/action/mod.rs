@@ -28,7 +28,9 @@ pub mod fokker_planck;
 pub mod grid;
 
 pub use closure::{closure_estimate, ClosureAction, ClosureKind, ClosureOptions};
-pub use dual::{maximize_dual, DualData, DualOptions, DualSolution, EffectiveAction, History};
+pub use dual::{
+    maximize_dual, maximize_dual_chord, DualData, DualOptions, DualSolution, EffectiveAction, History,
+};
 pub use exact::{
     ksp_smoother, mean_optimal, ExactAction, ExactGrid, ExactOptions, KspSmoothing, MeanOptimal,
 };

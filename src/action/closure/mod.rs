@@ -347,7 +347,9 @@ fn solve<D: ClosureDrift>(
     // the filter start and the dual to a residual of 10⁻³ with coarse sweeps (rtol × 100, at most
     // 10⁻⁴: about half the steps), then at the requested tolerances by chord steps with the first
     // stage's last ∇²F (`maximize_dual_chord`; full Newton once a chord step does not contract).
-    // Without a coarser tolerance (rtol ≥ 10⁻⁴), or when the first stage fails, one stage.
+    // Without a coarser tolerance (rtol ≥ 10⁻⁴), or when the first stage fails, one stage (the
+    // filter start, then `maximize_dual`), which is also tried when the chord steps fail. Each
+    // attempt has `options.dual.max_iterations`; the reported iterations are their sum.
     let (rtol, atol) = action.tolerances();
     let coarse = (COARSE_FACTOR * rtol).min(COARSE_RTOL);
     let staged = coarse > rtol;
@@ -384,10 +386,20 @@ fn solve<D: ClosureDrift>(
         let first = maximize_dual(&mut action, data, &loose, Some(&start))?;
         coarse_stage = Some((first.status, first.iterations, coarse));
         action.set_tolerances(rtol, atol)?;
-        let from = if first.status.is_success() { &first.lambda } else { &start };
         let mut second = match (&first.hessian, first.status.is_success()) {
-            (Some(h), true) => maximize_dual_chord(&mut action, data, &options.dual, from, h.clone())?,
-            _ => maximize_dual(&mut action, data, &options.dual, Some(from))?,
+            (Some(h), true) => {
+                let chord = maximize_dual_chord(&mut action, data, &options.dual, &first.lambda, h.clone())?;
+                if chord.status.is_success() {
+                    chord
+                } else {
+                    // The one-stage iteration before the retry from λ = 0 below.
+                    let mut one = maximize_dual(&mut action, data, &options.dual, Some(&start))?;
+                    one.iterations += chord.iterations;
+                    one.evaluations += chord.evaluations;
+                    one
+                }
+            }
+            _ => maximize_dual(&mut action, data, &options.dual, Some(&start))?,
         };
         second.iterations += first.iterations;
         second.evaluations += first.evaluations;
