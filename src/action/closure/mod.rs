@@ -328,8 +328,8 @@ const COARSE_FACTOR: f64 = 100.0;
 const COARSE_RTOL: f64 = 1e-4;
 /// The first stage's dual tolerance (optimality residual; the default's 10⁻⁹ is the second's).
 const COARSE_DUAL_TOLERANCE: f64 = 1e-3;
-/// The first stage ends when this many Newton iterations in a row leave more than half of the
-/// residual: the coarse sweeps' noise floor lies above its tolerance (`DualOptions::stall_iterations`).
+/// The first stage ends after this many full Newton steps without halving the residual: the
+/// coarse sweeps' noise floor lies above its tolerance (`DualOptions::stall_iterations`).
 const COARSE_STALL: usize = 3;
 
 fn solve<D: ClosureDrift>(

@@ -287,7 +287,7 @@ pub struct ClosureAction<D: ClosureDrift> {
     measured: Vec<usize>,
     rtol: f64,
     /// [`graded_mode_steps`] of `rtol`.
-    mode_step: Vec<f64>,
+    mode_steps: Vec<f64>,
     atol: f64,
     cache: Option<(Vec<f64>, Forward, Vec<Vec<f64>>)>,
     sweeps: usize,
@@ -372,7 +372,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             measured,
             rtol,
             atol,
-            mode_step: graded_mode_steps(rtol),
+            mode_steps: graded_mode_steps(rtol),
             cache: None,
             sweeps: 0,
             steps: 0,
@@ -385,7 +385,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         check_tolerances(rtol, atol)?;
         self.rtol = rtol;
         self.atol = atol;
-        self.mode_step = graded_mode_steps(rtol);
+        self.mode_steps = graded_mode_steps(rtol);
         self.cache = None;
         Ok(())
     }
@@ -398,8 +398,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
     /// The mode step x relaxation times before a measurement ([`graded_mode_steps`], at the grid
     /// point below x).
     fn graded_mode_step(&self, x: f64) -> f64 {
-        let j = ((x / GRADE_STEP).floor().max(0.0) as usize).min(self.mode_step.len() - 1);
-        self.mode_step[j]
+        let j = ((x / GRADE_STEP).floor().max(0.0) as usize).min(self.mode_steps.len() - 1);
+        self.mode_steps[j]
     }
 
     /// The drift.
