@@ -130,7 +130,7 @@ fn the_two_stage_dual_reaches_the_one_stage_maximiser() {
     let case = DoubleWellCase::new(5, 20.0);
     let problem = case.problem();
     let dd = gaussian_dual_data(&problem).unwrap();
-    let options = ClosureOptions::new().with_dispersion(false);
+    let options = ClosureOptions::new().with_dispersion(false).with_dual_matched_to_sweeps(false);
     for (kind, degree) in [(ClosureKind::Gaussian, None), (ClosureKind::Exponential { degree: 4 }, Some(4))] {
         let est = closure_estimate(&problem, &kind, &options).unwrap();
         assert_eq!(est.status, Status::Converged, "{kind:?}");
@@ -160,6 +160,42 @@ fn the_two_stage_dual_reaches_the_one_stage_maximiser() {
         assert_eq!(est.status, Status::Converged, "{kind:?}");
         assert!(!est.details.contains_key("coarse_stage"));
     }
+}
+
+#[test]
+fn the_dual_matched_to_the_sweeps_stops_where_the_estimate_no_longer_moves() {
+    // By default the dual may stop at the residual 0.1 · (rtol · max|y| + atol) / max R: the
+    // estimate then differs from the one at the dual tolerance 10⁻⁹ by about R times the
+    // residual, far below the sweeps' own accuracy (rtol 10⁻⁶ here).
+    let case = DoubleWellCase::new(5, 20.0);
+    let problem = case.problem();
+    let y_max = case.data.values.iter().flatten().fold(0.0f64, |a, v| a.max(v.abs()));
+    let matched = 0.1 * (1e-6 * y_max + 1e-9) / 0.04;
+    let strict = ClosureOptions::new().with_dispersion(false).with_dual_matched_to_sweeps(false);
+    let options = ClosureOptions::new().with_dispersion(false);
+    for kind in [ClosureKind::Gaussian, ClosureKind::Exponential { degree: 4 }] {
+        let a = closure_estimate(&problem, &kind, &options).unwrap();
+        let b = closure_estimate(&problem, &kind, &strict).unwrap();
+        assert_eq!((a.status, b.status), (Status::Converged, Status::Converged), "{kind:?}");
+        let tol = a.details["dual_tolerance"].as_f64().unwrap();
+        assert_relative_eq!(tol, matched, max_relative = 1e-12);
+        assert_eq!(b.details["dual_tolerance"].as_f64().unwrap(), 1e-9);
+        let residual = a.details["optimality_residual"].as_f64().unwrap();
+        assert!(residual <= tol, "{kind:?}: residual {residual} above {tol}");
+        let diff =
+            a.path.values.iter().zip(&b.path.values).map(|(u, v)| (u[0] - v[0]).abs()).fold(0.0, f64::max);
+        eprintln!(
+            "{kind:?}: residual {residual:.3e} (strict {:.3e}), path difference {diff:.3e}, sweeps {} / {}",
+            b.details["optimality_residual"].as_f64().unwrap(),
+            a.details["sweeps"],
+            b.details["sweeps"]
+        );
+        assert!(diff <= 0.04 * tol, "{kind:?}: the estimates differ by {diff}");
+    }
+    // A dual tolerance above the matched one stands.
+    let loose = options.clone().with_dual(DualOptions::default().with_tolerance(1e-4));
+    let est = closure_estimate(&problem, &ClosureKind::Gaussian, &loose).unwrap();
+    assert_eq!(est.details["dual_tolerance"].as_f64().unwrap(), 1e-4);
 }
 
 /// A double-well record (D = 0.5, x(0) = −1, y ~ N(x(k), 0.2²) at k = 1, …, t_end) and the

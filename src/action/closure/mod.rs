@@ -141,6 +141,15 @@ pub struct ClosureOptions {
     /// Whether to compute the ensemble dispersion (sd columns) at the output times
     /// (`(I.85)–(I.90)`; costs 2 history sweeps per measurement). Default true.
     pub dispersion: bool,
+    /// Whether the dual may also stop where its optimality residual is a tenth of the sweeps'
+    /// accuracy, in measurement units: max_m |λ_m − (r_m − z_m)/R_m| ≤
+    /// 0.1 · (rtol · max_m |r_m| + atol) / max_m R_m over the present data (reported as the
+    /// detail `dual_tolerance`, the larger of this and `dual.tolerance`). A residual ε moves z
+    /// by at most R·ε, and the estimate by about as much, so below this level the multipliers'
+    /// error is a tenth of what the sweeps' tolerances allow and further Newton steps only buy
+    /// digits the sweeps do not have (inexact Newton). Default true; false: `dual.tolerance`
+    /// alone (see `docs/closures.md`, "Two-stage dual").
+    pub dual_matched_to_sweeps: bool,
     /// Options of the dual maximisation.
     pub dual: DualOptions,
 }
@@ -157,6 +166,7 @@ impl Default for ClosureOptions {
             extra_times: Vec::new(),
             gaussian_points: None,
             dispersion: true,
+            dual_matched_to_sweeps: true,
             dual: DualOptions::default(),
         }
     }
@@ -215,6 +225,13 @@ impl ClosureOptions {
     /// Whether to compute the dispersion.
     pub fn with_dispersion(mut self, dispersion: bool) -> Self {
         self.dispersion = dispersion;
+        self
+    }
+
+    /// Whether the dual may stop at a tenth of the sweeps' accuracy (see
+    /// [`ClosureOptions::dual_matched_to_sweeps`]).
+    pub fn with_dual_matched_to_sweeps(mut self, matched: bool) -> Self {
+        self.dual_matched_to_sweeps = matched;
         self
     }
 
@@ -318,6 +335,8 @@ struct Solved {
     /// The coarse first stage of the dual, when there was one: its status, Newton iterations and
     /// relative tolerance.
     coarse_stage: Option<(Status, usize, f64)>,
+    /// The tolerance the dual ran to ([`ClosureOptions::dual_matched_to_sweeps`]).
+    dual_tolerance: f64,
 }
 
 /// The dual's first stage runs its sweeps at this multiple of the relative (and absolute)
@@ -328,9 +347,31 @@ const COARSE_FACTOR: f64 = 100.0;
 const COARSE_RTOL: f64 = 1e-4;
 /// The first stage's dual tolerance (optimality residual; the default's 10⁻⁹ is the second's).
 const COARSE_DUAL_TOLERANCE: f64 = 1e-3;
+/// The dual's residual, in measurement units, may stop at this fraction of the sweeps'
+/// accuracy ([`ClosureOptions::dual_matched_to_sweeps`]).
+const SWEEP_MATCH: f64 = 0.1;
 /// The first stage ends after this many full Newton steps without halving the residual: the
 /// coarse sweeps' noise floor lies above its tolerance (`DualOptions::stall_iterations`).
 const COARSE_STALL: usize = 3;
+
+/// The dual's tolerance: `options.dual.tolerance`, or with
+/// [`ClosureOptions::dual_matched_to_sweeps`] the larger of it and
+/// [`SWEEP_MATCH`] · (rtol · max_m |r_m| + atol) / max_m R_m over the present data.
+fn dual_tolerance(data: &DualData, rtol: f64, atol: f64, options: &ClosureOptions) -> f64 {
+    let strict = options.dual.tolerance;
+    if !options.dual_matched_to_sweeps {
+        return strict;
+    }
+    let active = data.active();
+    let r_max = active.iter().map(|&m| data.r[m].abs()).fold(0.0, f64::max);
+    let var_max = active.iter().map(|&m| data.variance[m]).fold(0.0, f64::max);
+    let matched = SWEEP_MATCH * (rtol * r_max + atol) / var_max;
+    if matched.is_finite() {
+        strict.max(matched)
+    } else {
+        strict
+    }
+}
 
 fn solve<D: ClosureDrift>(
     mut action: ClosureAction<D>,
@@ -346,11 +387,13 @@ fn solve<D: ClosureDrift>(
     // Two stages (inexact Newton, the sweeps' accuracy matched to the distance from the optimum):
     // the filter start and the dual to a residual of 10⁻³ with coarse sweeps (rtol × 100, at most
     // 10⁻⁴: about half the steps), then at the requested tolerances by chord steps with the first
-    // stage's last ∇²F (`maximize_dual_chord`; full Newton once a chord step does not contract).
+    // stage's last ∇²F (`maximize_dual_chord`; full Newton once a chord step does not contract),
+    // to the dual tolerance matched to the sweeps (`dual_tolerance`).
     // Without a coarser tolerance (rtol ≥ 10⁻⁴), or when the first stage fails, one stage (the
     // filter start, then `maximize_dual`), which is also tried when the chord steps fail. Each
     // attempt has `options.dual.max_iterations`; the reported iterations are their sum.
     let (rtol, atol) = action.tolerances();
+    let fine = options.dual.clone().with_tolerance(dual_tolerance(data, rtol, atol, options));
     let coarse = (COARSE_FACTOR * rtol).min(COARSE_RTOL);
     let staged = coarse > rtol;
     if staged {
@@ -381,35 +424,35 @@ fn solve<D: ClosureDrift>(
         let loose = options
             .dual
             .clone()
-            .with_tolerance(options.dual.tolerance.max(COARSE_DUAL_TOLERANCE))
+            .with_tolerance(fine.tolerance.max(COARSE_DUAL_TOLERANCE))
             .with_stall_iterations(Some(COARSE_STALL));
         let first = maximize_dual(&mut action, data, &loose, Some(&start))?;
         coarse_stage = Some((first.status, first.iterations, coarse));
         action.set_tolerances(rtol, atol)?;
         let mut second = match (&first.hessian, first.status.is_success()) {
             (Some(h), true) => {
-                let chord = maximize_dual_chord(&mut action, data, &options.dual, &first.lambda, h.clone())?;
+                let chord = maximize_dual_chord(&mut action, data, &fine, &first.lambda, h.clone())?;
                 if chord.status.is_success() {
                     chord
                 } else {
                     // The one-stage iteration before the retry from λ = 0 below.
-                    let mut one = maximize_dual(&mut action, data, &options.dual, Some(&start))?;
+                    let mut one = maximize_dual(&mut action, data, &fine, Some(&start))?;
                     one.iterations += chord.iterations;
                     one.evaluations += chord.evaluations;
                     one
                 }
             }
-            _ => maximize_dual(&mut action, data, &options.dual, Some(&start))?,
+            _ => maximize_dual(&mut action, data, &fine, Some(&start))?,
         };
         second.iterations += first.iterations;
         second.evaluations += first.evaluations;
         second
     } else {
-        maximize_dual(&mut action, data, &options.dual, Some(&start))?
+        maximize_dual(&mut action, data, &fine, Some(&start))?
     };
     if !dual.status.is_success() {
         // Retry from λ = 0 (the closure's prior prediction).
-        let retry = maximize_dual(&mut action, data, &options.dual, None)?;
+        let retry = maximize_dual(&mut action, data, &fine, None)?;
         if retry.status.is_success() || retry.residual < dual.residual {
             dual = retry;
         }
@@ -454,7 +497,16 @@ fn solve<D: ClosureDrift>(
         (None, true) => "ensemble dispersion",
         (None, false) => "closure variance",
     };
-    Ok(Solved { history, sd, sd_kind, dual, sweeps: action.sweeps(), rk_steps: action.steps(), coarse_stage })
+    Ok(Solved {
+        history,
+        sd,
+        sd_kind,
+        dual,
+        sweeps: action.sweeps(),
+        rk_steps: action.steps(),
+        coarse_stage,
+        dual_tolerance: fine.tolerance,
+    })
 }
 
 /// The closure's [`ClosureAction`] for a problem, built as [`closure_estimate`] builds it (for
@@ -680,6 +732,7 @@ pub fn closure_estimate<S: Sde + ?Sized>(
     if let Some(reason) = &dual.reason {
         est.details.insert("dual_reason".into(), json!(reason));
     }
+    est.details.insert("dual_tolerance".into(), json!(solved.dual_tolerance));
     est.details.insert("sweeps".into(), json!(solved.sweeps));
     est.details.insert("rk_steps".into(), json!(solved.rk_steps));
     if let Some((status, iterations, rtol)) = solved.coarse_stage {
