@@ -354,6 +354,14 @@ fn trust_region_step_with(
     Some((p, m))
 }
 
+/// The shortest fraction t of the Newton step that the line search tries (t = 1, ½, …, 2⁻¹⁰).
+/// Where K is positive definite and no such step raises Φ (Armijo) or halves the residual, the
+/// evaluation's own noise is in the way (coarse sweeps), and a shorter step is no progress: with
+/// 40 halvings the line search used to accept steps of 10⁻⁸ of Newton's on Φ differences of
+/// round-off size, and the next iteration repeated it (the Gaussian closure: 240 sweeps in 12
+/// iterations on a record of 10 measurements).
+const MIN_STEP_FRACTION: f64 = 1.0 / 1024.0;
+
 /// The first trust-region radius in the scaled multipliers R^{1/2}λ: one standardised residual.
 const INITIAL_RADIUS: f64 = 1.0;
 
@@ -377,7 +385,7 @@ fn update_radius(radius: f64, step_norm: f64, rho: f64) -> f64 {
 ///
 /// Errors: misuse (lengths, invalid data or options). Non-convergence is a [`Status`]:
 /// `MaxIterations`, or `NumericalFailure` with [`DualSolution::reason`] (no ascent along the
-/// Newton direction, the trust region shrinking to nothing, non-finite values), `Acceptable`
+/// Newton direction down to [`MIN_STEP_FRACTION`] of the step, the trust region shrinking to nothing, non-finite values), `Acceptable`
 /// when such a stop happens with the residual within 10³ × the tolerance, and `Acceptable` (with
 /// a reason starting "stalled") at the stall limit of [`DualOptions::stall_iterations`] whatever
 /// the residual.
@@ -548,7 +556,7 @@ fn maximize<A: EffectiveAction + ?Sized>(
                 let slope = g.dot(&step);
                 let mut t = 1.0;
                 let mut accepted = None;
-                for _ in 0..40 {
+                while t >= MIN_STEP_FRACTION {
                     let mut trial = lambda.clone();
                     for (i, &mi) in active.iter().enumerate() {
                         trial[mi] += t * step[i];
@@ -870,6 +878,63 @@ mod tests {
         // A stall limit of 0 would stop before the first step.
         let zero = DualOptions::default().with_stall_iterations(Some(0));
         assert!(maximize_dual(&mut slow, &data, &zero, None).is_err());
+    }
+
+    /// F(λ) = ½aλ² (one multiplier) whose reported gradient is off by ε with the sign of
+    /// λ − λ* (λ* = r/(R + a), the maximiser of the true Φ): the noise of a coarse sweep.
+    struct Biased {
+        times: Vec<f64>,
+        a: f64,
+        lambda_star: f64,
+        eps: f64,
+    }
+
+    impl EffectiveAction for Biased {
+        fn measurement_times(&self) -> &[f64] {
+            &self.times
+        }
+        fn output_dim(&self) -> usize {
+            1
+        }
+        fn evaluate(&mut self, lambda: &[f64]) -> Result<ActionValue> {
+            let l = lambda[0];
+            let bias = if l > self.lambda_star { self.eps } else { -self.eps };
+            Ok(ActionValue { value: 0.5 * self.a * l * l, z: vec![self.a * l + bias] })
+        }
+        fn hessian(&mut self, _lambda: &[f64]) -> Result<DMatrix<f64>> {
+            Ok(DMatrix::from_element(1, 1, self.a))
+        }
+        fn history(&mut self, lambda: &[f64], _cross: bool) -> Result<History> {
+            let z = self.evaluate(lambda)?.z;
+            Ok(History {
+                times: self.times.clone(),
+                mean: vec![z],
+                variance: vec![vec![self.a]],
+                cross: None,
+            })
+        }
+    }
+
+    #[test]
+    fn the_line_search_stops_at_its_shortest_step() {
+        // R = a = r = 1, λ* = ½, ε = 10⁻³, from λ* − δ: the Newton step p ≈ ε/(R + a) overshoots
+        // λ*, the residual does not halve along it, and Armijo's test
+        // Φ(λ + tp) − Φ(λ) = (R + a)(2δ − tp)tp/2 ≥ 10⁻⁴ t g p holds only for
+        // t ≤ 2(R + a)δ/ε − 2·10⁻⁴ = 10⁻⁴ < 2⁻¹⁰. So no step is taken: one iteration of 11
+        // trials (t = 1, …, 2⁻¹⁰), where 40 halvings accepted t = 2⁻¹⁴ and went on.
+        let (a, eps) = (1.0, 1e-3);
+        let delta = 3e-4 * eps / (2.0 * (1.0 + a));
+        let mut action = Biased { times: vec![1.0], a, lambda_star: 0.5, eps };
+        let data = DualData { r: vec![1.0], variance: vec![1.0], output_dim: 1 };
+        let sol = maximize_dual(&mut action, &data, &DualOptions::default(), Some(&[0.5 - delta])).unwrap();
+        assert_eq!(sol.status, Status::NumericalFailure);
+        assert!(sol.reason.as_deref().unwrap().contains("no ascent"), "{:?}", sol.reason);
+        assert_eq!((sol.iterations, sol.evaluations), (1, 12));
+        assert_eq!(sol.lambda, vec![0.5 - delta]);
+        // Near the tolerance the same stop is `Acceptable`.
+        let loose = DualOptions::default().with_tolerance(1e-5);
+        let sol = maximize_dual(&mut action, &data, &loose, Some(&[0.5 - delta])).unwrap();
+        assert_eq!(sol.status, Status::Acceptable);
     }
 
     #[test]
