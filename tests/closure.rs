@@ -113,6 +113,11 @@ fn the_filter_start_leaves_the_evaluation_at_its_multipliers() {
     assert_eq!(gaussian.sweeps(), sweeps, "the Gaussian evaluation at the filter start ran a sweep");
     let mut fresh = gaussian_closure_action(&problem, &options).unwrap();
     assert_eq!(from_cache, fresh.evaluate(&start).unwrap());
+    // The same tolerances again keep it.
+    let (rtol, atol) = gaussian.tolerances();
+    gaussian.set_tolerances(rtol, atol).unwrap();
+    assert_eq!(gaussian.evaluate(&start).unwrap(), from_cache);
+    assert_eq!(gaussian.sweeps(), sweeps);
     // New tolerances forget the cached evaluation: F is that of the new sweeps.
     gaussian.set_tolerances(1e-9, 1e-12).unwrap();
     let tight = gaussian.evaluate(&start).unwrap();
@@ -612,5 +617,36 @@ fn the_history_just_before_a_measurement_is_resolved() {
         let dp = max_diff(&default.path.values, &tight.path.values);
         let ds = max_diff(default.path.sd.as_ref().unwrap(), tight.path.sd.as_ref().unwrap());
         assert!(dp < 1e-4 && ds < 1e-4, "{kind:?}: path {dp:e}, sd {ds:e}");
+    }
+}
+
+#[test]
+fn a_coarse_stage_cut_short_is_continued_at_the_requested_tolerance() {
+    // With the iteration limit below what the coarse first stage needs, it stops at the limit;
+    // the second stage goes on from where it got to (not from the filter start again, which at
+    // the fine tolerance would need more than the limit) and reaches the same maximiser.
+    let case = DoubleWellCase::new(5, 20.0);
+    let problem = case.problem();
+    let options = ClosureOptions::new().with_dispersion(false);
+    for (kind, limit) in [(ClosureKind::Gaussian, 2), (ClosureKind::Exponential { degree: 4 }, 4)] {
+        let full = closure_estimate(&problem, &kind, &options).unwrap();
+        let limited = options.clone().with_dual(DualOptions::default().with_max_iterations(limit));
+        let cut = closure_estimate(&problem, &kind, &limited).unwrap();
+        assert_eq!((full.status, cut.status), (Status::Converged, Status::Converged), "{kind:?}");
+        let coarse = &cut.details["coarse_stage"];
+        assert_eq!(coarse["status"], "max-iterations", "{kind:?}");
+        assert_eq!(coarse["iterations"].as_u64().unwrap(), limit as u64, "{kind:?}");
+        assert_eq!(cut.details["dual_start"], "filter", "{kind:?}");
+        assert!(cut.iterations <= 2 * limit, "{kind:?}: {} iterations", cut.iterations);
+        let phi = |e: &onsager::estimate::PathEstimate| e.details["phi"].as_f64().unwrap();
+        assert_relative_eq!(phi(&cut), phi(&full), max_relative = 1e-9);
+        let diff = cut
+            .path
+            .values
+            .iter()
+            .zip(&full.path.values)
+            .map(|(u, v)| (u[0] - v[0]).abs())
+            .fold(0.0, f64::max);
+        assert!(diff < 1e-6, "{kind:?}: the estimates differ by {diff}");
     }
 }

@@ -379,10 +379,13 @@ impl<D: ClosureDrift> ClosureAction<D> {
         })
     }
 
-    /// Sets the Runge–Kutta tolerances of the following sweeps (and forgets the cached sweep,
-    /// whose F belongs to the old ones). Errors as [`ClosureAction::try_new`].
+    /// Sets the Runge–Kutta tolerances of the following sweeps and, when they change, forgets the
+    /// cached sweep, whose F belongs to the old ones. Errors as [`ClosureAction::try_new`].
     pub fn set_tolerances(&mut self, rtol: f64, atol: f64) -> Result<()> {
         check_tolerances(rtol, atol)?;
+        if (rtol, atol) == (self.rtol, self.atol) {
+            return Ok(());
+        }
         self.rtol = rtol;
         self.atol = atol;
         self.mode_steps = graded_mode_steps(rtol);
