@@ -187,14 +187,11 @@ fn the_dual_matched_to_the_sweeps_stops_where_the_estimate_no_longer_moves() {
         assert_eq!(b.details["dual_tolerance"].as_f64().unwrap(), 1e-9);
         let residual = a.details["optimality_residual"].as_f64().unwrap();
         assert!(residual <= tol, "{kind:?}: residual {residual} above {tol}");
+        // It stopped earlier: a sweep fewer than at 10⁻⁹.
+        let sweeps = |e: &onsager::estimate::PathEstimate| e.details["sweeps"].as_u64().unwrap();
+        assert!(sweeps(&a) < sweeps(&b), "{kind:?}: {} sweeps against {}", sweeps(&a), sweeps(&b));
         let diff =
             a.path.values.iter().zip(&b.path.values).map(|(u, v)| (u[0] - v[0]).abs()).fold(0.0, f64::max);
-        eprintln!(
-            "{kind:?}: residual {residual:.3e} (strict {:.3e}), path difference {diff:.3e}, sweeps {} / {}",
-            b.details["optimality_residual"].as_f64().unwrap(),
-            a.details["sweeps"],
-            b.details["sweeps"]
-        );
         assert!(diff <= 0.04 * tol, "{kind:?}: the estimates differ by {diff}");
     }
     // A dual tolerance above the matched one stands.
@@ -637,7 +634,7 @@ fn a_coarse_stage_cut_short_is_continued_at_the_requested_tolerance() {
         assert_eq!(coarse["status"], "max-iterations", "{kind:?}");
         assert_eq!(coarse["iterations"].as_u64().unwrap(), limit as u64, "{kind:?}");
         assert_eq!(cut.details["dual_start"], "filter", "{kind:?}");
-        assert!(cut.iterations <= 2 * limit, "{kind:?}: {} iterations", cut.iterations);
+        assert!(cut.iterations <= limit + 2, "{kind:?}: {} iterations", cut.iterations);
         let phi = |e: &onsager::estimate::PathEstimate| e.details["phi"].as_f64().unwrap();
         assert_relative_eq!(phi(&cut), phi(&full), max_relative = 1e-9);
         let diff = cut

@@ -143,12 +143,15 @@ pub struct ClosureOptions {
     pub dispersion: bool,
     /// Whether the dual may also stop where its optimality residual is a tenth of the sweeps'
     /// accuracy, in measurement units: max_m |λ_m − (r_m − z_m)/R_m| ≤
-    /// 0.1 · (rtol · max_m |r_m| + atol) / max_m R_m over the present data (reported as the
-    /// detail `dual_tolerance`, the larger of this and `dual.tolerance`). A residual ε moves z
-    /// by at most R·ε, and the estimate by about as much, so below this level the multipliers'
-    /// error is a tenth of what the sweeps' tolerances allow and further Newton steps only buy
-    /// digits the sweeps do not have (inexact Newton). Default true; false: `dual.tolerance`
-    /// alone (see `docs/closures.md`, "Two-stage dual").
+    /// 0.1 · min_a (rtol · max_k |r_ka| + atol) / max_k R_ka, per measured output a over its
+    /// present data (reported as the detail `dual_tolerance`, the larger of this and
+    /// `dual.tolerance`; a stop short of it is `Acceptable` within 10 × it). The remaining Newton
+    /// correction of a residual ε is K⁻¹Rε, which moves z by ∇²F K⁻¹ Rε: at most Rε in the
+    /// R⁻¹-weighted norm where ∇²F is positive semi-definite, about as much for the estimate in
+    /// between, more where F is not convex (hence the tenth). Below this level the further Newton
+    /// steps buy digits the sweeps do not have (inexact Newton). Default true; false:
+    /// `dual.tolerance` alone (see `docs/closures.md`, "The dual's tolerance, its shortest step
+    /// and its fallbacks").
     pub dual_matched_to_sweeps: bool,
     /// Options of the dual maximisation.
     pub dual: DualOptions,
@@ -335,8 +338,8 @@ struct Solved {
     sweeps: usize,
     /// Accepted Runge–Kutta steps of those sweeps.
     rk_steps: usize,
-    /// The coarse first stage of the dual, when there was one: its status, Newton iterations and
-    /// relative tolerance.
+    /// The coarse first stage of the dual from the first start, when there was one (also when the
+    /// retry from λ = 0 gave the estimate: its iterations are in the total).
     coarse_stage: Option<CoarseStage>,
     /// The tolerance the dual ran to ([`ClosureOptions::dual_matched_to_sweeps`]).
     dual_tolerance: f64,
@@ -360,23 +363,31 @@ const SWEEP_MATCH: f64 = 0.1;
 /// coarse sweeps' noise floor lies above its tolerance (`DualOptions::stall_iterations`).
 const COARSE_STALL: usize = 3;
 
-/// The dual's tolerance: `options.dual.tolerance`, or with
-/// [`ClosureOptions::dual_matched_to_sweeps`] the larger of it and
-/// [`SWEEP_MATCH`] · (rtol · max_m |r_m| + atol) / max_m R_m over the present data.
-fn dual_tolerance(data: &DualData, rtol: f64, atol: f64, options: &ClosureOptions) -> f64 {
-    let strict = options.dual.tolerance;
+/// The dual's options at the requested sweep tolerances: `options.dual`, and with
+/// [`ClosureOptions::dual_matched_to_sweeps`] the tolerance raised to
+/// [`SWEEP_MATCH`] · min_a (rtol · max_k |r_ka| + atol) / max_k R_ka (per measured output a,
+/// over its present data) when that is larger, and stops short of it `Acceptable` only within
+/// 10 × that (or the default band 10³ × `dual.tolerance`, if larger).
+fn fine_dual_options(data: &DualData, rtol: f64, atol: f64, options: &ClosureOptions) -> DualOptions {
+    let strict = options.dual.clone();
     if !options.dual_matched_to_sweeps {
         return strict;
     }
-    let active = data.active();
-    let r_max = active.iter().map(|&m| data.r[m].abs()).fold(0.0, f64::max);
-    let var_max = active.iter().map(|&m| data.variance[m]).fold(0.0, f64::max);
-    let matched = SWEEP_MATCH * (rtol * r_max + atol) / var_max;
-    if matched.is_finite() {
-        strict.max(matched)
-    } else {
-        strict
+    let s = data.output_dim.max(1);
+    let matched = (0..s)
+        .filter_map(|a| {
+            let present: Vec<usize> = data.active().into_iter().filter(|m| m % s == a).collect();
+            let r_max = present.iter().map(|&m| data.r[m].abs()).fold(0.0, f64::max);
+            let var_max = present.iter().map(|&m| data.variance[m]).fold(0.0, f64::max);
+            let t = SWEEP_MATCH * (rtol * r_max + atol) / var_max;
+            t.is_finite().then_some(t)
+        })
+        .fold(f64::INFINITY, f64::min);
+    if !(matched.is_finite() && matched > strict.tolerance) {
+        return strict;
     }
+    let acceptable = strict.acceptable().max(10.0 * matched);
+    strict.with_tolerance(matched).with_acceptable_tolerance(Some(acceptable))
 }
 
 /// The dual from one start: with `coarse` tolerances (rtol, atol), the first stage with those
@@ -401,6 +412,7 @@ fn attempt<D: ClosureDrift>(
     let loose = fine
         .clone()
         .with_tolerance(fine.tolerance.max(COARSE_DUAL_TOLERANCE))
+        .with_acceptable_tolerance(None)
         .with_stall_iterations(Some(COARSE_STALL));
     let first = maximize_dual(action, data, &loose, Some(start))?;
     action.set_tolerances(tolerances.0, tolerances.1)?;
@@ -439,12 +451,12 @@ fn solve<D: ClosureDrift>(
     // the dual to a residual of 10⁻³ with coarse sweeps (rtol × 100, at most 10⁻⁴: about half
     // the steps), then at the requested tolerances by chord steps with the first stage's last
     // ∇²F (`maximize_dual_chord`; full Newton once a chord step does not contract), to the dual
-    // tolerance matched to the sweeps (`dual_tolerance`); see `attempt` for the fallbacks. Without
+    // tolerance matched to the sweeps (`fine_dual_options`); see `attempt` for the fallbacks. Without
     // a coarser tolerance (rtol ≥ 10⁻⁴) one stage. If the start from the filter fails, one stage
     // from λ = 0. Each stage has `options.dual.max_iterations`; the reported iterations and
     // evaluations are the sum over all.
     let (rtol, atol) = action.tolerances();
-    let fine = options.dual.clone().with_tolerance(dual_tolerance(data, rtol, atol, options));
+    let fine = fine_dual_options(data, rtol, atol, options);
     let coarse_rtol = (COARSE_FACTOR * rtol).min(COARSE_RTOL);
     let coarse = (coarse_rtol > rtol).then_some((coarse_rtol, atol * coarse_rtol / rtol));
     if let Some((c_rtol, c_atol)) = coarse {
@@ -471,7 +483,7 @@ fn solve<D: ClosureDrift>(
             (half, "prior")
         }
     };
-    let (mut dual, mut coarse_stage) = attempt(&mut action, data, &start, &fine, (rtol, atol), coarse)?;
+    let (mut dual, coarse_stage) = attempt(&mut action, data, &start, &fine, (rtol, atol), coarse)?;
     let mut dual_start = start_kind;
     if !dual.status.is_success() {
         // Retry from λ = 0 (the closure's prior prediction), in one stage (in two, on the
@@ -480,7 +492,7 @@ fn solve<D: ClosureDrift>(
         retry.iterations += dual.iterations;
         retry.evaluations += dual.evaluations;
         if retry.status.is_success() || retry.residual < dual.residual {
-            (dual, coarse_stage, dual_start) = (retry, None, "zero");
+            (dual, dual_start) = (retry, "zero");
         } else {
             dual.iterations = retry.iterations;
             dual.evaluations = retry.evaluations;
@@ -776,4 +788,35 @@ pub fn closure_estimate<S: Sde + ?Sized>(
     }
     est.details.insert("sd".into(), json!(solved.sd_kind));
     Ok(est)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_matched_dual_tolerance_is_that_of_the_tightest_output() {
+        // Two outputs (s = 2, two times): output 0 with |r| ≤ 2 and R = 0.04, output 1 with
+        // |r| ≤ 100 and R = 1 (its third value missing): 0.1(10⁻⁶·2 + 10⁻⁹)/0.04 = 5.0025·10⁻⁶
+        // against 0.1(10⁻⁶·100 + 10⁻⁹)/1 ≈ 10⁻⁵; the smaller stands, and the acceptable band is
+        // ten times it.
+        let data = DualData {
+            r: vec![1.0, 100.0, -2.0, f64::NAN],
+            variance: vec![0.04, 1.0, 0.04, 1.0],
+            output_dim: 2,
+        };
+        let options = ClosureOptions::new();
+        let fine = fine_dual_options(&data, 1e-6, 1e-9, &options);
+        let expect = 0.1 * (1e-6 * 2.0 + 1e-9) / 0.04;
+        assert!((fine.tolerance - expect).abs() <= 1e-15 * expect, "{}", fine.tolerance);
+        assert_eq!(fine.acceptable(), 10.0 * fine.tolerance);
+        assert!(fine.validate().is_ok());
+        // Off, a larger dual tolerance, or no present data: the dual's options as given.
+        let off = options.clone().with_dual_matched_to_sweeps(false);
+        assert_eq!(fine_dual_options(&data, 1e-6, 1e-9, &off), off.dual);
+        let tol = options.clone().with_dual(DualOptions::default().with_tolerance(1e-3));
+        assert_eq!(fine_dual_options(&data, 1e-6, 1e-9, &tol), tol.dual);
+        let missing = DualData { r: vec![f64::NAN; 4], ..data };
+        assert_eq!(fine_dual_options(&missing, 1e-6, 1e-9, &options), options.dual);
+    }
 }
