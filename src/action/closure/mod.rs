@@ -394,7 +394,8 @@ fn fine_dual_options(data: &DualData, rtol: f64, atol: f64, options: &ClosureOpt
 /// sweeps to [`COARSE_DUAL_TOLERANCE`], then at `tolerances` by chord steps
 /// ([`maximize_dual_chord`]), or, when the chord steps fail, the one-stage iteration from
 /// `start`; when the first stage fails (its iteration limit in a trust-region crawl, say), the
-/// one-stage iteration from where it got to, whose Φ is higher than the start's. Without
+/// one-stage iteration from where it got to (which has usually raised Φ: every trust-region and
+/// Armijo step does, a Newton step accepted for halving the residual need not). Without
 /// `coarse`, the one-stage iteration from `start`. Iterations and evaluations are summed over
 /// the stages; the coarse stage's status and iterations are returned with its rtol.
 fn attempt<D: ClosureDrift>(
@@ -486,8 +487,8 @@ fn solve<D: ClosureDrift>(
     let (mut dual, coarse_stage) = attempt(&mut action, data, &start, &fine, (rtol, atol), coarse)?;
     let mut dual_start = start_kind;
     if !dual.status.is_success() {
-        // Retry from λ = 0 (the closure's prior prediction), in one stage (in two, on the
-        // benchmark records of docs/closures.md, it failed where this converged).
+        // Retry from λ = 0 (the closure's prior prediction), in one stage (in two, on one of the
+        // 24 double-well records of docs/closures.md, it failed where this converged).
         let mut retry = maximize_dual(&mut action, data, &fine, None)?;
         retry.iterations += dual.iterations;
         retry.evaluations += dual.evaluations;
