@@ -190,14 +190,18 @@ fn the_dual_matched_to_the_sweeps_stops_where_the_estimate_no_longer_moves() {
         // It stopped earlier: a sweep fewer than at 10⁻⁹.
         let sweeps = |e: &onsager::estimate::PathEstimate| e.details["sweeps"].as_u64().unwrap();
         assert!(sweeps(&a) < sweeps(&b), "{kind:?}: {} sweeps against {}", sweeps(&a), sweeps(&b));
-        let diff =
-            a.path.values.iter().zip(&b.path.values).map(|(u, v)| (u[0] - v[0]).abs()).fold(0.0, f64::max);
+        let diff = sup_diff(&a.path.values, &b.path.values);
         assert!(diff <= 0.04 * tol, "{kind:?}: the estimates differ by {diff}");
     }
     // A dual tolerance above the matched one stands.
     let loose = options.clone().with_dual(DualOptions::default().with_tolerance(1e-4));
     let est = closure_estimate(&problem, &ClosureKind::Gaussian, &loose).unwrap();
     assert_eq!(est.details["dual_tolerance"].as_f64().unwrap(), 1e-4);
+}
+
+/// max_k |a_k − b_k| of the first columns of two paths (rows of values at the same times).
+fn sup_diff(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x[0] - y[0]).abs()).fold(0.0, f64::max)
 }
 
 /// A double-well record (D = 0.5, x(0) = −1, y ~ N(x(k), 0.2²) at k = 1, …, t_end) and the
@@ -608,11 +612,8 @@ fn the_history_just_before_a_measurement_is_resolved() {
         let tight = closure_estimate(&problem, &kind, &options.with_tolerances(1e-10, 1e-13)).unwrap();
         assert_eq!(default.status, Status::Converged);
         assert_eq!(tight.status, Status::Converged);
-        let max_diff = |a: &[Vec<f64>], b: &[Vec<f64>]| {
-            a.iter().zip(b).map(|(x, y)| (x[0] - y[0]).abs()).fold(0.0, f64::max)
-        };
-        let dp = max_diff(&default.path.values, &tight.path.values);
-        let ds = max_diff(default.path.sd.as_ref().unwrap(), tight.path.sd.as_ref().unwrap());
+        let dp = sup_diff(&default.path.values, &tight.path.values);
+        let ds = sup_diff(default.path.sd.as_ref().unwrap(), tight.path.sd.as_ref().unwrap());
         assert!(dp < 1e-4 && ds < 1e-4, "{kind:?}: path {dp:e}, sd {ds:e}");
     }
 }
@@ -637,13 +638,7 @@ fn a_coarse_stage_cut_short_is_continued_at_the_requested_tolerance() {
         assert!(cut.iterations <= limit + 2, "{kind:?}: {} iterations", cut.iterations);
         let phi = |e: &onsager::estimate::PathEstimate| e.details["phi"].as_f64().unwrap();
         assert_relative_eq!(phi(&cut), phi(&full), max_relative = 1e-9);
-        let diff = cut
-            .path
-            .values
-            .iter()
-            .zip(&full.path.values)
-            .map(|(u, v)| (u[0] - v[0]).abs())
-            .fold(0.0, f64::max);
+        let diff = sup_diff(&cut.path.values, &full.path.values);
         assert!(diff < 1e-6, "{kind:?}: the estimates differ by {diff}");
     }
 }

@@ -374,11 +374,12 @@ fn fine_dual_options(data: &DualData, rtol: f64, atol: f64, options: &ClosureOpt
         return strict;
     }
     let s = data.output_dim.max(1);
+    let active = data.active();
     let matched = (0..s)
         .filter_map(|a| {
-            let present: Vec<usize> = data.active().into_iter().filter(|m| m % s == a).collect();
-            let r_max = present.iter().map(|&m| data.r[m].abs()).fold(0.0, f64::max);
-            let var_max = present.iter().map(|&m| data.variance[m]).fold(0.0, f64::max);
+            let present = || active.iter().copied().filter(|m| m % s == a);
+            let r_max = present().map(|m| data.r[m].abs()).fold(0.0, f64::max);
+            let var_max = present().map(|m| data.variance[m]).fold(0.0, f64::max);
             let t = SWEEP_MATCH * (rtol * r_max + atol) / var_max;
             t.is_finite().then_some(t)
         })
@@ -489,15 +490,12 @@ fn solve<D: ClosureDrift>(
     if !dual.status.is_success() {
         // Retry from λ = 0 (the closure's prior prediction), in one stage (in two, on one of the
         // 24 double-well records of docs/closures.md, it failed where this converged).
-        let mut retry = maximize_dual(&mut action, data, &fine, None)?;
-        retry.iterations += dual.iterations;
-        retry.evaluations += dual.evaluations;
+        let retry = maximize_dual(&mut action, data, &fine, None)?;
+        let totals = (dual.iterations + retry.iterations, dual.evaluations + retry.evaluations);
         if retry.status.is_success() || retry.residual < dual.residual {
             (dual, dual_start) = (retry, "zero");
-        } else {
-            dual.iterations = retry.iterations;
-            dual.evaluations = retry.evaluations;
         }
+        (dual.iterations, dual.evaluations) = totals;
     }
     let ok = dual.status.is_success();
     let mut history = action.history(&dual.lambda, ok && options.dispersion)?;
