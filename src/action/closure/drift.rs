@@ -21,6 +21,7 @@ use onsager_closures::{
     cholesky_into, cholesky_solve_in_place, dot, Exponential, Gaussian, GaussianRule, TrialFamily,
 };
 
+use super::jet::{Jet, OneStateScalar};
 use crate::model::{Scalar, Sde};
 use crate::{Error, Result};
 
@@ -231,7 +232,7 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
     /// ṁ = ⟨f⟩, v̇ = 2⟨f(x − m)⟩ + 2D, Ṗ = −P²v̇, W = (Ṗm + Pṁ, −½Ṗ): the formulas of the
     /// general form without its buffers, Cholesky factors and matrix loops (this runs at every
     /// Runge–Kutta stage, in dual numbers); equal to it to round-off.
-    fn w_one_state<D: Scalar>(
+    fn w_one_state<D: OneStateScalar>(
         &self,
         t: f64,
         lambda: &[D],
@@ -239,15 +240,15 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
     ) -> std::result::Result<(), Unrealizable> {
         let q = self.family.quadratic_index(0, 0).expect("one state");
         let p = -(lambda[q] * 2.0);
-        if !(p.re() > 0.0 && p.re().is_finite()) {
+        if !(p.value() > 0.0 && p.value().is_finite()) {
             return Err(Unrealizable(
                 "the precision matrix P (P_ii = -2 b_ii, P_ij = -b_ij) is not positive definite".into(),
             ));
         }
-        let v = p.recip();
+        let v = p.reciprocal();
         let m = v * lambda[0];
-        let sd = v.sqrt();
-        if !(m.re().is_finite() && v.re().is_finite()) {
+        let sd = v.square_root();
+        if !(m.value().is_finite() && v.value().is_finite()) {
             return Err(Unrealizable("the mean or covariance overflows".into()));
         }
         // The node sums in numbers, their dependence on λ by a second-order Taylor lift: at
@@ -259,7 +260,7 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
         // in one pass of a scalar second-order dual number in x. This is exact (to round-off)
         // for every scalar of derivative order ≤ 2 — numbers, the Jacobian's and the Hessian's
         // dual numbers — and replaces the drift's evaluation in vector dual numbers at each node.
-        let (m0, s0) = (m.re(), sd.re());
+        let (m0, s0) = (m.value(), sd.value());
         let mut a = [0.0; 6];
         let mut g = [0.0; 6];
         self.one_state_node_sums(t, m0, s0, &mut a, &mut g);
@@ -272,7 +273,7 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
         let pdot = -(p * vdot * p);
         out[0] = pdot * m + p * fbar;
         out[q] = -pdot * 0.5;
-        if out.iter().any(|v| !v.re().is_finite()) {
+        if out.iter().any(|v| !v.value().is_finite()) {
             return Err(Unrealizable("the Gaussian closure drift is not finite".into()));
         }
         Ok(())
@@ -459,6 +460,42 @@ impl<S: Sde + ?Sized> GaussianDrift<'_, S> {
         Ok(())
     }
 
+    /// W and ∂W/∂λ of one state (R = 2) in one pass of [`Jet`]s (the formulas of
+    /// [`GaussianDrift::w_one_state`]); the jets of W, whose second-order parts are those of
+    /// ∇²W_a when `SECOND`.
+    fn one_state_jets<const SECOND: bool>(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+    ) -> std::result::Result<[Jet<SECOND>; 2], Unrealizable> {
+        let ld = [Jet::variable(lambda[0], 0), Jet::variable(lambda[1], 1)];
+        let mut out = ld;
+        self.w_one_state(t, &ld, &mut out)?;
+        for (a, o) in out.iter().enumerate() {
+            w[a] = o.v;
+            jac[2 * a..2 * a + 2].copy_from_slice(&o.g);
+        }
+        Ok(out)
+    }
+
+    /// W, ∂W/∂λ and ∇²(κᵀW) of one state (R = 2) in one pass of second-order [`Jet`]s.
+    fn one_state_second(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        kappa: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+        hess: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        let out = self.one_state_jets::<true>(t, lambda, w, jac)?;
+        let h: [f64; 3] = std::array::from_fn(|k| kappa[0] * out[0].h[k] + kappa[1] * out[1].h[k]);
+        hess[..4].copy_from_slice(&[h[0], h[1], h[1], h[2]]);
+        Ok(())
+    }
+
     /// W and ∂W/∂λ in one pass of [`DualSVec64`] (R = N).
     fn w_jacobian_fixed<const N: usize>(
         &self,
@@ -528,8 +565,9 @@ impl<S: Sde + ?Sized> ClosureDrift for GaussianDrift<'_, S> {
         self.w_generic(t, lambda, out)
     }
 
-    /// ∂W/∂λ through the moving nodes: one pass of fixed-size vector dual numbers for state
-    /// dimensions 1–3 (R = 2, 5, 9), otherwise one dual-number pass per column.
+    /// ∂W/∂λ through the moving nodes: one pass of first-order [`Jet`]s for one state (R = 2),
+    /// of fixed-size vector dual numbers for two or three (R = 5, 9), otherwise one dual-number
+    /// pass per column.
     fn w_jacobian(
         &self,
         t: f64,
@@ -538,15 +576,16 @@ impl<S: Sde + ?Sized> ClosureDrift for GaussianDrift<'_, S> {
         jac: &mut [f64],
     ) -> std::result::Result<(), Unrealizable> {
         match lambda.len() {
-            2 => self.w_jacobian_fixed::<2>(t, lambda, w, jac),
+            2 => self.one_state_jets::<false>(t, lambda, w, jac).map(|_| ()),
             5 => self.w_jacobian_fixed::<5>(t, lambda, w, jac),
             9 => self.w_jacobian_fixed::<9>(t, lambda, w, jac),
             _ => self.w_jacobian_columns(t, lambda, w, jac),
         }
     }
 
-    /// Through the moving nodes: one pass of fixed-size second-order vector dual numbers for
-    /// state dimensions 1–3 (R = 2, 5, 9), otherwise one hyper-dual pass per pair a ≤ b.
+    /// Through the moving nodes: one pass of second-order [`Jet`]s for one state (R = 2), of
+    /// fixed-size second-order vector dual numbers for two or three (R = 5, 9), otherwise one
+    /// hyper-dual pass per pair a ≤ b.
     fn w_second(
         &self,
         t: f64,
@@ -557,7 +596,7 @@ impl<S: Sde + ?Sized> ClosureDrift for GaussianDrift<'_, S> {
         hess: &mut [f64],
     ) -> std::result::Result<(), Unrealizable> {
         match lambda.len() {
-            2 => self.w_second_fixed::<2>(t, lambda, kappa, w, jac, hess),
+            2 => self.one_state_second(t, lambda, kappa, w, jac, hess),
             5 => self.w_second_fixed::<5>(t, lambda, kappa, w, jac, hess),
             9 => self.w_second_fixed::<9>(t, lambda, kappa, w, jac, hess),
             _ => self.w_second_pairs(t, lambda, kappa, w, jac, hess),
@@ -1135,8 +1174,9 @@ mod tests {
         }
     }
 
-    /// The one-pass fixed-size vector duals (R = 2, 5) give what one dual pass per column and
-    /// one hyper-dual pass per pair give (two evaluations of the same derivatives).
+    /// The one-pass forms — jets for one state (R = 2), fixed-size vector duals for two and
+    /// three (R = 5, 9) — give what one dual pass per column and one hyper-dual pass per pair
+    /// give (independent evaluations of the same derivatives).
     #[test]
     fn fixed_size_gaussian_derivatives_equal_the_per_direction_passes() {
         fn compare<S: Sde>(g: &GaussianDrift<'_, S>, lambda: &[f64], kappa: &[f64]) {

@@ -16,6 +16,7 @@
 //! See `docs/closures.md`.
 
 pub mod drift;
+mod jet;
 pub mod om;
 pub mod sweep;
 
