@@ -269,8 +269,30 @@ type Choose<'c> = dyn FnMut(usize, &[f64]) -> std::result::Result<Vec<f64>, Swee
 /// γ at every event and the stage derivatives of every step.
 type Adjoint = (Vec<Vec<f64>>, StepDerivs);
 
-/// m(t) at every event and its derivatives ∂m/∂λ_j (`[j][event][moment]`).
-type Tangents = Vec<Vec<Vec<f64>>>;
+/// The derivatives ∂m/∂λ_j of the moments at every event, in one buffer (`[j][event][moment]`):
+/// n multipliers × the events × R values, allocated once per Hessian.
+struct Tangents {
+    values: Vec<f64>,
+    events: usize,
+    r: usize,
+}
+
+impl Tangents {
+    fn zeros(multipliers: usize, events: usize, r: usize) -> Self {
+        Tangents { values: vec![0.0; multipliers * events * r], events, r }
+    }
+
+    /// ∂m(t_e)/∂λ_j, the R moments.
+    fn at(&self, j: usize, e: usize) -> &[f64] {
+        let start = (j * self.events + e) * self.r;
+        &self.values[start..start + self.r]
+    }
+
+    fn at_mut(&mut self, j: usize, e: usize) -> &mut [f64] {
+        let start = (j * self.events + e) * self.r;
+        &mut self.values[start..start + self.r]
+    }
+}
 
 /// The closure effective action of one problem: the drift, the initial natural parameters, the
 /// event times (t_0, output times, measurement times) and the measured moments.
@@ -836,14 +858,13 @@ impl<D: ClosureDrift> ClosureAction<D> {
             dl_after.push(dl.clone());
         }
         // Backward tangent δγ (R × nm), γ after the jump at each event.
-        let mut out = vec![vec![vec![0.0; r]; ne]; nm];
+        let mut out = Tangents::zeros(nm, ne, r);
         let mut dg = vec![0.0; r * nm];
         for e in (0..ne).rev() {
             let c = &fw.cov[e];
-            for (j, oj) in out.iter_mut().enumerate() {
-                for a in 0..r {
-                    oj[e][a] =
-                        dg[a * nm + j] + (0..r).map(|b| c[a * r + b] * dl_after[e][b * nm + j]).sum::<f64>();
+            for j in 0..nm {
+                for (a, o) in out.at_mut(j, e).iter_mut().enumerate() {
+                    *o = dg[a * nm + j] + (0..r).map(|b| c[a * r + b] * dl_after[e][b * nm + j]).sum::<f64>();
                 }
             }
             if let Some(k) = events.meas[e] {
@@ -873,7 +894,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         if let Some((l, g0)) = restore {
             self.cache = Some((l, fw, g0));
         }
-        if out.iter().flatten().flatten().any(|v| !v.is_finite()) {
+        if out.values.iter().any(|v| !v.is_finite()) {
             return Err(SweepFailure);
         }
         Ok((base, out))
@@ -1183,7 +1204,7 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
         let event_of: Vec<usize> =
             events.meas.iter().enumerate().filter_map(|(e, mm)| mm.map(|_| e)).collect();
         let s = self.measured.len();
-        let h = DMatrix::from_fn(m, m, |i, j| tangents[j][event_of[i / s]][self.measured[i % s]]);
+        let h = DMatrix::from_fn(m, m, |i, j| tangents.at(j, event_of[i / s])[self.measured[i % s]]);
         Ok((&h + h.transpose()) * 0.5)
     }
 
@@ -1206,7 +1227,7 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
             let (m, t) = self.tangents(&events, lambda).map_err(|_| self.failed())?;
             let nm = lambda.len();
             let cr =
-                (0..m.len()).map(|e| DMatrix::from_fn(n, nm, |i, j| t[j][e][lin[i]])).collect::<Vec<_>>();
+                (0..m.len()).map(|e| DMatrix::from_fn(n, nm, |i, j| t.at(j, e)[lin[i]])).collect::<Vec<_>>();
             (m, Some(cr))
         } else {
             let (fw, g, _) = self.value(&events, lambda, false).map_err(|_| self.failed())?;
