@@ -188,6 +188,19 @@ struct Steps {
 }
 
 impl Steps {
+    /// Room for `n` steps of R = `r` parameters in `events` events, without reallocating.
+    fn with_capacity(n: usize, r: usize, events: usize) -> Self {
+        let mut start = Vec::with_capacity(events);
+        start.push(0);
+        Steps {
+            t: Vec::with_capacity(n),
+            h: Vec::with_capacity(n),
+            stages: Vec::with_capacity(6 * r * n),
+            jac: Vec::with_capacity(6 * r * r * n),
+            start,
+        }
+    }
+
     fn len(&self) -> usize {
         self.h.len()
     }
@@ -312,6 +325,8 @@ pub struct ClosureAction<D: ClosureDrift> {
     mode_steps: Vec<f64>,
     atol: f64,
     cache: Option<(Vec<f64>, Forward, Vec<Vec<f64>>)>,
+    /// The steps of the last forward sweep (the next sweep's room in its step arrays).
+    step_hint: std::cell::Cell<usize>,
     sweeps: usize,
     steps: usize,
 }
@@ -396,6 +411,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             atol,
             mode_steps: graded_mode_steps(rtol),
             cache: None,
+            step_hint: std::cell::Cell::new(0),
             sweeps: 0,
             steps: 0,
         })
@@ -601,7 +617,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let span = events.times[ne - 1] - events.times[0];
         let mut h = if span > 0.0 { 1e-3 * span } else { 1.0 };
         let mut out = Forward {
-            steps: Steps { start: vec![0], ..Steps::default() },
+            // A quarter more steps than the last sweep took: the step arrays grow in place.
+            steps: Steps::with_capacity(self.step_hint.get() * 5 / 4, self.lambda0.len(), ne),
             lambda_minus: Vec::with_capacity(ne),
             mu_minus: Vec::new(),
             mu_plus: Vec::new(),
@@ -654,6 +671,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             out.mu.push(m.mean);
             out.cov.push(m.covariance);
         }
+        self.step_hint.set(out.steps.len());
         if !out.f.is_finite() {
             return Err(SweepFailure);
         }
