@@ -289,8 +289,9 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
             for (t, &v) in theta.iter_mut().zip(&self.theta) {
                 *t = Dual2_64::from(v);
             }
-            for (xi, w) in self.family.standard_rule().iter() {
-                let xi = xi[0];
+            // One state: the rule's points are the ξ_k themselves.
+            let rule = self.family.standard_rule();
+            for (&xi, &w) in rule.points().iter().zip(rule.weights()) {
                 x[0] = Dual2_64::new(m + s * xi, 1.0, 0.0);
                 self.sde.state_drift(Dual2_64::from(t), x, theta, f);
                 let (f0, f1, f2) = (f[0].re, f[0].v1, f[0].v2);
