@@ -264,11 +264,8 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
         let mut a = [0.0; 6];
         let mut g = [0.0; 6];
         self.one_state_node_sums(t, m0, s0, &mut a, &mut g);
-        let (dm, ds) = (m - m0, sd - s0);
-        let (dmm, dms, dss) = (dm * dm * 0.5, dm * ds, ds * ds * 0.5);
-        let lift = |c: &[f64; 6]| dm * c[1] + ds * c[2] + dmm * c[3] + dms * c[4] + dss * c[5] + c[0];
-        let fbar = lift(&a);
-        let fx = lift(&g) * sd;
+        let fbar = D::lift(&a, m, sd);
+        let fx = D::lift(&g, m, sd) * sd;
         let vdot = fx + fx + self.diffusion[0] * 2.0;
         let pdot = -(p * vdot * p);
         out[0] = pdot * m + p * fbar;

@@ -33,6 +33,17 @@ pub(crate) trait OneStateScalar:
     fn reciprocal(&self) -> Self;
     /// √x.
     fn square_root(&self) -> Self;
+
+    /// A function φ of (m, s) given by its value and partial derivatives at the values (m₀, s₀)
+    /// of `m` and `s`, c = (φ, ∂_mφ, ∂_sφ, ∂²_mφ, ∂_m∂_sφ, ∂²_sφ), composed with the scalars m and
+    /// s to second order: φ + φ_m δm + φ_s δs + ½φ_mm δm² + φ_ms δm δs + ½φ_ss δs² with
+    /// δm = m − m₀, δs = s − s₀ (exact for every scalar of derivative order ≤ 2; δm and δs have
+    /// value 0).
+    fn lift(c: &[f64; 6], m: Self, s: Self) -> Self {
+        let (dm, ds) = (m - m.value(), s - s.value());
+        let (dmm, dms, dss) = (dm * dm * 0.5, dm * ds, ds * ds * 0.5);
+        dm * c[1] + ds * c[2] + dmm * c[3] + dms * c[4] + dss * c[5] + c[0]
+    }
 }
 
 impl<D: Scalar> OneStateScalar for D {
@@ -168,6 +179,25 @@ impl<const SECOND: bool> OneStateScalar for Jet<SECOND> {
         let s = self.v.sqrt();
         self.chain(s, 0.5 / s, -0.25 / (s * self.v))
     }
+
+    /// [`OneStateScalar::lift`] by the chain rule written out for two inner jets (the products of
+    /// the zero-valued δm, δs keep only their gradients' products):
+    /// ∂_i = φ_m m_i + φ_s s_i and
+    /// ∂_ij = φ_m m_ij + φ_s s_ij + φ_mm m_i m_j + φ_ms (m_i s_j + m_j s_i) + φ_ss s_i s_j.
+    #[inline(always)]
+    fn lift(c: &[f64; 6], m: Self, s: Self) -> Self {
+        let mut h = [0.0; 3];
+        if SECOND {
+            for (k, (i, j)) in PAIRS.into_iter().enumerate() {
+                h[k] = c[1] * m.h[k]
+                    + c[2] * s.h[k]
+                    + c[3] * m.g[i] * m.g[j]
+                    + c[4] * (m.g[i] * s.g[j] + m.g[j] * s.g[i])
+                    + c[5] * s.g[i] * s.g[j];
+            }
+        }
+        Jet { v: c[0], g: [c[1] * m.g[0] + c[2] * s.g[0], c[1] * m.g[1] + c[2] * s.g[1]], h }
+    }
 }
 
 #[cfg(test)]
@@ -176,8 +206,9 @@ mod tests {
     use approx::assert_relative_eq;
     use num_dual::Dual2SVec64;
 
-    /// An expression with every operation, in a jet and in `num-dual`'s second-order vector
-    /// duals (an independent implementation of the same derivatives): equal to round-off; the
+    /// An expression with every operation and the lift, in a jet (whose lift is its own chain
+    /// rule) and in `num-dual`'s second-order vector duals (an independent implementation of the
+    /// same derivatives, with the lift's generic Taylor form): equal to round-off; the
     /// first-order jet has the same value and gradient and a zero Hessian.
     #[test]
     fn jets_agree_with_second_order_dual_numbers() {
@@ -186,7 +217,8 @@ mod tests {
             let v = p.reciprocal();
             let m = v * u;
             let s = v.square_root();
-            (m - 0.3) * s * (m + 1.5) + p * m - s * 0.7
+            let c = [0.3, -1.2, 0.8, 2.5, -0.7, 1.9];
+            (m - 0.3) * s * (m + 1.5) + p * m - s * 0.7 + T::lift(&c, m, s) * s
         }
         for (a, b) in [(0.4, -1.5), (-25.0, -12.5), (3.0, -0.01)] {
             let (j2, j1) = (
