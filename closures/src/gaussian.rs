@@ -560,11 +560,18 @@ impl TrialFamily for Gaussian {
     /// $F(\lambda) = \tfrac12 a^\top P^{-1}a + \tfrac12\log\det(2\pi P^{-1})$,
     /// `003_d2fc48a470e528fc.txt (II.38)`.
     fn log_partition(&self, lambda: &[f64]) -> Result<f64, Error> {
+        if self.dim == 1 && lambda.len() == 2 {
+            // The same closed form as `cumulants`, so that F agrees between the two to the bit.
+            if let Some(c) = one_state_cumulants(lambda) {
+                return Ok(c.log_partition);
+            }
+        }
         self.log_partition_generic(lambda)
     }
 
     /// Closed forms: $\mu = (m_i, \Sigma_{ij}+m_im_j)$ and $C_{ab}$ by Isserlis' theorem
-    /// (`003_d2fc48a470e528fc.txt (II.38)`–(II.39)).
+    /// (`003_d2fc48a470e528fc.txt (II.38)`–(II.39)); for one state written out without buffers
+    /// (`one_state_cumulants`).
     fn cumulants(&self, lambda: &[f64]) -> Result<Cumulants, Error> {
         self.check_lambda(lambda)?;
         if self.dim == 1 {
@@ -662,8 +669,9 @@ mod tests {
     use approx::assert_relative_eq;
 
     /// The one-state closed form equals the general form (Cholesky factors, Isserlis' products
-    /// over the moment pairs) to round-off, also at entries of magnitude 10³; where P ≤ 0 the
-    /// general form reports the error.
+    /// over the moment pairs) to round-off, also at entries of magnitude 10³, and `log_partition`
+    /// equals `cumulants`' F; where P ≤ 0 or the covariance overflows, the general form reports
+    /// the error.
     #[test]
     fn one_state_cumulants_equal_the_general_form() {
         let g = Gaussian::try_new(1).unwrap();
@@ -682,7 +690,13 @@ mod tests {
                 assert_relative_eq!(*a, *b, epsilon = 1e-12, max_relative = 1e-12);
             }
         }
+        for lambda in [[0.4 / 0.3, -0.5 / 0.3], [1e3, -1e3]] {
+            assert_eq!(g.log_partition(&lambda).unwrap(), g.cumulants(&lambda).unwrap().log_partition);
+        }
         assert!(one_state_cumulants(&[1.0, 0.0]).is_none());
         assert!(g.cumulants(&[1.0, 0.5]).is_err());
+        // v = 5·10¹⁹⁹: v² overflows, the closed form declines and the general form reports it.
+        assert!(one_state_cumulants(&[0.0, -1e-200]).is_none());
+        assert!(g.cumulants(&[0.0, -1e-200]).is_err());
     }
 }

@@ -11,7 +11,8 @@
 //! the family's quadrature nodes:
 //!
 //! - [`GaussianDrift`]: nodes m + Lξ_k that move with the mean and covariance; W is written once
-//!   over the scalar and differentiated by dual numbers through the nodes;
+//!   over the scalar and differentiated by dual numbers through the nodes (for one state, by the
+//!   two-variable jets of [`super::jet`]);
 //! - [`ExponentialDrift`]: the fixed nodes of an [`Exponential`] family, where
 //!   ∂π_k/∂λ = π_k(M_k − μ) gives ∂V/∂λ = Cov(L*M, M) and ∂C/∂λ = the third cumulant
 //!   (`(II.43)`) in closed form.
@@ -231,7 +232,7 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
     /// matrices are scalars: with λ = (a, b), P = −2b, v = 1/P, m = av and the nodes m + √v ξ_k,
     /// ṁ = ⟨f⟩, v̇ = 2⟨f(x − m)⟩ + 2D, Ṗ = −P²v̇, W = (Ṗm + Pṁ, −½Ṗ): the formulas of the
     /// general form without its buffers, Cholesky factors and matrix loops (this runs at every
-    /// Runge–Kutta stage, in dual numbers); equal to it to round-off.
+    /// Runge–Kutta stage, in jets or dual numbers); equal to it to round-off.
     fn w_one_state<D: OneStateScalar>(
         &self,
         t: f64,
@@ -251,19 +252,21 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
         if !(m.value().is_finite() && v.value().is_finite()) {
             return Err(Unrealizable("the mean or covariance overflows".into()));
         }
-        // The node sums in numbers, their dependence on λ by a second-order Taylor lift: at
-        // (m₀, s₀) = the real parts of (m, √v), with δm = m − m₀ and δs = √v − s₀ (dual
-        // numbers with zero real part), A(m, s) = ⟨f⟩ = Σ_k w_k f(m + sξ_k) is
-        // A + A_m δm + A_s δs + ½A_mm δm² + A_ms δm δs + ½A_ss δs², and likewise
-        // G(m, s) = Σ_k (w_kξ_k) f(m + sξ_k) (so ⟨f(x − m)⟩ = sG). The partial derivatives are
-        // node sums of f, f′ and f″ (∂/∂m f(x_k) = f′(x_k), ∂/∂s f(x_k) = ξ_k f′(x_k)), taken
-        // in one pass of a scalar second-order dual number in x. This is exact (to round-off)
-        // for every scalar of derivative order ≤ 2 — numbers, the Jacobian's and the Hessian's
-        // dual numbers — and replaces the drift's evaluation in vector dual numbers at each node.
+        // The node sums in numbers at (m₀, s₀) = the values of (m, √v): A(m, s) = ⟨f⟩ =
+        // Σ_k w_k f(m + sξ_k) and G(m, s) = Σ_k (w_kξ_k) f(m + sξ_k) (so ⟨f(x − m)⟩ = sG) with
+        // their first and second partial derivatives, node sums of f, f′ and f″
+        // (∂/∂m f(x_k) = f′(x_k), ∂/∂s f(x_k) = ξ_k f′(x_k)) taken in one pass of a scalar
+        // second-order dual number in x; their dependence on λ by the second-order Taylor lift
+        // of [`OneStateScalar::lift`], exact (to round-off) for every scalar of derivative
+        // order ≤ 2. A non-finite sum (f′ or f″ not finite at a node) is an error for every
+        // scalar, also where the lift would not carry it into the value.
         let (m0, s0) = (m.value(), sd.value());
         let mut a = [0.0; 6];
         let mut g = [0.0; 6];
         self.one_state_node_sums(t, m0, s0, &mut a, &mut g);
+        if a.iter().chain(&g).any(|c| !c.is_finite()) {
+            return Err(Unrealizable("the Gaussian closure drift is not finite".into()));
+        }
         let fbar = D::lift(&a, m, sd);
         let fx = D::lift(&g, m, sd) * sd;
         let vdot = fx + fx + self.diffusion[0] * 2.0;
@@ -287,6 +290,7 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
                 *t = Dual2_64::from(v);
             }
             // One state: the rule's points are the ξ_k themselves.
+            debug_assert_eq!(self.family.dim(), 1);
             let rule = self.family.standard_rule();
             for (&xi, &w) in rule.points().iter().zip(rule.weights()) {
                 x[0] = Dual2_64::new(m + s * xi, 1.0, 0.0);
@@ -1176,7 +1180,7 @@ mod tests {
     /// three (R = 5, 9) — give what one dual pass per column and one hyper-dual pass per pair
     /// give (independent evaluations of the same derivatives).
     #[test]
-    fn fixed_size_gaussian_derivatives_equal_the_per_direction_passes() {
+    fn one_pass_gaussian_derivatives_equal_the_per_direction_passes() {
         fn compare<S: Sde>(g: &GaussianDrift<'_, S>, lambda: &[f64], kappa: &[f64]) {
             let r = lambda.len();
             let z = || (vec![0.0; r], vec![0.0; r * r], vec![0.0; r * r]);
@@ -1199,6 +1203,19 @@ mod tests {
         }
         let dw = GaussianDrift::try_new(&DoubleWell, &[0.5]).unwrap();
         compare(&dw, &[0.4 / 0.3, -0.5 / 0.3], &[0.7, -1.3]);
+        compare(&dw, &[-25.0, -12.5], &[-0.4, 2.1]);
+        // A drift that is not a polynomial (its 16-point rule).
+        compare(
+            &GaussianDrift::try_new(&Tanh, &Tanh::NOMINAL).unwrap(),
+            &[0.4 / 0.3, -0.5 / 0.3],
+            &[0.7, -1.3],
+        );
+        // The errors of the one-state form (P ≤ 0, a non-finite λ) through the jets too.
+        for bad in [[1.0, 0.0], [1.0, 0.5], [f64::INFINITY, -0.5]] {
+            let (mut w, mut j, mut h) = ([0.0; 2], [0.0; 4], [0.0; 4]);
+            assert!(dw.w_jacobian(0.0, &bad, &mut w, &mut j).is_err());
+            assert!(dw.w_second(0.0, &bad, &[1.0, 1.0], &mut w, &mut j, &mut h).is_err());
+        }
         // Van der Pol, N(m, Σ) with m = (0.3, −0.5), Σ = [[0.2, 0.05], [0.05, 0.1]]:
         // P = Σ⁻¹, a = Pm, b_ii = −½P_ii, b_01 = −P_01.
         let vdp = GaussianDrift::try_new(&VanDerPol, &VanDerPol::NOMINAL).unwrap();
@@ -1271,6 +1288,42 @@ mod tests {
         }
         // A drift that is not a polynomial (its 16-point rule).
         check(&GaussianDrift::try_new(&Tanh, &Tanh::NOMINAL).unwrap());
+    }
+
+    /// f(x) = ∛x, whose f′ and f″ are infinite at x = 0.
+    struct CubeRoot;
+
+    impl Sde for CubeRoot {
+        fn dims(&self) -> crate::model::Dims {
+            crate::model::Dims { noisy: 1, clean: 0, params: 1 }
+        }
+        fn noisy_names(&self) -> Vec<String> {
+            vec!["x".into()]
+        }
+        fn param_names(&self) -> Vec<String> {
+            vec!["sigma".into()]
+        }
+        fn drift<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], _theta: &[D], out: &mut [D]) {
+            out[0] = x[0].cbrt();
+        }
+        fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
+            out[0] = theta[0];
+        }
+    }
+
+    /// A drift whose derivatives are not finite at a node (∛x at the middle node x = m = 0 of
+    /// the 3-point rule) is an error of W, ∂W/∂λ and ∇²(κᵀW) alike, not a non-finite Jacobian
+    /// or Hessian: the lift of the jets would not carry the node sums' derivatives into W.
+    #[test]
+    fn a_drift_with_infinite_derivatives_at_a_node_is_unrealizable() {
+        let g = GaussianDrift::try_with_points(&CubeRoot, &[1.0], Some(3)).unwrap();
+        let lambda = [0.0, -0.5];
+        let (mut w, mut j, mut h) = ([0.0; 2], [0.0; 4], [0.0; 4]);
+        assert!(g.w(0.0, &lambda, &mut w).is_err());
+        assert!(g.w_jacobian(0.0, &lambda, &mut w, &mut j).is_err());
+        assert!(g.w_second(0.0, &lambda, &[1.0, 1.0], &mut w, &mut j, &mut h).is_err());
+        // Away from 0 the nodes are regular.
+        assert!(g.w_jacobian(0.0, &[0.5, -0.5], &mut w, &mut j).is_ok());
     }
 
     #[test]

@@ -5,6 +5,7 @@
 //! - [`drift`]: the closure drift W = C⁻¹⟨L*M⟩ (`(II.3)`, `(II.46)`) for the Gaussian family in
 //!   any dimension and for exponential families on fixed nodes (user moment sets, e.g. the
 //!   quartic M = (x, x², x³, x⁴));
+//! - `jet`: the two-variable jets that differentiate the one-state Gaussian closure drift;
 //! - [`sweep`]: the forward sweep with the jumps λ(t_k+) = λ(t_k−) + λ_k (`(II.49)`), F = ΣΔF_k
 //!   (`(II.51)`), the backward (adjoint) sweep with the jumps (`(II.47)`, `(II.50)`), the history
 //!   m(t) = μ + γ (`(II.48)`) and ∂F/∂λ_k = m(t_k) (`(A.30)`), as an

@@ -26,6 +26,8 @@
 //! retried smaller; a sweep that cannot proceed returns a non-finite F, which the dual solver
 //! treats by backtracking (never a NaN path in a result).
 
+use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
+
 use nalgebra::DMatrix;
 
 use crate::action::dual::{ActionValue, DualData, EffectiveAction, History};
@@ -178,7 +180,7 @@ fn check_tolerances(rtol: f64, atol: f64) -> Result<()> {
 /// row-major blocks from `6R²s`), formed with W in the forward sweep so that the adjoint sweep
 /// need not evaluate the drift again. The steps of the interval between events e and e + 1 are
 /// `start[e]..start[e + 1]`.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 struct Steps {
     t: Vec<f64>,
     h: Vec<f64>,
@@ -326,7 +328,7 @@ pub struct ClosureAction<D: ClosureDrift> {
     atol: f64,
     cache: Option<(Vec<f64>, Forward, Vec<Vec<f64>>)>,
     /// The steps of the last forward sweep (the next sweep's room in its step arrays).
-    step_hint: std::cell::Cell<usize>,
+    step_hint: AtomicUsize,
     sweeps: usize,
     steps: usize,
 }
@@ -411,7 +413,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             atol,
             mode_steps: graded_mode_steps(rtol),
             cache: None,
-            step_hint: std::cell::Cell::new(0),
+            step_hint: AtomicUsize::new(0),
             sweeps: 0,
             steps: 0,
         })
@@ -618,7 +620,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let mut h = if span > 0.0 { 1e-3 * span } else { 1.0 };
         let mut out = Forward {
             // A quarter more steps than the last sweep took: the step arrays grow in place.
-            steps: Steps::with_capacity(self.step_hint.get() * 5 / 4, self.lambda0.len(), ne),
+            steps: Steps::with_capacity(self.step_hint.load(Relaxed) * 5 / 4, self.lambda0.len(), ne),
             lambda_minus: Vec::with_capacity(ne),
             mu_minus: Vec::new(),
             mu_plus: Vec::new(),
@@ -671,7 +673,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             out.mu.push(m.mean);
             out.cov.push(m.covariance);
         }
-        self.step_hint.set(out.steps.len());
+        self.step_hint.store(out.steps.len(), Relaxed);
         if !out.f.is_finite() {
             return Err(SweepFailure);
         }
