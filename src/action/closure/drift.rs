@@ -258,15 +258,12 @@ impl<'a, S: Sde + ?Sized> GaussianDrift<'a, S> {
         // (∂/∂m f(x_k) = f′(x_k), ∂/∂s f(x_k) = ξ_k f′(x_k)) taken in one pass of a scalar
         // second-order dual number in x; their dependence on λ by the second-order Taylor lift
         // of [`OneStateScalar::lift`], exact (to round-off) for every scalar of derivative
-        // order ≤ 2. A non-finite sum (f′ or f″ not finite at a node) is an error for every
-        // scalar, also where the lift would not carry it into the value.
+        // order ≤ 2. A non-finite sum (f′ or f″ not finite at a node) makes W non-finite, an
+        // error, for every scalar.
         let (m0, s0) = (m.value(), sd.value());
         let mut a = [0.0; 6];
         let mut g = [0.0; 6];
         self.one_state_node_sums(t, m0, s0, &mut a, &mut g);
-        if a.iter().chain(&g).any(|c| !c.is_finite()) {
-            return Err(Unrealizable("the Gaussian closure drift is not finite".into()));
-        }
         let fbar = D::lift(&a, m, sd);
         let fx = D::lift(&g, m, sd) * sd;
         let vdot = fx + fx + self.diffusion[0] * 2.0;

@@ -184,6 +184,8 @@ impl<const SECOND: bool> OneStateScalar for Jet<SECOND> {
     /// the zero-valued δm, δs keep only their gradients' products):
     /// ∂_i = φ_m m_i + φ_s s_i and
     /// ∂_ij = φ_m m_ij + φ_s s_ij + φ_mm m_i m_j + φ_ms (m_i s_j + m_j s_i) + φ_ss s_i s_j.
+    /// A non-finite derivative in `c` makes the value NaN, as in the generic form (where it
+    /// multiplies a δ of value 0), so that the caller's finiteness test sees it.
     #[inline(always)]
     fn lift(c: &[f64; 6], m: Self, s: Self) -> Self {
         let mut h = [0.0; 3];
@@ -196,7 +198,9 @@ impl<const SECOND: bool> OneStateScalar for Jet<SECOND> {
                     + c[5] * s.g[i] * s.g[j];
             }
         }
-        Jet { v: c[0], g: [c[1] * m.g[0] + c[2] * s.g[0], c[1] * m.g[1] + c[2] * s.g[1]], h }
+        // c·0 is 0 for a finite c and NaN otherwise.
+        let v = c[0] + c[1..].iter().map(|x| x * 0.0).sum::<f64>();
+        Jet { v, g: [c[1] * m.g[0] + c[2] * s.g[0], c[1] * m.g[1] + c[2] * s.g[1]], h }
     }
 }
 
