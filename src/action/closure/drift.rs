@@ -1310,7 +1310,8 @@ mod tests {
 
     /// A drift whose derivatives are not finite at a node (∛x at the middle node x = m = 0 of
     /// the 3-point rule) is an error of W, ∂W/∂λ and ∇²(κᵀW) alike, not a non-finite Jacobian
-    /// or Hessian: the lift of the jets would not carry the node sums' derivatives into W.
+    /// or Hessian: the jets' lift carries a non-finite node sum into W's value, as the generic
+    /// lift does.
     #[test]
     fn a_drift_with_infinite_derivatives_at_a_node_is_unrealizable() {
         let g = GaussianDrift::try_with_points(&CubeRoot, &[1.0], Some(3)).unwrap();
