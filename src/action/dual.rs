@@ -38,9 +38,10 @@
 //! not an ascent direction, and a line search along a barely regularised Newton direction
 //! wanders. There [`maximize_dual`] takes trust-region steps instead (the exact subproblem by
 //! an eigen-decomposition of K, Moré & Sorensen 1983; Nocedal & Wright, *Numerical
-//! Optimization*, 2nd ed., Ch. 4, Alg. 4.1 and Thm 4.1), in the metric of R (scaled multipliers
-//! R^{1/2}λ, i.e. standardised residuals), which follow the negative-curvature directions of K
-//! uphill and converge to a local maximiser (K positive semi-definite). Where K is positive
+//! Optimization*, 2nd ed., Ch. 4, Alg. 4.1 and Thm 4.1), in the metric of R scaled by the
+//! curvature (the multipliers D R^{1/2}λ, with D the diagonal of [`trust_region_scaling`]),
+//! which follow the negative-curvature directions of K uphill and converge to a local maximiser
+//! (K positive semi-definite). Where K is positive
 //! definite the Newton step with the line search is kept unchanged (the exact grid's F is a
 //! cumulant generating function, convex, and never leaves this branch).
 
@@ -393,8 +394,29 @@ fn trust_region_step_with(
 /// did not need a step below 2⁻¹⁰ (docs/closures.md).
 const MIN_STEP_FRACTION: f64 = 1.0 / 1024.0;
 
-/// The first trust-region radius in the scaled multipliers R^{1/2}λ: one standardised residual.
+/// The first trust-region radius in the scaled multipliers D R^{1/2}λ: one standardised
+/// residual (where D = 1).
 const INITIAL_RADIUS: f64 = 1.0;
+
+/// The diagonal scaling D of the trust region, from K̃ = R^{-1/2}KR^{-1/2} (K in the
+/// standardised multipliers R^{1/2}λ): D_ii = max(|K̃_ii|, 1)^{1/2}, so that the region ‖D R^{1/2}Δλ‖ ≤ Δ is an
+/// ellipsoid, shorter along the multipliers on which Φ is strongly curved and never longer than
+/// the unscaled ball (Nocedal & Wright, 2nd ed., Sec. 4.5, "Scaling": D from the diagonal of the
+/// Hessian, so that the quadratic model is equally trustworthy in every scaled direction). On
+/// long bistable records the Gaussian closure's K is strongly curved along a few multipliers
+/// (those that decide a transition) and mildly along the others, and the unscaled ball, limited
+/// by the former, made the iteration crawl (docs/closures.md).
+/// `sq` holds R_ii^{1/2}.
+fn trust_region_scaling(k: &DMatrix<f64>, sq: &[f64]) -> Vec<f64> {
+    sq.iter().enumerate().map(|(i, q)| (k[(i, i)].abs() / (q * q)).max(1.0).sqrt()).collect()
+}
+
+/// The quadratic model of Φ in the multipliers Sλ for a diagonal S (`s`): K̂ = S⁻¹KS⁻¹ and
+/// ĝ = S⁻¹g, so that the ball ‖p̂‖ ≤ Δ is the ellipsoid ‖Sp‖ ≤ Δ for the step p = S⁻¹p̂.
+fn scaled_model(k: &DMatrix<f64>, g: &DVector<f64>, s: &[f64]) -> (DMatrix<f64>, DVector<f64>) {
+    let n = s.len();
+    (DMatrix::from_fn(n, n, |i, j| k[(i, j)] / (s[i] * s[j])), DVector::from_fn(n, |i, _| g[i] / s[i]))
+}
 
 /// Trust-region radius control (Nocedal & Wright, 2nd ed., Alg. 4.1): shrink to a quarter of the
 /// step when the model predicted the change of Φ poorly (ρ < ¼), double it after a good step
@@ -614,11 +636,13 @@ fn maximize<A: EffectiveAction + ?Sized>(
             }
             None => {
                 // K not positive definite: a trust-region step in the scaled multipliers
-                // R^{1/2}λ (K̃ = R^{-1/2}KR^{-1/2}, g̃ = R^{-1/2}g), accepted on the ratio ρ of
-                // the actual to the predicted increase of Φ.
+                // D R^{1/2}λ (K̂ = S⁻¹KS⁻¹, ĝ = S⁻¹g with S = D R^{1/2},
+                // [`trust_region_scaling`]), accepted on the ratio ρ of the actual to the
+                // predicted increase of Φ.
                 let sq: Vec<f64> = active.iter().map(|&m| data.variance[m].sqrt()).collect();
-                let ks = DMatrix::from_fn(na, na, |i, j| k[(i, j)] / (sq[i] * sq[j]));
-                let gs = DVector::from_fn(na, |i, _| g[i] / sq[i]);
+                let d = trust_region_scaling(&k, &sq);
+                let sq: Vec<f64> = sq.iter().zip(&d).map(|(a, b)| a * b).collect();
+                let (ks, gs) = scaled_model(&k, &g, &sq);
                 let size =
                     1.0 + active.iter().zip(&sq).map(|(&m, q)| (q * lambda[m]).powi(2)).sum::<f64>().sqrt();
                 let radius = tr_radius.get_or_insert(INITIAL_RADIUS);
@@ -1171,6 +1195,39 @@ mod tests {
             let d = DVector::from_fn(n, |i, _| ((i * 7 + s * 3) % 11) as f64 - 5.0);
             let q = &d * (radius / d.norm());
             assert!(g.dot(&q) - 0.5 * q.dot(&(k * &q)) <= m + 1e-10);
+        }
+    }
+
+    #[test]
+    fn the_scaled_trust_region_step_solves_the_ellipsoidal_subproblem() {
+        // D from the diagonal of K̃ = R^{-1/2}KR^{-1/2}, at least 1.
+        let k = DMatrix::from_row_slice(3, 3, &[40.0, 0.5, 0.0, 0.5, -0.02, 0.3, 0.0, 0.3, -900.0]);
+        let r_sqrt = [0.2, 0.2, 0.5];
+        let d = trust_region_scaling(&k, &r_sqrt);
+        assert_relative_eq!(d[0], 1000.0f64.sqrt(), max_relative = 1e-15);
+        assert_eq!(d[1], 1.0);
+        assert_relative_eq!(d[2], 3600.0f64.sqrt(), max_relative = 1e-15);
+        // The ball ‖p̂‖ ≤ Δ of the scaled model is the ellipsoid ‖Sp‖ ≤ Δ: the step p = S⁻¹p̂
+        // meets Moré and Sorensen's conditions for it, (K + σS²)p = g with σ ≥ 0, K + σS²
+        // positive semi-definite and ‖Sp‖ = Δ (K is indefinite), and the model increase is
+        // gᵀp − ½pᵀKp.
+        let s: Vec<f64> = r_sqrt.iter().zip(&d).map(|(a, b)| a * b).collect();
+        let g = DVector::from_column_slice(&[1.0, -0.5, 0.25]);
+        let (ks, gs) = scaled_model(&k, &g, &s);
+        for radius in [0.01, 0.3, 5.0] {
+            let (ph, m) = trust_region_step(&ks, &gs, radius).unwrap();
+            let p = DVector::from_fn(3, |i, _| ph[i] / s[i]);
+            let s2 = DMatrix::from_diagonal(&DVector::from_fn(3, |i, _| s[i] * s[i]));
+            let sp = DVector::from_fn(3, |i, _| s[i] * p[i]);
+            assert_relative_eq!(sp.norm(), radius, max_relative = 1e-9);
+            // σ from the residual g − Kp = σS²p, the same in every component.
+            let res = &g - &k * &p;
+            let sigma = res.dot(&(&s2 * &p)) / (&s2 * &p).norm_squared();
+            assert!(sigma >= 0.0);
+            assert!((&res - sigma * (&s2 * &p)).amax() <= 1e-8 * g.amax());
+            let shifted = &k + sigma * &s2;
+            assert!(shifted.symmetric_eigenvalues().min() >= -1e-8 * shifted.amax());
+            assert_relative_eq!(m, g.dot(&p) - 0.5 * p.dot(&(&k * &p)), max_relative = 1e-12);
         }
     }
 
