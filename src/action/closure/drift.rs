@@ -91,6 +91,30 @@ pub trait ClosureDrift {
         self.w_second(t, lambda, kappa, w, jac, hess)
     }
 
+    /// Whether the sweeps keep the Hessians ∇²W_a of every forward stage
+    /// ([`ClosureDrift::w_jacobian_hessians`] instead of [`ClosureDrift::w_jacobian`]) and form
+    /// the second-order adjoint's ∇²(κᵀW) = Σ_a κ_a∇²W_a from them, instead of evaluating W again
+    /// at every stage of a Hessian's sweep ([`ClosureDrift::w_second_with_jacobian`]): worth it
+    /// for a family whose R Hessians cost little more than its Jacobian and take few numbers
+    /// (R³ per stage) to keep. Default false.
+    fn keeps_hessians(&self) -> bool {
+        false
+    }
+
+    /// W(λ, t) into `w`, ∂W/∂λ into `jac` (as [`ClosureDrift::w_jacobian`]) and the R Hessians
+    /// ∇²W_a into `hessians` (R × R × R: ∂²W_a/∂λ_i∂λ_j at `hessians[(a * R + i) * R + j]`). The
+    /// default takes them from [`ClosureDrift::w_second`] with κ = e_a, one call per a.
+    fn w_jacobian_hessians(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+        hessians: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        hessians_by_unit_contractions(self, t, lambda, w, jac, hessians)
+    }
+
     /// F(λ), μ(λ), C(λ).
     fn moments(&self, lambda: &[f64]) -> std::result::Result<FamilyMoments, Unrealizable>;
 
@@ -99,6 +123,26 @@ pub trait ClosureDrift {
 
     /// Index in M of the square x_i², if the family has it.
     fn square_index(&self, state: usize) -> Option<usize>;
+}
+
+/// W, ∂W/∂λ and the R Hessians ∇²W_a by [`ClosureDrift::w_second`] with κ = e_a, one call per a
+/// (the default of [`ClosureDrift::w_jacobian_hessians`]).
+fn hessians_by_unit_contractions<C: ClosureDrift + ?Sized>(
+    drift: &C,
+    t: f64,
+    lambda: &[f64],
+    w: &mut [f64],
+    jac: &mut [f64],
+    hessians: &mut [f64],
+) -> std::result::Result<(), Unrealizable> {
+    let r = lambda.len();
+    let mut kappa = vec![0.0; r];
+    for (a, h) in hessians[..r * r * r].chunks_exact_mut(r * r).enumerate() {
+        kappa[a] = 1.0;
+        drift.w_second(t, lambda, &kappa, w, jac, h)?;
+        kappa[a] = 0.0;
+    }
+    Ok(())
 }
 
 /// D = ½GGᵀ of the full state [x; z] (zero rows and columns for the clean states).
@@ -601,6 +645,32 @@ impl<S: Sde + ?Sized> ClosureDrift for GaussianDrift<'_, S> {
             _ => self.w_second_pairs(t, lambda, kappa, w, jac, hess),
         }
     }
+
+    /// One state (R = 2): the second-order jets cost about 1.8× the first-order ones, less
+    /// than evaluating every stage again in each Hessian's sweep (docs/closures.md).
+    fn keeps_hessians(&self) -> bool {
+        self.family.n_moments() == 2
+    }
+
+    /// One state: one pass of second-order [`Jet`]s; otherwise the default.
+    fn w_jacobian_hessians(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+        hessians: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        if lambda.len() != 2 {
+            return hessians_by_unit_contractions(self, t, lambda, w, jac, hessians);
+        }
+        let out = self.one_state_jets::<true>(t, lambda, w, jac)?;
+        for (o, h) in out.iter().zip(hessians.chunks_exact_mut(4)) {
+            h.copy_from_slice(&[o.h[0], o.h[1], o.h[1], o.h[2]]);
+        }
+        Ok(())
+    }
+
     fn moments(&self, lambda: &[f64]) -> std::result::Result<FamilyMoments, Unrealizable> {
         let c = self.family.cumulants(lambda).map_err(unrealizable)?;
         Ok(FamilyMoments { log_partition: c.log_partition, mean: c.mean, covariance: c.covariance })
@@ -1087,6 +1157,44 @@ mod tests {
             }
         }
         out
+    }
+
+    #[test]
+    fn kept_hessians_are_those_of_the_contractions() {
+        // W, ∂W/∂λ and ∇²W_a of `w_jacobian_hessians` against `w_jacobian` and `w_second` with
+        // κ = e_a; for any κ, Σ_a κ_a∇²W_a = ∇²(κᵀW). One state (the jets' pass, kept by the
+        // sweeps) and two states (the default, not kept).
+        let check = |dr: &dyn ClosureDrift, lambda: &[f64]| {
+            let r = lambda.len();
+            let (mut w, mut jac, mut hs) = (vec![0.0; r], vec![0.0; r * r], vec![0.0; r * r * r]);
+            dr.w_jacobian_hessians(0.3, lambda, &mut w, &mut jac, &mut hs).unwrap();
+            let (mut w1, mut jac1) = (vec![0.0; r], vec![0.0; r * r]);
+            dr.w_jacobian(0.3, lambda, &mut w1, &mut jac1).unwrap();
+            for (a, b) in w.iter().chain(&jac).zip(w1.iter().chain(&jac1)) {
+                assert_relative_eq!(*a, *b, max_relative = 1e-13, epsilon = 1e-13);
+            }
+            let kappa: Vec<f64> = (0..r).map(|a| 0.5 - 0.3 * a as f64).collect();
+            let mut hk = vec![0.0; r * r];
+            dr.w_second(0.3, lambda, &kappa, &mut w1, &mut jac1, &mut hk).unwrap();
+            for q in 0..r * r {
+                let sum: f64 = (0..r).map(|a| kappa[a] * hs[a * r * r + q]).sum();
+                assert_relative_eq!(sum, hk[q], max_relative = 1e-12, epsilon = 1e-12 * hk[q].abs().max(1.0));
+            }
+            for a in 0..r {
+                let mut e = vec![0.0; r];
+                e[a] = 1.0;
+                dr.w_second(0.3, lambda, &e, &mut w1, &mut jac1, &mut hk).unwrap();
+                assert_eq!(&hs[a * r * r..(a + 1) * r * r], &hk[..]);
+            }
+        };
+        let one = GaussianDrift::try_new(&DoubleWell, &[0.5]).unwrap();
+        assert!(one.keeps_hessians());
+        check(&one, &[-1.0 / 0.09, -0.5 / 0.09]);
+        check(&one, &[3.0, -2.0]);
+        let two = GaussianDrift::try_new(&Duffing, &Duffing::NOMINAL).unwrap();
+        assert!(!two.keeps_hessians());
+        let lambda = two.family().natural_from_mean_cov(&[0.3, -0.2], &[0.5, 0.1, 0.1, 0.4]).unwrap();
+        check(&two, &lambda);
     }
 
     #[test]

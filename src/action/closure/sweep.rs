@@ -33,7 +33,7 @@ use nalgebra::DMatrix;
 use crate::action::dual::{ActionValue, DualData, EffectiveAction, History};
 use crate::{Error, Result};
 
-use super::drift::ClosureDrift;
+use super::drift::{ClosureDrift, Unrealizable};
 
 /// Tsitouras' 5(4) pair (Ch. Tsitouras, "Runge–Kutta pairs of order 5(4) satisfying only the
 /// first column simplifying assumption", *Comput. Math. Appl.* 62 (2011) 770–775, Table 1): seven
@@ -186,12 +186,16 @@ struct Steps {
     h: Vec<f64>,
     stages: Vec<f64>,
     jac: Vec<f64>,
+    /// The stage Hessians ∇²W_a (6 R × R × R per step) when the family keeps them
+    /// ([`ClosureDrift::keeps_hessians`]), else empty.
+    hess: Vec<f64>,
     start: Vec<usize>,
 }
 
 impl Steps {
-    /// Room for `n` steps of R = `r` parameters in `events` events, without reallocating.
-    fn with_capacity(n: usize, r: usize, events: usize) -> Self {
+    /// Room for `n` steps of R = `r` parameters in `events` events, without reallocating (and
+    /// for their stage Hessians with `hessians`).
+    fn with_capacity(n: usize, r: usize, events: usize, hessians: bool) -> Self {
         let mut start = Vec::with_capacity(events);
         start.push(0);
         Steps {
@@ -199,6 +203,7 @@ impl Steps {
             h: Vec::with_capacity(n),
             stages: Vec::with_capacity(6 * r * n),
             jac: Vec::with_capacity(6 * r * r * n),
+            hess: Vec::with_capacity(if hessians { 6 * r * r * r * n } else { 0 }),
             start,
         }
     }
@@ -214,24 +219,27 @@ impl Steps {
 }
 
 /// The workspace of [`ClosureAction::rk_step`], reused across the steps of a sweep: the seven
-/// stage slopes K_i (7R), their Jacobians (7 R × R), the stage arguments Y_1..Y_6 (6R) and the
-/// current argument (R; the fifth-order solution after the step). On entry K_1 and its Jacobian
+/// stage slopes K_i (7R), their Jacobians (7 R × R), their Hessians when the family keeps them
+/// (7 R × R × R, else empty), the stage arguments Y_1..Y_6 (6R) and the current argument (R; the
+/// fifth-order solution after the step). On entry K_1 and its Jacobian
 /// hold W and ∂W/∂λ at the step's start; after an accepted step the seventh (first-same-as-last)
 /// slope is moved there. `k1_time`: the time at which K_1 holds W at the current state (`None`
 /// after a jump or before the first evaluation).
 struct RkWork {
     k: Vec<f64>,
     jac: Vec<f64>,
+    hess: Vec<f64>,
     stages: Vec<f64>,
     arg: Vec<f64>,
     k1_time: Option<f64>,
 }
 
 impl RkWork {
-    fn new(r: usize) -> Self {
+    fn new(r: usize, hessians: bool) -> Self {
         RkWork {
             k: vec![0.0; 7 * r],
             jac: vec![0.0; 7 * r * r],
+            hess: vec![0.0; if hessians { 7 * r * r * r } else { 0 }],
             stages: vec![0.0; 6 * r],
             arg: vec![0.0; r],
             k1_time: None,
@@ -329,6 +337,8 @@ pub struct ClosureAction<D: ClosureDrift> {
     cache: Option<(Vec<f64>, Forward, Vec<Vec<f64>>)>,
     /// The steps of the last forward sweep (the next sweep's room in its step arrays).
     step_hint: AtomicUsize,
+    /// [`ClosureDrift::keeps_hessians`] of the drift.
+    keep_hessians: bool,
     sweeps: usize,
     steps: usize,
 }
@@ -402,6 +412,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         }
         check_tolerances(rtol, atol)?;
         let outs: Vec<f64> = output_times.iter().copied().filter(|&t| t >= t0).collect();
+        let keep_hessians = drift.keeps_hessians();
         Ok(ClosureAction {
             fit_events: Events::new(t0, meas_times, &[]),
             out_events: Events { resolve_adjoint: true, ..Events::new(t0, meas_times, &outs) },
@@ -414,6 +425,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             mode_steps: graded_mode_steps(rtol),
             cache: None,
             step_hint: AtomicUsize::new(0),
+            keep_hessians,
             sweeps: 0,
             steps: 0,
         })
@@ -484,7 +496,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
     #[inline(always)]
     fn rk_step_sized(&self, r: usize, t: f64, y: &[f64], h: f64, work: &mut RkWork) -> Option<f64> {
         let rr = r * r;
-        let RkWork { k, jac, stages, arg, .. } = work;
+        let RkWork { k, jac, hess, stages, arg, .. } = work;
         stages[..r].copy_from_slice(y);
         for i in 1..7 {
             for a in 0..r {
@@ -493,9 +505,10 @@ impl<D: ClosureDrift> ClosureAction<D> {
             if i < 6 {
                 stages[i * r..(i + 1) * r].copy_from_slice(arg);
             }
-            let (ki, _) = k.split_at_mut((i + 1) * r);
-            let (ji, _) = jac.split_at_mut((i + 1) * rr);
-            self.drift.w_jacobian(t + C[i] * h, arg, &mut ki[i * r..], &mut ji[i * rr..]).ok()?;
+            let ki = &mut k[i * r..(i + 1) * r];
+            let ji = &mut jac[i * rr..(i + 1) * rr];
+            let hi = if self.keep_hessians { &mut hess[i * rr * r..(i + 1) * rr * r] } else { &mut [][..] };
+            self.stage_derivatives(t + C[i] * h, arg, ki, ji, hi).ok()?;
         }
         // The seventh stage argument is the fifth-order solution (FSAL).
         let y_new = &*arg;
@@ -510,6 +523,22 @@ impl<D: ClosureDrift> ClosureAction<D> {
             return None;
         }
         Some(err)
+    }
+
+    /// W and ∂W/∂λ at (t, y), and the Hessians ∇²W_a into `hess` when the family keeps them.
+    fn stage_derivatives(
+        &self,
+        t: f64,
+        y: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+        hess: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        if self.keep_hessians {
+            self.drift.w_jacobian_hessians(t, y, w, jac, hess)
+        } else {
+            self.drift.w_jacobian(t, y, w, jac)
+        }
     }
 
     /// Integrates from `t` to `t_end` with error control, pushing the accepted steps. W and
@@ -552,7 +581,9 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let rr = r * r;
         if work.k1_time != Some(tc) {
             work.k1_time = None;
-            self.drift.w_jacobian(tc, y, &mut work.k[..r], &mut work.jac[..rr]).map_err(|_| SweepFailure)?;
+            let hess = if self.keep_hessians { &mut work.hess[..rr * r] } else { &mut [][..] };
+            self.stage_derivatives(tc, y, &mut work.k[..r], &mut work.jac[..rr], hess)
+                .map_err(|_| SweepFailure)?;
             work.k1_time = Some(tc);
         }
         while tc < t_end {
@@ -581,6 +612,10 @@ impl<D: ClosureDrift> ClosureAction<D> {
                     y.copy_from_slice(&work.arg);
                     work.k.copy_within(6 * r..7 * r, 0);
                     work.jac.copy_within(6 * rr..7 * rr, 0);
+                    if self.keep_hessians {
+                        steps.hess.extend_from_slice(&work.hess[..6 * rr * r]);
+                        work.hess.copy_within(6 * rr * r..7 * rr * r, 0);
+                    }
                     work.k1_time = Some(tc + C[6] * hh);
                     tc = if last { t_end } else { tc + hh };
                     let fac = if err == 0.0 { 5.0 } else { (0.9 * err.powf(-0.2)).clamp(0.2, 5.0) };
@@ -620,7 +655,12 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let mut h = if span > 0.0 { 1e-3 * span } else { 1.0 };
         let mut out = Forward {
             // A quarter more steps than the last sweep took: the step arrays grow in place.
-            steps: Steps::with_capacity(self.step_hint.load(Relaxed) * 5 / 4, self.lambda0.len(), ne),
+            steps: Steps::with_capacity(
+                self.step_hint.load(Relaxed) * 5 / 4,
+                self.lambda0.len(),
+                ne,
+                self.keep_hessians,
+            ),
             lambda_minus: Vec::with_capacity(ne),
             mu_minus: Vec::new(),
             mu_plus: Vec::new(),
@@ -630,7 +670,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             f: 0.0,
         };
         let mut y = self.lambda0.clone();
-        let mut work = RkWork::new(y.len());
+        let mut work = RkWork::new(y.len(), self.keep_hessians);
         // For the history's sweeps, the next measurement time at or after each event.
         let mut next = vec![None; ne];
         if events.resolve_adjoint {
@@ -738,9 +778,17 @@ impl<D: ClosureDrift> ClosureAction<D> {
                         // The forward sweep's J_i, which a family may keep (see
                         // `ClosureDrift::w_second_with_jacobian`).
                         ji.copy_from_slice(&steps.jac[block]);
-                        self.drift
-                            .w_second_with_jacobian(ti, yi, ki, &mut w, ji, hi)
-                            .map_err(|_| SweepFailure)?;
+                        if self.keep_hessians {
+                            // H_i = Σ_a k̄_ia ∇²W_a(Y_i) from the forward sweep's Hessians.
+                            let kept = &steps.hess[(6 * s + i) * rr * r..(6 * s + i + 1) * rr * r];
+                            for (q, hq) in hi.iter_mut().enumerate() {
+                                *hq = (0..r).map(|a| ki[a] * kept[a * rr + q]).sum();
+                            }
+                        } else {
+                            self.drift
+                                .w_second_with_jacobian(ti, yi, ki, &mut w, ji, hi)
+                                .map_err(|_| SweepFailure)?;
+                        }
                         &*ji
                     } else {
                         &steps.jac[block]
@@ -1269,7 +1317,74 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
 
 #[cfg(test)]
 mod tests {
-    use super::{A, B, C, E};
+    use super::{ClosureAction, A, B, C, E};
+    use crate::action::closure::drift::{ClosureDrift, FamilyMoments, GaussianDrift, Unrealizable};
+    use crate::action::dual::EffectiveAction;
+    use crate::model::library::DoubleWell;
+
+    /// A drift that forwards to another but does not keep the stage Hessians
+    /// ([`ClosureDrift::keeps_hessians`] false): its Hessian sweeps evaluate ∇²(κᵀW) at every stage.
+    struct Evaluating<D>(D);
+
+    impl<D: ClosureDrift> ClosureDrift for Evaluating<D> {
+        fn n_params(&self) -> usize {
+            self.0.n_params()
+        }
+        fn state_dim(&self) -> usize {
+            self.0.state_dim()
+        }
+        fn w(&self, t: f64, lambda: &[f64], out: &mut [f64]) -> Result<(), Unrealizable> {
+            self.0.w(t, lambda, out)
+        }
+        fn w_jacobian(&self, t: f64, l: &[f64], w: &mut [f64], jac: &mut [f64]) -> Result<(), Unrealizable> {
+            self.0.w_jacobian(t, l, w, jac)
+        }
+        fn w_second(
+            &self,
+            t: f64,
+            l: &[f64],
+            kappa: &[f64],
+            w: &mut [f64],
+            jac: &mut [f64],
+            hess: &mut [f64],
+        ) -> Result<(), Unrealizable> {
+            self.0.w_second(t, l, kappa, w, jac, hess)
+        }
+        fn moments(&self, lambda: &[f64]) -> Result<FamilyMoments, Unrealizable> {
+            self.0.moments(lambda)
+        }
+        fn linear_index(&self, state: usize) -> Option<usize> {
+            self.0.linear_index(state)
+        }
+        fn square_index(&self, state: usize) -> Option<usize> {
+            self.0.square_index(state)
+        }
+    }
+
+    #[test]
+    fn kept_stage_hessians_give_the_same_second_derivatives() {
+        // The one-state Gaussian closure of the double well keeps its stage Hessians; ∇²F and the
+        // history's cross-covariances from them equal those of sweeps that evaluate ∇²(κᵀW) at
+        // every stage (the same numbers, summed in the same order).
+        let drift = || GaussianDrift::try_new(&DoubleWell, &[0.5]).unwrap();
+        assert!(drift().keeps_hessians());
+        let lambda0 = vec![-1.0 / 0.09, -0.5 / 0.09];
+        let times = [1.0, 2.0, 3.0];
+        let outputs = [0.5, 1.0, 1.5, 2.0, 2.5, 3.0];
+        let mut kept =
+            ClosureAction::try_new(drift(), 0.0, lambda0.clone(), &times, vec![0], &outputs, 1e-8, 1e-10)
+                .unwrap();
+        let mut evaluated =
+            ClosureAction::try_new(Evaluating(drift()), 0.0, lambda0, &times, vec![0], &outputs, 1e-8, 1e-10)
+                .unwrap();
+        assert!(kept.keep_hessians && !evaluated.keep_hessians);
+        for lambda in [[1.5, -2.0, 0.7], [-20.0, 25.0, 3.0]] {
+            assert_eq!(kept.hessian(&lambda).unwrap(), evaluated.hessian(&lambda).unwrap());
+            let (a, b) = (kept.history(&lambda, true).unwrap(), evaluated.history(&lambda, true).unwrap());
+            assert_eq!(a.cross, b.cross);
+            assert_eq!(a.mean, b.mean);
+        }
+    }
 
     /// Σ_i w_i φ_i for stage vectors w, φ.
     fn sum(w: &[f64], phi: &[f64]) -> f64 {
