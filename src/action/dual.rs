@@ -399,14 +399,14 @@ const MIN_STEP_FRACTION: f64 = 1.0 / 1024.0;
 const INITIAL_RADIUS: f64 = 1.0;
 
 /// The diagonal scaling D of the trust region, from K̃ = R^{-1/2}KR^{-1/2} (K in the
-/// standardised multipliers R^{1/2}λ): D_ii = max(|K̃_ii|, 1)^{1/2}, so that the region ‖D R^{1/2}Δλ‖ ≤ Δ is an
-/// ellipsoid, shorter along the multipliers on which Φ is strongly curved and never longer than
-/// the unscaled ball (Nocedal & Wright, 2nd ed., Sec. 4.5, "Scaling": D from the diagonal of the
-/// Hessian, so that the quadratic model is equally trustworthy in every scaled direction). On
-/// long bistable records the Gaussian closure's K is strongly curved along a few multipliers
-/// (those that decide a transition) and mildly along the others, and the unscaled ball, limited
-/// by the former, made the iteration crawl (docs/closures.md).
-/// `sq` holds R_ii^{1/2}.
+/// standardised multipliers R^{1/2}λ; `sq` holds R_ii^{1/2}): D_ii = max(|K̃_ii|, 1)^{1/2}, so
+/// that the region ‖D R^{1/2}Δλ‖ ≤ Δ is an ellipsoid, shorter along the multipliers on which Φ
+/// is strongly curved and never longer than the unscaled ball (Nocedal & Wright, 2nd ed.,
+/// Sec. 4.5, "Scaling": D from the diagonal of the Hessian, so that the quadratic model is
+/// about equally trustworthy along every scaled direction). On long bistable records the
+/// Gaussian closure's K is strongly curved along a few multipliers (those that decide a
+/// transition) and mildly along the others, and the unscaled ball, limited by the former, made
+/// the iteration crawl (docs/closures.md, fifth session).
 fn trust_region_scaling(k: &DMatrix<f64>, sq: &[f64]) -> Vec<f64> {
     sq.iter().enumerate().map(|(i, q)| (k[(i, i)].abs() / (q * q)).max(1.0).sqrt()).collect()
 }
