@@ -39,7 +39,8 @@
 //! wanders. There [`maximize_dual`] takes trust-region steps instead (the exact subproblem by
 //! an eigen-decomposition of K, Moré & Sorensen 1983; Nocedal & Wright, *Numerical
 //! Optimization*, 2nd ed., Ch. 4, Alg. 4.1 and Thm 4.1), in the metric of R scaled by the
-//! curvature (the multipliers D R^{1/2}λ, with D the diagonal of [`trust_region_scaling`]),
+//! curvature (the multipliers D R^{1/2}λ, with D_ii = max(|K̃_ii|, 1)^{1/2} from the diagonal of
+//! K̃ = R^{-1/2}KR^{-1/2}; Sec. 4.5),
 //! which follow the negative-curvature directions of K uphill and converge to a local maximiser
 //! (K positive semi-definite). Where K is positive
 //! definite the Newton step with the line search is kept unchanged (the exact grid's F is a
@@ -412,10 +413,16 @@ fn trust_region_scaling(k: &DMatrix<f64>, sq: &[f64]) -> Vec<f64> {
 }
 
 /// The quadratic model of Φ in the multipliers Sλ for a diagonal S (`s`): K̂ = S⁻¹KS⁻¹ and
-/// ĝ = S⁻¹g, so that the ball ‖p̂‖ ≤ Δ is the ellipsoid ‖Sp‖ ≤ Δ for the step p = S⁻¹p̂.
+/// ĝ = S⁻¹g, so that the ball ‖p̂‖ ≤ Δ is the ellipsoid ‖Sp‖ ≤ Δ for the step p = S⁻¹p̂
+/// ([`unscaled_step`]).
 fn scaled_model(k: &DMatrix<f64>, g: &DVector<f64>, s: &[f64]) -> (DMatrix<f64>, DVector<f64>) {
     let n = s.len();
     (DMatrix::from_fn(n, n, |i, j| k[(i, j)] / (s[i] * s[j])), DVector::from_fn(n, |i, _| g[i] / s[i]))
+}
+
+/// Component i of the step p = S⁻¹p̂ in the multipliers of a step p̂ of [`scaled_model`].
+fn unscaled_step(ph: &DVector<f64>, s: &[f64], i: usize) -> f64 {
+    ph[i] / s[i]
 }
 
 /// Trust-region radius control (Nocedal & Wright, 2nd ed., Alg. 4.1): shrink to a quarter of the
@@ -550,7 +557,8 @@ fn maximize<A: EffectiveAction + ?Sized>(
     let mut iterations = 0;
     let mut reason = None;
     // The trust-region radius (scaled multipliers), set when K is first not positive definite and
-    // kept across iterations.
+    // kept across iterations: each iteration reads it in its own metric D R^{1/2} (D from that
+    // iteration's K, [`trust_region_scaling`]; Nocedal & Wright, Sec. 4.5).
     let mut tr_radius: Option<f64> = None;
     // Full Newton steps since the residual last fell to half of `reference`
     // ([`DualOptions::stall_iterations`]).
@@ -641,10 +649,10 @@ fn maximize<A: EffectiveAction + ?Sized>(
                 // predicted increase of Φ.
                 let sq: Vec<f64> = active.iter().map(|&m| data.variance[m].sqrt()).collect();
                 let d = trust_region_scaling(&k, &sq);
-                let sq: Vec<f64> = sq.iter().zip(&d).map(|(a, b)| a * b).collect();
-                let (ks, gs) = scaled_model(&k, &g, &sq);
+                let s: Vec<f64> = sq.iter().zip(&d).map(|(a, b)| a * b).collect();
+                let (ks, gs) = scaled_model(&k, &g, &s);
                 let size =
-                    1.0 + active.iter().zip(&sq).map(|(&m, q)| (q * lambda[m]).powi(2)).sum::<f64>().sqrt();
+                    1.0 + active.iter().zip(&s).map(|(&m, q)| (q * lambda[m]).powi(2)).sum::<f64>().sqrt();
                 let radius = tr_radius.get_or_insert(INITIAL_RADIUS);
                 let mut outcome = Err("the trust region shrank to nothing without an increase of Φ");
                 let eig = eigen_of(&ks, &gs);
@@ -661,7 +669,7 @@ fn maximize<A: EffectiveAction + ?Sized>(
                     }
                     let mut trial = lambda.clone();
                     for (i, &mi) in active.iter().enumerate() {
-                        trial[mi] += ps[i] / sq[i];
+                        trial[mi] += unscaled_step(&ps, &s, i);
                     }
                     let val = action.evaluate(&trial)?;
                     evaluations += 1;
@@ -1216,7 +1224,7 @@ mod tests {
         let (ks, gs) = scaled_model(&k, &g, &s);
         for radius in [0.01, 0.3, 5.0] {
             let (ph, m) = trust_region_step(&ks, &gs, radius).unwrap();
-            let p = DVector::from_fn(3, |i, _| ph[i] / s[i]);
+            let p = DVector::from_fn(3, |i, _| unscaled_step(&ph, &s, i));
             let s2 = DMatrix::from_diagonal(&DVector::from_fn(3, |i, _| s[i] * s[i]));
             let sp = DVector::from_fn(3, |i, _| s[i] * p[i]);
             assert_relative_eq!(sp.norm(), radius, max_relative = 1e-9);
@@ -1228,6 +1236,15 @@ mod tests {
             let shifted = &k + sigma * &s2;
             assert!(shifted.symmetric_eigenvalues().min() >= -1e-8 * shifted.amax());
             assert_relative_eq!(m, g.dot(&p) - 0.5 * p.dot(&(&k * &p)), max_relative = 1e-12);
+        }
+        // A positive definite K and a region that holds the Newton step: the step is K⁻¹g.
+        let kp = DMatrix::from_row_slice(3, 3, &[40.0, 0.5, 0.0, 0.5, 0.3, 0.1, 0.0, 0.1, 900.0]);
+        let s: Vec<f64> = r_sqrt.iter().zip(trust_region_scaling(&kp, &r_sqrt)).map(|(a, b)| a * b).collect();
+        let newton = kp.clone().cholesky().unwrap().solve(&g);
+        let (ks, gs) = scaled_model(&kp, &g, &s);
+        let (ph, _) = trust_region_step(&ks, &gs, 1e3).unwrap();
+        for i in 0..3 {
+            assert_relative_eq!(unscaled_step(&ph, &s, i), newton[i], max_relative = 1e-12);
         }
     }
 

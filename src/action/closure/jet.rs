@@ -1,8 +1,10 @@
 //! Truncated Taylor expansions in two variables, for the one-state Gaussian closure drift.
 //!
 //! The one-state Gaussian closure ([`super::GaussianDrift`], R = 2 natural parameters) evaluates
-//! W(λ) at every Runge–Kutta stage with its Jacobian, and at every stage of a Hessian's adjoint
-//! sweep with the Hessian of κᵀW as well. `num-dual`'s fixed-size vector duals carry their
+//! W(λ) at every Runge–Kutta stage of its forward sweeps with its Jacobian and the Hessians of
+//! both components (second-order jets, kept for the Hessian's adjoint sweep:
+//! [`super::ClosureDrift::keeps_hessians`]); the first-order jets serve `w_jacobian` called
+//! alone. `num-dual`'s fixed-size vector duals carry their
 //! derivative parts as optional vectors and matrices, which their arithmetic tests and builds on
 //! every operation; a [`Jet`] carries the value, the two first and the three distinct second
 //! partial derivatives as plain numbers, so the same formulas ([`OneStateScalar`]) run as a few

@@ -20,8 +20,9 @@
 //! ∇²F (and the cross-covariances of the dispersion) are the exact derivatives of the computed
 //! gradient: per interval between events, the flow's Jacobian by a tangent-linear sweep and its
 //! adjoint-weighted Hessian by the tangent of the discrete adjoint (which needs the Hessians of
-//! the stage-adjoint contractions k̄ᵀW, [`ClosureDrift::w_second`]), chained over the events for
-//! all multipliers at once.
+//! the stage-adjoint contractions k̄ᵀW: [`ClosureDrift::w_second`] at every stage, or, for a
+//! family that keeps them, Σ_a k̄_a∇²W_a from the Hessians ∇²W_a of the forward sweep's stages,
+//! [`ClosureDrift::keeps_hessians`]), chained over the events for all multipliers at once.
 //! A step whose stage leaves the family's moment space (W not defined) is rejected and
 //! retried smaller; a sweep that cannot proceed returns a non-finite F, which the dual solver
 //! treats by backtracking (never a NaN path in a result).
@@ -541,8 +542,9 @@ impl<D: ClosureDrift> ClosureAction<D> {
         }
     }
 
-    /// Integrates from `t` to `t_end` with error control, pushing the accepted steps. W and
-    /// ∂W/∂λ at (t, y) are evaluated unless `work` holds them already (the seventh stage of the
+    /// Integrates from `t` to `t_end` with error control, pushing the accepted steps (with their
+    /// stage Hessians when the family keeps them). W and ∂W/∂λ (and those Hessians) at (t, y)
+    /// are evaluated unless `work` holds them already (the seventh stage of the
     /// last step, ending exactly at t, with no jump since: an output time between measurements).
     ///
     /// With `next_measurement` (the history's sweeps), the steps that would end within
