@@ -222,9 +222,9 @@ impl Steps {
 /// The workspace of [`ClosureAction::rk_step`], reused across the steps of a sweep: the seven
 /// stage slopes K_i (7R), their Jacobians (7 R × R), their Hessians when the family keeps them
 /// (7 R × R × R, else empty), the stage arguments Y_1..Y_6 (6R) and the current argument (R; the
-/// fifth-order solution after the step). On entry K_1 and its Jacobian
-/// hold W and ∂W/∂λ at the step's start; after an accepted step the seventh (first-same-as-last)
-/// slope is moved there. `k1_time`: the time at which K_1 holds W at the current state (`None`
+/// fifth-order solution after the step). On entry K_1, its Jacobian (and its Hessians) hold W
+/// and its derivatives at the step's start; after an accepted step the seventh
+/// (first-same-as-last) stage's are moved there. `k1_time`: the time at which K_1 holds W at the current state (`None`
 /// after a jump or before the first evaluation).
 struct RkWork {
     k: Vec<f64>,
