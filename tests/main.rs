@@ -5,4 +5,5 @@ mod baselines;
 mod cli;
 mod closure;
 mod experiment;
+mod golden;
 mod path;
