@@ -47,6 +47,8 @@ impl Record {
             x0_prior: &self.x0,
             z0_prior: &[],
             data: &self.data,
+            t0: 0.0,
+            seed: 0,
         }
     }
 }

@@ -105,6 +105,8 @@ fn van_der_pol(c: &mut Criterion) {
         x0_prior: &p.x0_prior,
         z0_prior: &p.z0_prior,
         data: &data,
+        t0: 0.0,
+        seed: 0,
     };
     let times: Vec<f64> = (0..=3200).map(|k| k as f64 * 0.005).collect();
     let guess = spline_guess(&p.model, &p.theta, &observation.states, &data, &times).unwrap();
@@ -159,6 +161,8 @@ fn duffing_joint_36k(c: &mut Criterion) {
         x0_prior: &p.x0_prior,
         z0_prior: &p.z0_prior,
         data: &data,
+        t0: 0.0,
+        seed: 0,
     };
     let t0 = onsager::estimate::default_initial_time(&data);
     let step = p.sample_every / 36.0;
@@ -170,7 +174,6 @@ fn duffing_joint_36k(c: &mut Criterion) {
     group.bench_function("jme_hermite_simpson", |b| {
         b.iter(|| {
             let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson)
-                .with_t0(t0)
                 .with_step(step)
                 .with_laplace(false)
                 .with_initial_path(guess.clone());

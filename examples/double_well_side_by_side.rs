@@ -54,6 +54,8 @@ fn main() -> onsager::Result<()> {
         x0_prior: &x0,
         z0_prior: &[],
         data: &data,
+        t0: 0.0,
+        seed: 0,
     };
     let options = ExactOptions::new(GridSpec::new_1d(-2.5, 2.5, 500)).with_dt(0.01);
     let ksp = ksp_smoother(&problem, &options)?;

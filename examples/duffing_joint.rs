@@ -72,8 +72,10 @@ fn main() -> onsager::Result<()> {
             x0_prior: &p.x0_prior,
             z0_prior: &p.z0_prior,
             data: &data,
+            t0: onsager::estimate::default_initial_time(&data),
+            seed: 0,
         };
-        let t0 = onsager::estimate::default_initial_time(&data);
+        let t0 = problem.t0;
         let step = onsager::path::default_step(t0, &data);
         let t_end = data.times.last().copied().unwrap_or(t0);
         let nodes = ((t_end - t0) / step).round() as usize;
@@ -84,7 +86,6 @@ fn main() -> onsager::Result<()> {
         let mut seconds = 0.0;
         for (m, (_, merit)) in merits.iter().enumerate() {
             let options = PathOptions::new(*merit, Transcription::HermiteSimpson)
-                .with_t0(t0)
                 .with_laplace(false)
                 .with_initial_path(guess.clone());
             let est = estimate_path(&problem, options)?.estimate;

@@ -52,15 +52,16 @@ fn main() -> onsager::Result<()> {
         x0_prior: &p.x0_prior,
         z0_prior: &p.z0_prior,
         data: &data,
+        t0: onsager::estimate::default_initial_time(&data),
+        seed: 0,
     };
-    let t0 = onsager::estimate::default_initial_time(&data);
+    let t0 = problem.t0;
     let step = p.sample_every / pieces as f64;
     let t_end = data.times.last().copied().unwrap_or(t0);
     let nodes = ((t_end - t0) / step).round() as usize;
     let times: Vec<f64> = (0..=nodes).map(|k| t0 + k as f64 * step).collect();
     let guess = spline_guess(&p.model, &start.theta, &p.observation.states, &data, &times)?;
     let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson)
-        .with_t0(t0)
         .with_step(step)
         .with_laplace(false)
         .with_initial_path(guess)

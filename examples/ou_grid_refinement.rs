@@ -39,6 +39,8 @@ fn main() -> onsager::Result<()> {
         x0_prior: &x0,
         z0_prior: &[],
         data: &data,
+        t0: 0.0,
+        seed: 0,
     };
     let model = LinearGaussianModel::from_sde(
         &Ou,

@@ -41,6 +41,8 @@ fn main() -> onsager::Result<()> {
         x0_prior: &p.x0_prior,
         z0_prior: &p.z0_prior,
         data: &data,
+        t0: 0.0,
+        seed: 0,
     };
     let est = pem(&problem, &PemOptions::default())?;
 

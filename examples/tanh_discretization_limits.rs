@@ -25,6 +25,8 @@ fn main() -> onsager::Result<()> {
         x0_prior: &p.x0_prior,
         z0_prior: &p.z0_prior,
         data: &data,
+        t0: 0.0,
+        seed: 0,
     };
     // Initial path: the straight line from the prior mean to the measurement.
     let guess = StatePath {
@@ -35,7 +37,6 @@ fn main() -> onsager::Result<()> {
     };
     let solve = |merit: Merit, transcription: Transcription, n: usize| -> onsager::Result<Vec<f64>> {
         let options = PathOptions::new(merit, transcription)
-            .with_t0(0.0)
             .with_step(5.0 / n as f64)
             .with_laplace(false)
             .with_initial_path(guess.clone());

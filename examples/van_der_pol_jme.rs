@@ -60,6 +60,8 @@ fn main() -> onsager::Result<()> {
         x0_prior: &p.x0_prior,
         z0_prior: &p.z0_prior,
         data: &data,
+        t0: 0.0,
+        seed: 0,
     };
     let times: Vec<f64> = (0..=3200).map(|k| k as f64 * 0.005).collect();
     let guess = spline_guess(&p.model, &p.theta, &observation.states, &data, &times)?;

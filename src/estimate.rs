@@ -41,11 +41,20 @@ pub struct EstimationProblem<'a, S: Sde + ?Sized, O: Observation + ?Sized> {
     pub z0_prior: &'a [Prior],
     /// The measurements; columns in the order of the observation's outputs.
     pub data: &'a Dataset,
+    /// Time of the initial-state priors, at or before the first measurement; every estimator
+    /// starts its path here. [`default_initial_time`] is the usual choice (what
+    /// [`Preset::problem`](crate::model::library::Preset::problem) sets).
+    pub t0: f64,
+    /// Seed of the estimators that draw random numbers (the particle smoother); each run with
+    /// the same seed gives the same estimate. An experiment derives one per replicate and
+    /// estimator.
+    pub seed: u64,
 }
 
 impl<S: Sde + ?Sized, O: Observation + ?Sized> EstimationProblem<'_, S, O> {
-    /// Checks that all the pieces agree in size, that θ is finite, that the priors are valid
-    /// and that the data has the observation's outputs and at least one time.
+    /// Checks that all the pieces agree in size, that θ is finite, that the priors are valid,
+    /// that the data has the observation's outputs and at least one time, and that `t0` is
+    /// finite and not after the first measurement.
     pub fn validate(&self) -> Result<()> {
         let d = self.sde.dims();
         check_len("theta", d.params, self.theta.len())?;
@@ -79,6 +88,15 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> EstimationProblem<'_, S, O> {
         }
         if self.data.is_empty() {
             return Err(Error::InvalidOption { name: "data".into(), reason: "has no measurements".into() });
+        }
+        if !(self.t0.is_finite() && self.t0 <= self.data.times[0]) {
+            return Err(Error::InvalidOption {
+                name: "t0".into(),
+                reason: format!(
+                    "the initial time must be finite and not after the first measurement at {}, got {}",
+                    self.data.times[0], self.t0
+                ),
+            });
         }
         Ok(())
     }

@@ -31,7 +31,7 @@ use crate::action::{
     closure_estimate, ksp_path_estimate, ksp_smoother, mean_optimal, mean_optimal_path_estimate, ClosureKind,
     ClosureOptions, ExactOptions, Grid, GridSpec,
 };
-use crate::estimate::{default_initial_time, EstimationProblem, PathEstimate};
+use crate::estimate::{EstimationProblem, PathEstimate};
 use crate::kalman::{self, KalmanMethod, KalmanOptions, PemOptions};
 use crate::model::observation::StateMeasurement;
 use crate::model::Sde;
@@ -352,7 +352,7 @@ pub fn run<S: Sde + ?Sized>(
         Method::Jme | Method::Mee => run_path(method, problem, options, &mut notes)?,
         Method::GaussianClosure | Method::ExpClosure | Method::KspClosure | Method::DoubleExpClosure => {
             let kind = ClosureKind::parse(method.name(), options.moments)?;
-            let mut closure_options = ClosureOptions::new().with_t0(default_initial_time(problem.data));
+            let mut closure_options = ClosureOptions::new();
             closure_options.gaussian_points = options.gaussian_points;
             closure_estimate(problem, &kind, &closure_options)?
         }
@@ -386,7 +386,7 @@ fn run_grid<S: Sde + ?Sized>(
             spec
         }
     };
-    let mut exact = ExactOptions::new(spec.clone()).with_t0(default_initial_time(problem.data));
+    let mut exact = ExactOptions::new(spec.clone());
     if let Some(dt) = options.dt {
         exact = exact.with_dt(dt);
     }
@@ -427,7 +427,7 @@ fn run_path<S: Sde + ?Sized>(
         ),
         _ => {}
     }
-    let t0 = default_initial_time(problem.data);
+    let t0 = problem.t0;
     let step = options.step.unwrap_or_else(|| path::default_step(t0, problem.data));
     if !(step.is_finite() && step > 0.0) {
         return Err(Error::InvalidOption { name: "step".into(), reason: format!("must be > 0, got {step}") });
@@ -459,8 +459,7 @@ fn run_path<S: Sde + ?Sized>(
     }
     let problem = &EstimationProblem { theta: &theta, ..*problem };
     let guess = spline_guess(problem.sde, problem.theta, &problem.observation.states, problem.data, &times)?;
-    let mut path_options =
-        PathOptions::new(merit, transcription).with_t0(t0).with_step(step).with_initial_path(guess);
+    let mut path_options = PathOptions::new(merit, transcription).with_step(step).with_initial_path(guess);
     let max_states = options.laplace_max_states.unwrap_or(4000);
     let states = nodes * problem.sde.dims().states();
     if states > max_states {

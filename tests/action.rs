@@ -51,6 +51,8 @@ fn ou_problem<'a>(
         x0_prior: x0,
         z0_prior: &[],
         data,
+        t0: 0.0,
+        seed: 0,
     }
 }
 
@@ -135,6 +137,8 @@ fn discrete_identities_hold() {
         x0_prior: &x0,
         z0_prior: &[],
         data: &data,
+        t0: 0.0,
+        seed: 0,
     };
     let options = ExactOptions::new(GridSpec::new_1d(-2.5, 2.5, 150)).with_dt(0.02).with_output_step(0.1);
     let mut action = ExactAction::try_new(&problem, &options).unwrap();
@@ -274,6 +278,8 @@ fn double_well_estimates_follow_the_true_well() {
         x0_prior: &x0,
         z0_prior: &[],
         data: &data,
+        t0: 0.0,
+        seed: 0,
     };
     let options = ExactOptions::new(GridSpec::new_1d(-2.5, 2.5, 300)).with_dt(0.025);
     let ksp = ksp_smoother(&problem, &options).unwrap();
@@ -324,6 +330,8 @@ fn van_der_pol_runs_on_a_200_by_200_grid() {
         x0_prior: &x0,
         z0_prior: &[],
         data: &data,
+        t0: 0.0,
+        seed: 0,
     };
     let options = ExactOptions::new(GridSpec::new_2d([-1.0, -1.0], [1.0, 1.0], [200, 200]))
         .with_dt(0.025)
@@ -374,6 +382,8 @@ fn bad_inputs_are_clear_errors() {
         x0_prior: &lx,
         z0_prior: &[],
         data: &data2,
+        t0: 0.0,
+        seed: 0,
     };
     let err = ksp_smoother(&problem, &ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 50))).unwrap_err();
     assert!(err.to_string().contains("one or two noisy states"), "{err}");
@@ -476,6 +486,8 @@ fn linear_two_state_model_matches_kalman_on_a_2d_grid() {
         x0_prior: &x0,
         z0_prior: &z0,
         data: &data,
+        t0: 0.0,
+        seed: 0,
     };
     let model = LinearGaussianModel::from_sde(
         &Duffing,

@@ -40,6 +40,8 @@ fn gaussian_closure_of_ou_is_the_rts_smoother() {
         x0_prior: &x0,
         z0_prior: &[],
         data: &data,
+        t0: 0.0,
+        seed: 0,
     };
     let options = ClosureOptions::new().with_tolerances(1e-10, 1e-12).with_output_step(0.1);
     let est = closure_estimate(&problem, &ClosureKind::Gaussian, &options).unwrap();
@@ -235,6 +237,8 @@ impl DoubleWellCase {
             x0_prior: &self.x0,
             z0_prior: &[],
             data: &self.data,
+            t0: 0.0,
+            seed: 0,
         }
     }
 }
@@ -401,6 +405,8 @@ fn unsupported_combinations_are_clear_errors() {
         x0_prior: &x2,
         z0_prior: &[],
         data: &d2,
+        t0: 0.0,
+        seed: 0,
     };
     // Measurement times must increase (direct construction of the action).
     let (drift, lambda0) = (
@@ -471,6 +477,8 @@ fn quadratic_exponential_closure_in_2d_is_the_gaussian_closure_on_a_linear_model
         x0_prior: &x0,
         z0_prior: &[],
         data: &data,
+        t0: 0.0,
+        seed: 0,
     };
     let options = ClosureOptions::new()
         .with_tolerances(1e-9, 1e-11)
@@ -519,6 +527,8 @@ fn quartic_closure_is_closer_to_the_exact_estimate_than_the_gaussian_closure() {
         x0_prior: &x0,
         z0_prior: &[],
         data: &data,
+        t0: 0.0,
+        seed: 0,
     };
     let exact = mean_optimal(
         &problem,
@@ -605,6 +615,8 @@ fn the_history_just_before_a_measurement_is_resolved() {
         x0_prior: &x0,
         z0_prior: &[],
         data: &data,
+        t0: 0.0,
+        seed: 0,
     };
     for kind in [ClosureKind::Gaussian, ClosureKind::Exponential { degree: 4 }] {
         let options = ClosureOptions::new().with_output_step(0.1);

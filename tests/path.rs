@@ -186,7 +186,6 @@ fn tanh_euler_converges_to_mee_and_trapezoidal_to_om() {
     };
     let solve = |merit: Merit, transcription: Transcription, n: usize| -> Vec<f64> {
         let options = PathOptions::new(merit, transcription)
-            .with_t0(0.0)
             .with_step(5.0 / n as f64)
             .with_laplace(false)
             .with_initial_path(guess.clone());

@@ -43,9 +43,7 @@ pub struct ExactOptions {
     /// The densities P and A are stored at every output time, so (output times) × (cells) is
     /// limited to 2.5·10⁷.
     pub output_step: Option<f64>,
-    /// Time of the initial law (the x0 prior). Default 0; the data must not start earlier.
-    pub t0: f64,
-    /// Further output times (finite, ≥ `t0`; later than the last datum extends the horizon).
+    /// Further output times (finite, ≥ the problem's `t0`; later than the last datum extends the horizon).
     /// Default none.
     pub extra_times: Vec<f64>,
     /// Options of the dual maximisation (mean-optimal estimator).
@@ -59,7 +57,6 @@ impl ExactOptions {
             grid,
             dt: None,
             output_step: None,
-            t0: 0.0,
             extra_times: Vec::new(),
             dual: DualOptions::default(),
         }
@@ -74,12 +71,6 @@ impl ExactOptions {
     /// Sets the output step.
     pub fn with_output_step(mut self, step: f64) -> Self {
         self.output_step = Some(step);
-        self
-    }
-
-    /// Sets the initial time.
-    pub fn with_t0(mut self, t0: f64) -> Self {
-        self.t0 = t0;
         self
     }
 
@@ -188,13 +179,7 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
         }
         let grid = Grid::try_new(options.grid.clone())?;
         let data = problem.data;
-        let (t0, t_last) = (options.t0, *data.times.last().expect("validated non-empty"));
-        if !t0.is_finite() || data.times[0] < t0 {
-            return Err(invalid(
-                "t0",
-                format!("the data start at {} before the initial time {t0}", data.times[0]),
-            ));
-        }
+        let (t0, t_last) = (problem.t0, *data.times.last().expect("validated non-empty"));
         if let Some(&t) = options.extra_times.iter().find(|&&t| !t.is_finite() || t < t0) {
             return Err(invalid("output times", format!("must be finite and not before t0 = {t0}, got {t}")));
         }

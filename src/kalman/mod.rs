@@ -56,7 +56,7 @@ use std::time::Instant;
 use nalgebra::DMatrix;
 use serde_json::{json, Map};
 
-use crate::data::{Dataset, StatePath};
+use crate::data::StatePath;
 use crate::estimate::{EstimationProblem, PathEstimate, Status};
 use crate::model::observation::StateMeasurement;
 use crate::model::Sde;
@@ -136,9 +136,6 @@ pub struct KalmanOptions {
     /// the initial time and the measurement times (the lower median, so that a few nearly
     /// coincident times do not force a tiny step everywhere), and at most 0.01.
     pub dt: Option<f64>,
-    /// Time of the initial-state prior, ≤ the first measurement time. Default (`None`): 0, or
-    /// the first measurement time when that is negative.
-    pub t0: Option<f64>,
     /// Sigma points of the unscented methods.
     pub unscented: UnscentedParams,
 }
@@ -150,27 +147,16 @@ impl KalmanOptions {
         self
     }
 
-    /// Sets the time of the initial-state prior.
-    pub fn with_t0(mut self, t0: f64) -> Self {
-        self.t0 = Some(t0);
-        self
-    }
-
     /// Sets the sigma-point parameters.
     pub fn with_unscented(mut self, unscented: UnscentedParams) -> Self {
         self.unscented = unscented;
         self
     }
 
-    /// The initial time for `data`: [`KalmanOptions::t0`] or
-    /// [`default_initial_time`](crate::estimate::default_initial_time).
-    pub fn initial_time(&self, data: &Dataset) -> f64 {
-        self.t0.unwrap_or_else(|| crate::estimate::default_initial_time(data))
-    }
-
-    /// The integration step for `data`: [`KalmanOptions::dt`] or its default.
-    pub fn step(&self, data: &Dataset) -> f64 {
-        self.dt.unwrap_or_else(|| default_step(self.initial_time(data), &data.times))
+    /// The integration step from `t0` over the measurement `times`: [`KalmanOptions::dt`] or
+    /// its default.
+    pub fn step(&self, t0: f64, times: &[f64]) -> f64 {
+        self.dt.unwrap_or_else(|| default_step(t0, times))
     }
 }
 
@@ -299,8 +285,8 @@ fn setup<S: Sde + ?Sized>(
         problem.x0_prior,
         problem.z0_prior,
         problem.data,
-        options.initial_time(problem.data),
-        options.step(problem.data),
+        problem.t0,
+        options.step(problem.t0, &problem.data.times),
         method,
     )
 }
@@ -356,7 +342,7 @@ fn filter_named<S: Sde + ?Sized>(
         log_likelihood,
         status,
         failed_at,
-        dt: options.step(problem.data),
+        dt: options.step(problem.t0, &problem.data.times),
         phi,
     })
 }
@@ -408,7 +394,7 @@ pub fn estimate<S: Sde + ?Sized>(
     };
     let run = filter_named(problem, problem.theta, approximation, options, method.name())?;
     let mut status = run.status;
-    let mut details = run_details(&run, problem.data, options);
+    let mut details = run_details(&run, problem.t0);
     let moments = if method.is_smoother() && run.failed_at.is_none() {
         match run.smooth() {
             Some(s) => s,
@@ -435,11 +421,11 @@ pub fn estimate<S: Sde + ?Sized>(
     })
 }
 
-fn run_details(run: &KalmanRun, data: &Dataset, options: &KalmanOptions) -> Map<String, serde_json::Value> {
+fn run_details(run: &KalmanRun, t0: f64) -> Map<String, serde_json::Value> {
     let mut d = Map::new();
     d.insert("log_likelihood".into(), json!(run.log_likelihood));
     d.insert("dt".into(), json!(run.dt));
-    d.insert("t0".into(), json!(options.initial_time(data)));
+    d.insert("t0".into(), json!(t0));
     d.insert("grid_points".into(), json!(run.times.len()));
     if let Some(t) = run.failed_at {
         d.insert("failed_at".into(), json!(t));

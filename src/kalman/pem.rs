@@ -431,7 +431,7 @@ pub fn pem<S: Sde + ?Sized>(
     let approximation = super::Approximation::Unscented(options.kalman.unscented);
     let run: KalmanRun = super::filter_named(problem, &theta, approximation, &options.kalman, "pem")?;
     let mut status = min.status;
-    let mut details = run_details(&run, problem.data, &options.kalman);
+    let mut details = run_details(&run, problem.t0);
     let moments = match run.smooth() {
         Some(s) => s,
         None => {

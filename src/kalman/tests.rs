@@ -80,6 +80,8 @@ fn problem(case: &Case) -> EstimationProblem<'_, Oscillator, StateMeasurement> {
         x0_prior: &case.x0,
         z0_prior: &case.z0,
         data: &case.data,
+        t0: 0.0,
+        seed: 0,
     }
 }
 
@@ -186,7 +188,8 @@ fn estimate_reports_the_path_on_the_grid_with_sd() {
     p.estimate = &[0];
     assert!(estimate(&p, KalmanMethod::Ekf, &KalmanOptions::default()).is_err());
     // The initial time must not follow the first measurement.
-    assert!(estimate(&problem(&case), KalmanMethod::Ekf, &KalmanOptions::default().with_t0(0.5)).is_err());
+    let late = EstimationProblem { t0: 0.5, ..problem(&case) };
+    assert!(estimate(&late, KalmanMethod::Ekf, &KalmanOptions::default()).is_err());
 }
 
 #[test]
@@ -250,8 +253,9 @@ fn an_initial_time_before_the_first_measurement_is_a_prediction_only_node() {
     let p0 = DMatrix::from_diagonal(&DVector::from_vec(vec![0.25, 0.36]));
     let model = LinearGaussianModel::from_sde(&Oscillator, &case.theta, &case.obs, -0.5, m0, p0).unwrap();
     let reference = kalman_rts(&model, &case.data, &[]).unwrap();
-    let opts = KalmanOptions::default().with_dt(0.005).with_t0(-0.5);
-    let run = filter(&problem(&case), &case.theta, Approximation::Extended, &opts).unwrap();
+    let opts = KalmanOptions::default().with_dt(0.005);
+    let early = EstimationProblem { t0: -0.5, ..problem(&case) };
+    let run = filter(&early, &case.theta, Approximation::Extended, &opts).unwrap();
     assert_relative_eq!(run.times[0], -0.5);
     assert!(!run.measured[0]);
     assert_relative_eq!(run.log_likelihood, reference.log_likelihood, epsilon = 1e-8);

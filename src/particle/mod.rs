@@ -65,14 +65,11 @@ pub struct ParticleOptions {
     /// between the initial time and the measurement times, at most 0.01 (as the Kalman
     /// methods, [`crate::kalman::KalmanOptions::dt`]).
     pub dt: Option<f64>,
-    /// Time of the initial-state prior, ≤ the first measurement time. Default (`None`): 0, or
-    /// the first measurement time when that is negative.
-    pub t0: Option<f64>,
 }
 
 impl Default for ParticleOptions {
     fn default() -> Self {
-        ParticleOptions { particles: 1000, backward_paths: None, ess_threshold: 0.5, dt: None, t0: None }
+        ParticleOptions { particles: 1000, backward_paths: None, ess_threshold: 0.5, dt: None }
     }
 }
 
@@ -95,12 +92,6 @@ impl ParticleOptions {
         self
     }
 
-    /// Sets the time of the initial-state prior.
-    pub fn with_t0(mut self, t0: f64) -> Self {
-        self.t0 = Some(t0);
-        self
-    }
-
     fn validate(&self) -> Result<()> {
         let bad = |name: &str, reason: String| Err(Error::InvalidOption { name: name.into(), reason });
         if self.particles < 2 {
@@ -115,11 +106,6 @@ impl ParticleOptions {
         if let Some(dt) = self.dt {
             if !(dt > 0.0 && dt.is_finite()) {
                 return bad("dt", format!("must be positive and finite, got {dt}"));
-            }
-        }
-        if let Some(t0) = self.t0 {
-            if !t0.is_finite() {
-                return bad("t0", format!("must be finite, got {t0}"));
             }
         }
         Ok(())
@@ -267,7 +253,7 @@ where
         .try_inverse()
         .ok_or_else(|| Error::SingularDiffusion { reason: "G(theta) is singular".into() })?;
     let data = problem.data;
-    let t0 = options.t0.unwrap_or_else(|| crate::estimate::default_initial_time(data));
+    let t0 = problem.t0;
     let dt = options.dt.unwrap_or_else(|| crate::kalman::default_step(t0, &data.times));
     let nodes = build_nodes(&data.times, t0, dt)?;
     let n = options.particles;

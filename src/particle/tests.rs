@@ -91,6 +91,8 @@ fn ancestral_smoother_with_a_clean_state_agrees_with_rts_within_monte_carlo_erro
         x0_prior: &x0,
         z0_prior: &z0,
         data: &data,
+        t0: 0.0,
+        seed: 0,
     };
     let p0 = DMatrix::from_diagonal(&DVector::from_vec(vec![0.25, 0.25]));
     let model = LinearGaussianModel::from_sde(&Oscillator, &theta, &obs, 0.0, DVector::zeros(2), p0).unwrap();

@@ -176,8 +176,6 @@ pub struct PathOptions {
     pub transcription: Transcription,
     /// The step (default: the shortest spacing of t0 and the measurement times / 20).
     pub step: Option<f64>,
-    /// The initial time (default: min(0, first measurement time)).
-    pub t0: Option<f64>,
     /// The initial state path, interpolated linearly onto the grid (default: zeros). Build it
     /// with [`spline_guess`] (000 Sec. 4.1; what the CLI uses) or [`interpolation_guess`].
     pub initial_path: Option<StatePath>,
@@ -194,7 +192,6 @@ impl Default for PathOptions {
             merit: Merit::OnsagerMachlup,
             transcription: Transcription::HermiteSimpson,
             step: None,
-            t0: None,
             initial_path: None,
             laplace: true,
             nlp: NlpOptions::default(),
@@ -211,12 +208,6 @@ impl PathOptions {
     /// Sets the step.
     pub fn with_step(mut self, step: f64) -> Self {
         self.step = Some(step);
-        self
-    }
-
-    /// Sets the initial time.
-    pub fn with_t0(mut self, t0: f64) -> Self {
-        self.t0 = Some(t0);
         self
     }
 
@@ -393,7 +384,7 @@ pub fn build_nlp<'a, S: Sde + ?Sized, O: Observation + ?Sized>(
     if options.transcription == Transcription::HermiteSimpson {
         check_g_fixed(problem.sde, problem.theta, problem.estimate)?;
     }
-    let t0 = options.t0.unwrap_or_else(|| crate::estimate::default_initial_time(problem.data));
+    let t0 = problem.t0;
     let step = options.step.unwrap_or_else(|| default_step(t0, problem.data));
     let grid = Grid::try_new(t0, step, &problem.data.times)?;
     // the NLP's patterns index variables and constraints as `u32` (`nlp::NlpProblem`); the

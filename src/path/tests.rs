@@ -584,6 +584,8 @@ fn closed_form_point_derivatives_equal_automatic_ones() {
                 x0_prior: closed.x0_prior,
                 z0_prior: closed.z0_prior,
                 data: &data,
+                t0: 0.0,
+                seed: 0,
             };
             let options = PathOptions::new(merit, Transcription::HermiteSimpson).with_step(0.15);
             let mut a = build_nlp(&closed, &options).unwrap();

@@ -109,8 +109,6 @@ impl ClosureKind {
 #[non_exhaustive]
 #[derive(Debug, Clone, PartialEq)]
 pub struct ClosureOptions {
-    /// Time of the initial law (the x0 prior). Default 0.
-    pub t0: f64,
     /// Step of the output grid. Default: the mean measurement spacing / 10 (the horizon / 10
     /// with a single measurement).
     pub output_step: Option<f64>,
@@ -162,7 +160,6 @@ pub struct ClosureOptions {
 impl Default for ClosureOptions {
     fn default() -> Self {
         ClosureOptions {
-            t0: 0.0,
             output_step: None,
             rtol: 1e-6,
             atol: 1e-9,
@@ -181,12 +178,6 @@ impl ClosureOptions {
     /// The defaults.
     pub fn new() -> Self {
         Self::default()
-    }
-
-    /// Sets the initial time.
-    pub fn with_t0(mut self, t0: f64) -> Self {
-        self.t0 = t0;
-        self
     }
 
     /// Sets the output step.
@@ -248,9 +239,6 @@ impl ClosureOptions {
 
     fn validate(&self) -> Result<()> {
         let bad = |name: &str, reason: String| Err(Error::InvalidOption { name: name.into(), reason });
-        if !self.t0.is_finite() {
-            return bad("t0", format!("must be finite, got {}", self.t0));
-        }
         if let Some(s) = self.output_step {
             if !(s.is_finite() && s > 0.0) {
                 return bad("output step", format!("must be positive and finite, got {s}"));
@@ -267,8 +255,8 @@ impl ClosureOptions {
         if self.gaussian_points == Some(0) {
             return bad("gaussian points", "must be at least 1".into());
         }
-        if let Some(&t) = self.extra_times.iter().find(|&&t| !t.is_finite() || t < self.t0) {
-            return bad("output times", format!("must be finite and not before t0 = {}, got {t}", self.t0));
+        if let Some(&t) = self.extra_times.iter().find(|&&t| !t.is_finite()) {
+            return bad("output times", format!("must be finite, got {t}"));
         }
         self.dual.validate()
     }
@@ -291,9 +279,11 @@ fn gaussian_prior(p: &Prior, state: &str) -> Result<(f64, f64)> {
     }
 }
 
-/// The output grid t0 + kΔ up to the last measurement (and the extra times).
-fn output_times(data_times: &[f64], options: &ClosureOptions) -> Result<Vec<f64>> {
-    let t0 = options.t0;
+/// The output grid t0 + kΔ up to the last measurement (and the extra times, none before t0).
+fn output_times(t0: f64, data_times: &[f64], options: &ClosureOptions) -> Result<Vec<f64>> {
+    if let Some(&t) = options.extra_times.iter().find(|&&t| t < t0) {
+        return Err(invalid("output times", format!("must not be before t0 = {t0}, got {t}")));
+    }
     let t_last = *data_times.last().expect("validated non-empty");
     let t_end = options.extra_times.iter().copied().fold(t_last.max(t0), f64::max);
     let span = t_end - t0;
@@ -590,12 +580,6 @@ fn common_checks<S: Sde + ?Sized>(
     if !problem.estimate.is_empty() {
         return Err(invalid("estimate", "the closures do not estimate parameters; θ is taken as given"));
     }
-    if problem.data.times[0] < options.t0 {
-        return Err(invalid(
-            "t0",
-            format!("the data start at {} before the initial time {}", problem.data.times[0], options.t0),
-        ));
-    }
     Ok(())
 }
 
@@ -606,10 +590,10 @@ fn action_of<S: Sde + ?Sized, D: ClosureDrift>(
     lambda0: Vec<f64>,
     measured: Vec<usize>,
 ) -> Result<ClosureAction<D>> {
-    let outs = output_times(&problem.data.times, options)?;
+    let outs = output_times(problem.t0, &problem.data.times, options)?;
     ClosureAction::try_new(
         drift,
-        options.t0,
+        problem.t0,
         lambda0,
         &problem.data.times,
         measured,
@@ -747,7 +731,7 @@ pub fn closure_estimate<S: Sde + ?Sized>(
             solve(exponential_closure_action(problem, *degree, options)?, &data, states, options)?
         }
         ClosureKind::Ksp | ClosureKind::DoubleExponential => {
-            let mut o = om::MomentPathOptions::new().with_t0(options.t0);
+            let mut o = om::MomentPathOptions::new();
             if let Some(s) = options.output_step {
                 o = o.with_step(s);
             }

@@ -55,8 +55,6 @@ use super::{gaussian_prior, invalid, ClosureKind};
 #[non_exhaustive]
 #[derive(Debug, Clone, PartialEq)]
 pub struct MomentPathOptions {
-    /// Time of the initial law (the x0 prior). Default 0.
-    pub t0: f64,
     /// Largest step of the transcription grid (each spacing between t0 and the measurement
     /// times is divided into ⌈spacing/step⌉ equal pieces). Default: the mean measurement
     /// spacing / 10.
@@ -73,7 +71,7 @@ pub struct MomentPathOptions {
 
 impl Default for MomentPathOptions {
     fn default() -> Self {
-        MomentPathOptions { t0: 0.0, step: None, tolerance: 1e-9, max_iterations: 500, gaussian_points: None }
+        MomentPathOptions { step: None, tolerance: 1e-9, max_iterations: 500, gaussian_points: None }
     }
 }
 
@@ -89,12 +87,6 @@ impl MomentPathOptions {
         self
     }
 
-    /// Sets the initial time.
-    pub fn with_t0(mut self, t0: f64) -> Self {
-        self.t0 = t0;
-        self
-    }
-
     /// Sets the NLP tolerance.
     pub fn with_tolerance(mut self, tolerance: f64) -> Self {
         self.tolerance = tolerance;
@@ -102,9 +94,6 @@ impl MomentPathOptions {
     }
 
     fn validate(&self) -> Result<()> {
-        if !self.t0.is_finite() {
-            return Err(invalid("t0", format!("must be finite, got {}", self.t0)));
-        }
         if let Some(s) = self.step {
             if !(s.is_finite() && s > 0.0) {
                 return Err(invalid("step", format!("must be positive and finite, got {s}")));
@@ -340,10 +329,7 @@ fn build<'a, S: Sde + ?Sized>(
     let g = problem.sde.diffusion_matrix(problem.theta)?;
     let d = 0.5 * g[(0, 0)] * g[(0, 0)];
     let times = &problem.data.times;
-    let t0 = options.t0;
-    if times[0] < t0 {
-        return Err(invalid("t0", format!("the data start at {} before the initial time {t0}", times[0])));
-    }
+    let t0 = problem.t0;
     let n = times.len();
     let t_last = times[n - 1];
     let step = match options.step {
@@ -491,6 +477,8 @@ mod tests {
             x0_prior: &x0,
             z0_prior: &[],
             data: &data,
+            t0: 0.0,
+            seed: 0,
         };
         let est = moment_path_estimate(&problem, kind, &MomentPathOptions::new().with_step(step)).unwrap();
         assert!(est.status.is_success(), "{:?}", est.status);
@@ -548,6 +536,8 @@ mod tests {
             x0_prior: x0,
             z0_prior: &[],
             data,
+            t0: 0.0,
+            seed: 0,
         }
     }
 
@@ -657,7 +647,8 @@ mod tests {
             moment_path_estimate(&problem, &ClosureKind::Ksp, &o.clone().with_tolerance(0.0)),
             "tolerance",
         );
-        is_invalid(moment_path_estimate(&problem, &ClosureKind::Ksp, &o.clone().with_t0(2.0)), "t0");
+        let late = EstimationProblem { t0: 2.0, ..problem };
+        is_invalid(moment_path_estimate(&late, &ClosureKind::Ksp, &o), "t0");
         let p2 = well_problem(&ob, &data, &priors, &flat);
         is_invalid(moment_path_estimate(&p2, &ClosureKind::Ksp, &o), "x0 prior");
         let student = StateMeasurement::new(

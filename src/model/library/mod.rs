@@ -250,7 +250,8 @@ impl Preset {
     }
 
     /// The estimation problem of this preset's model, measurement model, θ and priors on
-    /// `data`, estimating the θ components `estimate`.
+    /// `data`, estimating the θ components `estimate`, with the initial time
+    /// [`default_initial_time`](crate::estimate::default_initial_time) and seed 0.
     pub fn problem<'a>(
         &'a self,
         data: &'a Dataset,
@@ -265,6 +266,8 @@ impl Preset {
             x0_prior: &self.x0_prior,
             z0_prior: &self.z0_prior,
             data,
+            t0: crate::estimate::default_initial_time(data),
+            seed: 0,
         }
     }
 
