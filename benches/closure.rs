@@ -13,27 +13,23 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 
-use onsager::action::{closure_estimate, mean_optimal, ClosureKind, ClosureOptions, ExactOptions, GridSpec};
+use onsager::action::{closure_estimate, mean_optimal, Closure, ClosureOptions, ExactOptions, GridSpec};
 
 include!("double_well_record.rs");
 
 fn bench(c: &mut Criterion) {
     let record = Record::new();
     let problem = record.problem();
-    let options = ClosureOptions::new();
+    let (gaussian, quartic) =
+        (Closure::gaussian(ClosureOptions::new()), Closure::exponential(4, ClosureOptions::new()));
     let exact = ExactOptions::new(GridSpec::new_1d(-2.5, 2.5, 1000));
     let mut group = c.benchmark_group("closure_double_well_40_measurements");
     group.sample_size(10).warm_up_time(Duration::from_millis(1)).measurement_time(Duration::from_secs(1));
     group.bench_function("gaussian_closure", |b| {
-        b.iter(|| black_box(closure_estimate(&problem, &ClosureKind::Gaussian, &options).expect("gaussian")))
+        b.iter(|| black_box(closure_estimate(&problem, &gaussian).expect("gaussian")))
     });
     group.bench_function("quartic_closure", |b| {
-        b.iter(|| {
-            black_box(
-                closure_estimate(&problem, &ClosureKind::Exponential { degree: 4 }, &options)
-                    .expect("quartic"),
-            )
-        })
+        b.iter(|| black_box(closure_estimate(&problem, &quartic).expect("quartic")))
     });
     group.bench_function("exact_mean_optimal", |b| {
         b.iter(|| black_box(mean_optimal(&problem, &exact).expect("mean-optimal")))

@@ -14,7 +14,7 @@
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 
-use onsager::action::{closure_estimate, mean_optimal, ClosureKind, ClosureOptions, ExactOptions, GridSpec};
+use onsager::action::{closure_estimate, mean_optimal, Closure, ClosureOptions, ExactOptions, GridSpec};
 use onsager::data::Dataset;
 use onsager::model::library::preset;
 use onsager::simulate::{sample_measurements_at, simulate, SimulateOptions};
@@ -66,8 +66,8 @@ fn main() -> onsager::Result<()> {
     for (seed, data) in &seeds {
         let problem = p.problem(data, &[]);
         let exact = mean_optimal(&problem, &exact_options)?;
-        let g = closure_estimate(&problem, &ClosureKind::Gaussian, &options)?;
-        let q = closure_estimate(&problem, &ClosureKind::Exponential { degree: 4 }, &options)?;
+        let g = closure_estimate(&problem, &Closure::gaussian(options.clone()))?;
+        let q = closure_estimate(&problem, &Closure::exponential(4, options.clone()))?;
         let (eg, eq) = (rmse(&g.path.values, &exact.history.mean), rmse(&q.path.values, &exact.history.mean));
         let closer = eq < eg;
         wins += usize::from(closer);

@@ -13,9 +13,9 @@
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 
-use onsager::action::closure::om::{moment_path_estimate, MomentPathOptions};
+use onsager::action::closure::om::{moment_path_estimate, MomentPathKind, MomentPathOptions};
 use onsager::action::{
-    closure_estimate, ksp_smoother, mean_optimal, ClosureKind, ClosureOptions, ExactOptions, GridSpec,
+    closure_estimate, ksp_smoother, mean_optimal, Closure, ClosureOptions, ExactOptions, GridSpec,
 };
 use onsager::model::library::preset;
 use onsager::simulate::{sample_measurements_at, simulate, SimulateOptions};
@@ -38,7 +38,7 @@ fn main() -> onsager::Result<()> {
     let exact_options =
         ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 600)).with_dt(0.005).with_output_step(0.1);
     let om = MomentPathOptions::new();
-    let gauss = ClosureOptions::new().with_output_step(0.1).with_dispersion(false);
+    let gauss = Closure::gaussian(ClosureOptions::new().with_output_step(0.1).with_dispersion(false));
     println!(
         "{:>5} {:>12} {:>12} {:>12} {:>12} {:>10}",
         "seed", "dexp vs MO", "gauss vs MO", "ksp-c vs KSP", "sd vs KSP", "iters d/k"
@@ -58,9 +58,9 @@ fn main() -> onsager::Result<()> {
         let problem = p.problem(&data, &[]);
         let exact = mean_optimal(&problem, &exact_options)?;
         let ksp = ksp_smoother(&problem, &exact_options)?;
-        let d = moment_path_estimate(&problem, &ClosureKind::DoubleExponential, &om)?;
-        let k = moment_path_estimate(&problem, &ClosureKind::Ksp, &om)?;
-        let g = closure_estimate(&problem, &ClosureKind::Gaussian, &gauss)?;
+        let d = moment_path_estimate(&problem, MomentPathKind::DoubleExponential, &om)?;
+        let k = moment_path_estimate(&problem, MomentPathKind::Ksp, &om)?;
+        let g = closure_estimate(&problem, &gauss)?;
         let e_d = rmse(&d.path.times, &d.path.values, &exact.history.times, &exact.history.mean);
         let e_g = rmse(&g.path.times, &g.path.values, &exact.history.times, &exact.history.mean);
         let e_k = rmse(&k.path.times, &k.path.values, &ksp.times, &ksp.smoothed_mean);

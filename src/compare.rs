@@ -6,12 +6,12 @@
 //! each estimate against the truth (when known), the exact KSP smoothed mean and the exact
 //! mean-optimal estimate (when they are among the methods), with [`crate::metrics`].
 
-use serde_json::{json, Value};
+use serde::Serialize;
 
 use crate::data::{Dataset, StatePath};
-use crate::estimate::{EstimationProblem, PathEstimate};
-use crate::methods::{self, Method, MethodOptions};
-use crate::metrics;
+use crate::estimate::{EstimationProblem, PathEstimate, RowStatus};
+use crate::estimator::{Estimator, Labelled, Method};
+use crate::metrics::{self, Metric};
 use crate::model::observation::StateMeasurement;
 use crate::model::Sde;
 use crate::plot::{LinePlot, Panels, Series};
@@ -21,52 +21,53 @@ use crate::Result;
 #[derive(Debug, Clone, PartialEq, Default)]
 #[non_exhaustive]
 pub struct CompareOptions {
-    /// Grid of the exact methods (default: [`methods::default_grid`]).
-    pub grid: Option<String>,
-    /// Seed of the methods that draw random numbers.
-    pub seed: u64,
     /// For bistable models: the barrier between the wells of the first state (0 for the double
     /// well); the table then reports the fraction of times on the true well's side.
     pub barrier: Option<f64>,
 }
 
-/// One method's line of the comparison.
-#[derive(Debug, Clone, PartialEq)]
+/// One estimator's line of the comparison.
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CompareRow {
-    /// The method.
+    /// The estimator's label.
+    pub label: String,
+    /// Its method.
     pub method: Method,
-    /// The status name (`converged`, …), or `error` when the method could not run.
-    pub status: String,
-    /// The error message, when the method could not run.
+    /// Its estimate's status, or `error` when it could not run.
+    pub status: RowStatus,
+    /// The error message, when it could not run.
     pub error: Option<String>,
-    /// RMSE against the truth over the truth's times (all states).
+    /// RMSE against the truth ([`Metric::Rmse`]).
     pub rmse_truth: Option<f64>,
-    /// RMSE against the exact KSP smoothed mean over its output times.
+    /// RMSE against the exact KSP smoothed mean ([`Metric::RmseTo`] the first `ksp`).
     pub rmse_ksp: Option<f64>,
-    /// RMSE against the exact mean-optimal estimate over its output times.
+    /// RMSE against the exact mean-optimal estimate (the first `mean-optimal`).
     pub rmse_mean_optimal: Option<f64>,
-    /// Fraction of the truth's times at which the first state is on the true well's side.
+    /// Fraction of the truth's times at which the first state is on the true well's side
+    /// ([`Metric::WellSide`]).
     pub same_well: Option<f64>,
-    /// The method's solve time in seconds.
+    /// The solve time in seconds.
     pub seconds: f64,
-    /// The method's notes (see [`methods::MethodRun`]).
+    /// The estimator's notes (see [`crate::estimate::MethodRun`]).
     pub notes: Vec<String>,
 }
 
-/// The result of [`compare`]: one row and (when it ran) one estimate per method, in order.
+/// The result of [`compare`]: one row and (when it ran) one estimate per estimator, in order.
 #[derive(Debug, Clone)]
 pub struct Comparison {
     /// The rows.
     pub rows: Vec<CompareRow>,
-    /// The estimates (`None` where the method failed to run).
+    /// The estimates (`None` where the estimator failed to run).
     pub estimates: Vec<Option<PathEstimate>>,
 }
 
-/// The methods compared by default: the exact grid methods where the model has at most two
-/// states, the closures where it has one (Gaussian, quartic exponential, double-exponential and
-/// KSP; seconds on a 40-measurement record; in 2-D ask for them explicitly), then JME, MEE and
+/// The estimators compared by default, with their default options: the exact grid methods
+/// where the model has at most two states, the closures where it has one (Gaussian, quartic
+/// exponential, double-exponential and KSP; in 2-D ask for them explicitly), then JME, MEE and
 /// the UKS.
-pub fn default_methods<S: Sde + ?Sized>(problem: &EstimationProblem<'_, S, StateMeasurement>) -> Vec<Method> {
+pub fn default_estimators<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+) -> Vec<Labelled> {
     let mut m = Vec::new();
     let states = problem.sde.dims().states();
     if states <= 2 {
@@ -76,16 +77,28 @@ pub fn default_methods<S: Sde + ?Sized>(problem: &EstimationProblem<'_, S, State
         m.extend([Method::GaussianClosure, Method::ExpClosure, Method::DoubleExpClosure, Method::KspClosure]);
     }
     m.extend([Method::Jme, Method::Mee, Method::Uks]);
-    m
+    m.into_iter().map(|m| Labelled::new(Estimator::new(m))).collect()
 }
 
-/// Runs `methods` on `problem` and measures them (see the [module documentation](self)).
-/// A method that fails is a row with status `error` and its message; the comparison goes on.
+/// The value of `metric` where it can be computed.
+fn value_of(
+    metric: &Metric,
+    est: &PathEstimate,
+    truth: Option<&StatePath>,
+    refs: &[(&str, &StatePath)],
+) -> Option<f64> {
+    metrics::measure(metric, &est.path, truth, refs).ok()
+}
+
+/// Runs `estimators` on `problem` and measures them with [`metrics::measure`] against the
+/// truth (when given), the first successful `ksp` and `mean-optimal` estimates among them.
+/// An estimator that fails is a row with status `error` and its message; the comparison goes
+/// on.
 ///
-/// Errors: none from the methods; a `truth` whose state names differ from the model's.
+/// Errors: none from the estimators; a `truth` whose state names differ from the model's.
 pub fn compare<S: Sde + ?Sized>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
-    methods: &[Method],
+    estimators: &[Labelled],
     truth: Option<&StatePath>,
     options: &CompareOptions,
 ) -> Result<Comparison> {
@@ -98,102 +111,109 @@ pub fn compare<S: Sde + ?Sized>(
             });
         }
     }
-    let mut rows = Vec::with_capacity(methods.len());
-    let mut estimates = Vec::with_capacity(methods.len());
-    for &method in methods {
-        let mut o = MethodOptions::default();
-        if method.uses_grid() {
-            o.grid = options.grid.clone();
-        }
-        o.seed = options.seed;
-        match methods::run(method, problem, &o) {
+    let mut rows = Vec::with_capacity(estimators.len());
+    let mut estimates = Vec::with_capacity(estimators.len());
+    for e in estimators {
+        let (status, error, seconds, notes, estimate) = match e.estimator.run(problem) {
             Ok(run) => {
-                rows.push(CompareRow {
-                    method,
-                    status: run.estimate.status.name().to_string(),
-                    error: None,
-                    rmse_truth: None,
-                    rmse_ksp: None,
-                    rmse_mean_optimal: None,
-                    same_well: None,
-                    seconds: run.estimate.solve_seconds,
-                    notes: run.notes,
-                });
-                estimates.push(Some(run.estimate));
+                let est = run.estimate;
+                (RowStatus::Finished(est.status), None, est.solve_seconds, run.notes, Some(est))
             }
-            Err(e) => {
-                rows.push(CompareRow {
-                    method,
-                    status: "error".into(),
-                    error: Some(e.to_string()),
-                    rmse_truth: None,
-                    rmse_ksp: None,
-                    rmse_mean_optimal: None,
-                    same_well: None,
-                    seconds: 0.0,
-                    notes: Vec::new(),
-                });
-                estimates.push(None);
-            }
-        }
+            Err(err) => (RowStatus::Error, Some(err.to_string()), 0.0, Vec::new(), None),
+        };
+        rows.push(CompareRow {
+            label: e.label.clone(),
+            method: e.estimator.method(),
+            status,
+            error,
+            rmse_truth: None,
+            rmse_ksp: None,
+            rmse_mean_optimal: None,
+            same_well: None,
+            seconds,
+            notes,
+        });
+        estimates.push(estimate);
     }
     let reference = |m: Method| -> Option<&PathEstimate> {
-        methods
-            .iter()
-            .position(|&x| x == m)
-            .and_then(|i| estimates[i].as_ref())
-            .filter(|e| e.status.is_success())
+        estimates.iter().flatten().find(|e| e.method == m && e.status.is_success())
     };
-    let ksp = reference(Method::Ksp).map(|e| e.path.clone());
-    let mean_optimal = reference(Method::MeanOptimal).map(|e| e.path.clone());
+    let refs: Vec<(&str, &StatePath)> =
+        [("ksp", reference(Method::Ksp)), ("mean-optimal", reference(Method::MeanOptimal))]
+            .into_iter()
+            .filter_map(|(l, e)| e.map(|e| (l, &e.path)))
+            .collect();
     for (row, est) in rows.iter_mut().zip(&estimates) {
         let Some(est) = est else { continue };
-        let path = &est.path;
-        if let Some(t) = truth {
-            row.rmse_truth = metrics::rmse(path, t, None).ok();
-            if let Some(b) = options.barrier {
-                row.same_well = metrics::same_side_fraction(path, t, &names[0], b).ok();
-            }
+        row.rmse_truth = value_of(&Metric::Rmse, est, truth, &refs);
+        if let Some(barrier) = options.barrier {
+            row.same_well = value_of(&Metric::WellSide { state: None, barrier }, est, truth, &refs);
         }
         if row.method != Method::Ksp {
-            row.rmse_ksp = ksp.as_ref().and_then(|r| metrics::rmse(path, r, None).ok());
+            row.rmse_ksp = value_of(&Metric::RmseTo("ksp".into()), est, truth, &refs);
         }
         if row.method != Method::MeanOptimal {
-            row.rmse_mean_optimal = mean_optimal.as_ref().and_then(|r| metrics::rmse(path, r, None).ok());
+            row.rmse_mean_optimal = value_of(&Metric::RmseTo("mean-optimal".into()), est, truth, &refs);
         }
     }
     Ok(Comparison { rows, estimates })
 }
 
+/// One row of `summary.json`.
+#[derive(Debug, Serialize)]
+struct SummaryRow<'a> {
+    label: &'a str,
+    method: Method,
+    status: RowStatus,
+    error: &'a Option<String>,
+    rmse_truth: Option<f64>,
+    rmse_ksp: Option<f64>,
+    rmse_mean_optimal: Option<f64>,
+    same_well_fraction: Option<f64>,
+    solve_seconds: f64,
+    iterations: Option<usize>,
+    notes: &'a [String],
+}
+
+/// `summary.json`: the rows in order.
+#[derive(Debug, Serialize)]
+pub struct Summary<'a> {
+    methods: Vec<SummaryRow<'a>>,
+}
+
 impl Comparison {
-    /// The summary as JSON: one object per method with its status, metrics (null when not
-    /// available), seconds, iterations, notes and error.
-    pub fn summary_json(&self) -> Value {
-        let rows: Vec<Value> = self
+    /// The summary: one object per estimator with its label, method, status, metrics (null when
+    /// not available), seconds, iterations, notes and error.
+    pub fn summary(&self) -> Summary<'_> {
+        let finite = |x: Option<f64>| x.filter(|v| v.is_finite());
+        let methods = self
             .rows
             .iter()
             .zip(&self.estimates)
-            .map(|(r, e)| {
-                let finite = |x: Option<f64>| x.filter(|v| v.is_finite());
-                json!({
-                    "method": r.method.name(),
-                    "status": r.status,
-                    "error": r.error,
-                    "rmse_truth": finite(r.rmse_truth),
-                    "rmse_ksp": finite(r.rmse_ksp),
-                    "rmse_mean_optimal": finite(r.rmse_mean_optimal),
-                    "same_well_fraction": finite(r.same_well),
-                    "solve_seconds": r.seconds,
-                    "iterations": e.as_ref().map(|e| e.iterations),
-                    "notes": r.notes,
-                })
+            .map(|(r, e)| SummaryRow {
+                label: &r.label,
+                method: r.method,
+                status: r.status,
+                error: &r.error,
+                rmse_truth: finite(r.rmse_truth),
+                rmse_ksp: finite(r.rmse_ksp),
+                rmse_mean_optimal: finite(r.rmse_mean_optimal),
+                same_well_fraction: finite(r.same_well),
+                solve_seconds: r.seconds,
+                iterations: e.as_ref().map(|e| e.iterations),
+                notes: &r.notes,
             })
             .collect();
-        json!({ "methods": rows })
+        Summary { methods }
     }
 
-    /// All estimated paths in one long table: `method,t,<states>,sd_<states>` (empty sd where
-    /// a method has none).
+    /// The estimates with their labels.
+    fn labelled(&self) -> impl Iterator<Item = (&str, &PathEstimate)> {
+        self.rows.iter().zip(&self.estimates).filter_map(|(r, e)| e.as_ref().map(|e| (r.label.as_str(), e)))
+    }
+
+    /// All estimated paths in one long table: `method,t,<states>,sd_<states>` (the estimator's
+    /// label in `method`; empty sd where an estimate has none).
     pub fn write_paths_csv(&self, path: &std::path::Path, state_names: &[String]) -> Result<()> {
         let io = |source| crate::Error::Io { path: path.to_path_buf(), source };
         let mut w = csv::Writer::from_path(path).map_err(|e| match e.into_kind() {
@@ -205,9 +225,9 @@ impl Comparison {
         header.extend(state_names.iter().map(|n| format!("sd_{n}")));
         let csv_err = |e: csv::Error| io(std::io::Error::other(e.to_string()));
         w.write_record(&header).map_err(csv_err)?;
-        for est in self.estimates.iter().flatten() {
+        for (label, est) in self.labelled() {
             for (i, &t) in est.path.times.iter().enumerate() {
-                let mut rec = vec![est.method.clone(), format!("{t}")];
+                let mut rec = vec![label.to_string(), format!("{t}")];
                 rec.extend(est.path.values[i].iter().map(|v| format!("{v}")));
                 match &est.path.sd {
                     Some(sd) => rec.extend(sd[i].iter().map(|v| format!("{v}"))),
@@ -243,10 +263,10 @@ impl Comparison {
                         t.values.iter().map(|r| r[a]).collect(),
                     ));
                 }
-                for est in self.estimates.iter().flatten() {
+                for (label, est) in self.labelled() {
                     let p = &est.path;
                     let y: Vec<f64> = p.values.iter().map(|r| r[a]).collect();
-                    let mut s = Series::line(est.method.clone(), p.times.clone(), y);
+                    let mut s = Series::line(label, p.times.clone(), y);
                     if let Some(sd) = &p.sd {
                         let sd: Vec<f64> = sd.iter().map(|r| r[a]).collect();
                         s = s.with_sd_band(&sd, 2.0);
@@ -286,8 +306,11 @@ mod tests {
                 .unwrap();
         let data = sample_measurements(&p.observation, &p.theta, &truth, 1, 1.0, &mut rng).unwrap();
         let problem = p.problem(&data, &[]);
-        let options = CompareOptions { barrier: Some(0.0), ..Default::default() };
-        let methods = [Method::Ksp, Method::Uks, Method::KspClosure, Method::Eks];
+        let options = CompareOptions { barrier: Some(0.0) };
+        let methods: Vec<Labelled> = [Method::Ksp, Method::Uks, Method::KspClosure, Method::Eks]
+            .into_iter()
+            .map(|m| Labelled::new(Estimator::new(m)))
+            .collect();
         let c = compare(&problem, &methods, Some(&truth), &options).unwrap();
         assert_eq!(c.rows.len(), 4);
         // The KSP row has no RMSE to itself; the UKS row has all three distances.
@@ -299,13 +322,14 @@ mod tests {
         let direct = metrics::rmse(&c.estimates[1].as_ref().unwrap().path, &truth, None).unwrap();
         assert_eq!(uks.rmse_truth.unwrap(), direct);
         // A method that cannot run is a row with its error, and the comparison goes on.
-        if c.rows[2].status == "error" {
+        if c.rows[2].status == RowStatus::Error {
             assert!(c.rows[2].error.as_ref().unwrap().contains("ksp-closure"));
             assert!(c.estimates[2].is_none());
         }
-        assert_eq!(c.rows[3].status, "converged");
-        let j = c.summary_json();
+        assert_eq!(c.rows[3].status, RowStatus::Finished(crate::Status::Converged));
+        let j = serde_json::to_value(c.summary()).unwrap();
         assert_eq!(j["methods"].as_array().unwrap().len(), 4);
+        assert_eq!(j["methods"][3]["status"], "converged");
         // A truth with other states is an error.
         let fig = c.figure(&p.model.state_names(), &data, &p.observation, Some(&truth), "double well");
         assert_eq!(fig.panels.len(), 1);

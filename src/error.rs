@@ -27,6 +27,16 @@ pub enum Error {
         /// Why the value is rejected.
         reason: String,
     },
+    /// An option of an estimator that it does not have, or a value it does not take.
+    #[error("invalid option `{option}` of `{method}`: {reason}")]
+    EstimatorOption {
+        /// The estimator's method name (`exp-closure`, …).
+        method: String,
+        /// The option's name (`moments`, `dual.tolerance`, …).
+        option: String,
+        /// Why it is rejected, with the allowed names or values.
+        reason: String,
+    },
     /// A name (model, parameter, state, output, likelihood) that is not known.
     #[error("unknown {kind} `{name}`{}", if .known.is_empty() { String::new() } else { format!(" (known: {})", .known.join(", ")) })]
     UnknownName {

@@ -6,11 +6,17 @@
 //! fixed), a [`Status`] and a report. Misuse is an [`Error`]; a numerical outcome such as
 //! non-convergence is a [`Status`] (DESIGN.md).
 
+use std::any::Any;
+use std::collections::BTreeMap;
+use std::fmt;
 use std::path::Path;
+use std::sync::Arc;
 
-use serde_json::{json, Map, Value};
+use serde::Serialize;
+use serde_json::{Map, Value};
 
 use crate::data::{Dataset, StatePath};
+pub use crate::estimator::Method;
 use crate::model::prior::Prior;
 use crate::model::{check_len, Observation, Sde};
 pub use crate::status::Status;
@@ -102,11 +108,85 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> EstimationProblem<'_, S, O> {
     }
 }
 
+/// The method-specific part of an estimate's report: a typed struct of its estimator (e.g.
+/// [`crate::kalman::KalmanDetails`], read back with [`Details::get`]), written as the report's
+/// `details` object (read by key with `details["log_likelihood"]`).
+#[derive(Clone, Default)]
+pub struct Details(Option<Arc<Written>>);
+
+/// Typed details with their JSON form.
+struct Written {
+    typed: Box<dyn Any + Send + Sync>,
+    debug: String,
+    json: Map<String, Value>,
+}
+
+impl Details {
+    /// Details from a typed struct (serialised as a JSON object; non-finite numbers are null).
+    pub fn new<T: Serialize + fmt::Debug + Send + Sync + 'static>(details: T) -> Details {
+        let json = match serde_json::to_value(&details) {
+            Ok(Value::Object(map)) => map,
+            _ => Map::new(),
+        };
+        let debug = format!("{details:?}");
+        Details(Some(Arc::new(Written { typed: Box::new(details), debug, json })))
+    }
+
+    /// The typed details, when they are a `T`.
+    pub fn get<T: 'static>(&self) -> Option<&T> {
+        self.0.as_ref()?.typed.downcast_ref::<T>()
+    }
+
+    /// The details as a JSON object (empty when there are none).
+    pub fn json(&self) -> &Map<String, Value> {
+        static EMPTY: std::sync::OnceLock<Map<String, Value>> = std::sync::OnceLock::new();
+        match &self.0 {
+            Some(w) => &w.json,
+            None => EMPTY.get_or_init(Map::new),
+        }
+    }
+
+    /// Whether the JSON form has the entry `key`.
+    pub fn contains_key(&self, key: &str) -> bool {
+        self.json().contains_key(key)
+    }
+}
+
+impl std::ops::Index<&str> for Details {
+    type Output = Value;
+
+    /// The JSON value of entry `key` (null when absent).
+    fn index(&self, key: &str) -> &Value {
+        self.json().get(key).unwrap_or(&Value::Null)
+    }
+}
+
+impl fmt::Debug for Details {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match &self.0 {
+            Some(w) => f.write_str(&w.debug),
+            None => f.write_str("Details(none)"),
+        }
+    }
+}
+
+impl PartialEq for Details {
+    fn eq(&self, other: &Details) -> bool {
+        self.json() == other.json()
+    }
+}
+
+impl Serialize for Details {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> std::result::Result<S::Ok, S::Error> {
+        self.json().serialize(serializer)
+    }
+}
+
 /// The result of every estimator.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PathEstimate {
-    /// The method's name (as on the command line, e.g. `uks`, `ksp`).
-    pub method: String,
+    /// The method.
+    pub method: Method,
     /// The estimated path (noisy then clean states) with optional standard deviations.
     pub path: StatePath,
     /// Parameter names.
@@ -123,39 +203,142 @@ pub struct PathEstimate {
     pub iterations: usize,
     /// Time spent solving, excluding data loading and output, in seconds.
     pub solve_seconds: f64,
-    /// Method-specific report entries (log-likelihood, multipliers, residuals, …).
-    pub details: Map<String, Value>,
+    /// The method's own report entries (log-likelihood, multipliers, residuals, …).
+    pub details: Details,
+}
+
+/// One parameter in a [`Report`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ThetaReport {
+    /// Its value (the estimate, or the given value).
+    pub value: f64,
+    /// Whether it was estimated.
+    pub estimated: bool,
+    /// Its standard deviation, when estimated and known.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sd: Option<f64>,
+}
+
+/// The JSON report of an estimate (`onsager estimate --report`; schema in `docs/results.md`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Report<'a> {
+    /// The method.
+    pub method: Method,
+    /// The numerical outcome.
+    pub status: Status,
+    /// Iterations of the method's outer loop.
+    pub iterations: usize,
+    /// Solve time in seconds.
+    pub solve_seconds: f64,
+    /// Every parameter by name.
+    pub theta: BTreeMap<&'a str, ThetaReport>,
+    /// The method's own entries.
+    pub details: &'a Details,
 }
 
 impl PathEstimate {
-    /// The JSON report: method, status, iterations, `solve_seconds`, θ̂ (with sd where known)
-    /// and the method's details.
-    pub fn report_json(&self) -> Value {
-        let mut theta = Map::new();
-        for (i, name) in self.theta_names.iter().enumerate() {
-            let mut entry = Map::new();
-            entry.insert("value".into(), json!(self.theta[i]));
-            let k = self.estimated.iter().position(|&e| e == i);
-            entry.insert("estimated".into(), json!(k.is_some()));
-            if let (Some(k), Some(sd)) = (k, &self.theta_sd) {
-                entry.insert("sd".into(), json!(sd[k]));
-            }
-            theta.insert(name.clone(), Value::Object(entry));
+    /// The report: method, status, iterations, `solve_seconds`, θ (with the sd of the estimated
+    /// components where known) and the method's details.
+    pub fn report(&self) -> Report<'_> {
+        let theta = self
+            .theta_names
+            .iter()
+            .enumerate()
+            .map(|(i, name)| {
+                let k = self.estimated.iter().position(|&e| e == i);
+                let sd = k.and_then(|k| self.theta_sd.as_ref().map(|sd| sd[k]));
+                (name.as_str(), ThetaReport { value: self.theta[i], estimated: k.is_some(), sd })
+            })
+            .collect();
+        Report {
+            method: self.method,
+            status: self.status,
+            iterations: self.iterations,
+            solve_seconds: self.solve_seconds,
+            theta,
+            details: &self.details,
         }
-        json!({
-            "method": self.method,
-            "status": self.status.name(),
-            "iterations": self.iterations,
-            "solve_seconds": self.solve_seconds,
-            "theta": theta,
-            "details": self.details,
-        })
     }
 
-    /// Writes [`PathEstimate::report_json`] to a file, pretty-printed.
+    /// Writes [`PathEstimate::report`] to a file as pretty-printed JSON.
     pub fn write_report(&self, path: impl AsRef<Path>) -> Result<()> {
         let path = path.as_ref();
-        let text = serde_json::to_string_pretty(&self.report_json()).expect("a JSON value serialises");
+        let text = serde_json::to_string_pretty(&self.report()).expect("a report serialises");
         std::fs::write(path, text + "\n").map_err(|source| Error::Io { path: path.to_path_buf(), source })
+    }
+}
+
+/// How one estimator's run on one problem ended: with an estimate and its numerical status, or
+/// with an error (bad input for that estimator). Written as the status's name or `error`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum RowStatus {
+    /// The estimator ran; its estimate's status.
+    Finished(Status),
+    /// The estimator could not run (the row's message says why).
+    Error,
+}
+
+impl RowStatus {
+    /// Whether the row holds a usable estimate (converged or acceptable).
+    pub fn is_success(self) -> bool {
+        matches!(self, RowStatus::Finished(s) if s.is_success())
+    }
+
+    /// The name written in tables: the status's name, or `error`.
+    pub fn name(self) -> &'static str {
+        match self {
+            RowStatus::Finished(s) => s.name(),
+            RowStatus::Error => "error",
+        }
+    }
+}
+
+impl fmt::Display for RowStatus {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for RowStatus {
+    type Err = Error;
+
+    /// Parses a name written by [`RowStatus::name`].
+    fn from_str(s: &str) -> Result<RowStatus> {
+        if s == "error" {
+            return Ok(RowStatus::Error);
+        }
+        Status::ALL.iter().find(|st| st.name() == s).map(|&st| RowStatus::Finished(st)).ok_or_else(|| {
+            Error::UnknownName {
+                kind: "status".into(),
+                name: s.into(),
+                known: Status::ALL
+                    .iter()
+                    .map(|st| st.name().to_string())
+                    .chain(["error".to_string()])
+                    .collect(),
+            }
+        })
+    }
+}
+
+impl Serialize for RowStatus {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> std::result::Result<S::Ok, S::Error> {
+        serializer.serialize_str(self.name())
+    }
+}
+
+/// An estimate with the notes a user should read (what a transcription converges to, the
+/// default grid chosen, a skipped computation). The library does not print them; the CLI does.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MethodRun {
+    /// The estimate.
+    pub estimate: PathEstimate,
+    /// Notes for the user.
+    pub notes: Vec<String>,
+}
+
+impl From<PathEstimate> for MethodRun {
+    fn from(estimate: PathEstimate) -> MethodRun {
+        MethodRun { estimate, notes: Vec::new() }
     }
 }

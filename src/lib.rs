@@ -43,8 +43,9 @@
 //!   a bootstrap particle filter with a backward-simulation smoother), and the exact
 //!   Kalman/RTS reference for linear models ([`kalman::linear`]).
 //!
-//! - [`methods`]: every estimator by name with one set of options, as the CLI and the
-//!   experiments call them.
+//! - [`estimator`]: every estimator as a value — a [`estimator::Method`] with its typed options,
+//!   the [`estimator::Estimator`] — built the same way by the CLI, `compare`, the experiment
+//!   specs and the JSON form; [`estimator::Estimator::run`] is the one way in.
 //!
 //! - [`compare`]: several estimators on the same data, measured against each other and the truth.
 //! - [`plot`]: SVG/PNG line plots with bands, box plots and panel grids (no system fonts).
@@ -57,9 +58,9 @@ pub mod compare;
 pub mod data;
 pub mod error;
 pub mod estimate;
+pub mod estimator;
 pub mod experiment;
 pub mod kalman;
-pub mod methods;
 pub mod metrics;
 pub mod model;
 pub mod nlp;
@@ -71,6 +72,7 @@ pub mod spline;
 pub mod status;
 
 pub use error::{Error, Result};
+pub use estimator::{Estimator, Method};
 /// The trial-density families of the Rayleigh–Ritz closures (the `onsager-closures` crate).
 pub use onsager_closures as closures;
 pub use status::Status;

@@ -1,15 +1,104 @@
-//! Distances between paths, shared by `onsager compare` and the experiments: the normalised
-//! integrated square error of `000_74b95e149527c64e.txt (4.1)`, the root-mean-square error over a
-//! reference's times, and the fraction of time an estimate is on the same side of a threshold
-//! (the well) as the truth.
+//! Distances between paths, one rule for `onsager compare` and the experiments: the normalised
+//! integrated square error of `000_74b95e149527c64e.txt (4.1)`, the root-mean-square error, and
+//! the fraction of time an estimate is on the same side of a threshold (the well) as the truth.
 //!
-//! An estimate and its reference usually live on different time grids (a KSP output grid, a
-//! transcription's nodes, the measurement times of a filter): the estimate is interpolated
-//! linearly at the reference's times, and only the reference times inside the estimate's time
-//! span count.
+//! **The rule.** Every metric compares an estimate with a reference path (the truth, or the
+//! estimate of another estimator) at the *reference's* times inside the estimate's time span,
+//! the estimate linearly interpolated there. An estimate and its reference usually live on
+//! different time grids (a KSP output grid, a transcription's nodes, the measurement times of a
+//! filter); the truth's grid is the simulation's, so against the truth the metrics are averages
+//! over time. [`measure`] applies the rule to a [`Metric`]; `compare` and the experiment runner
+//! both call it.
 
 use crate::data::StatePath;
 use crate::{Error, Result};
+
+/// A metric of an estimate (a column of `results.csv`, of `onsager compare`'s table).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Metric {
+    /// Normalised integrated square error to the truth over all states,
+    /// `000_74b95e149527c64e.txt (4.1)` (column `ise`).
+    Ise,
+    /// Root-mean-square error to the truth over the truth's times, all states (`rmse`).
+    Rmse,
+    /// Root-mean-square error to the estimate of another estimator (by its label), over that
+    /// estimate's times (`rmse_to_LABEL`).
+    RmseTo(String),
+    /// Fraction of the truth's times at which the estimate of `state` (default: the first) is on
+    /// the true side of `barrier`: the true well of a double well (`well_side`,
+    /// `well_side_STATE`).
+    WellSide {
+        /// The state (default: the first).
+        state: Option<String>,
+        /// The threshold between the wells.
+        barrier: f64,
+    },
+}
+
+impl Metric {
+    /// Parses `ise`, `rmse`, `rmse-to:LABEL` or `well-side[:STATE]` (barrier 0, the symmetric
+    /// double well).
+    pub fn parse(s: &str) -> Result<Metric> {
+        let s = s.trim();
+        let side = |state: Option<String>| Metric::WellSide { state, barrier: 0.0 };
+        match s.split_once(':') {
+            None if s == "ise" => Ok(Metric::Ise),
+            None if s == "rmse" => Ok(Metric::Rmse),
+            None if s == "well-side" => Ok(side(None)),
+            Some(("rmse-to", label)) if !label.trim().is_empty() => Ok(Metric::RmseTo(label.trim().into())),
+            Some(("well-side", state)) if !state.trim().is_empty() => Ok(side(Some(state.trim().into()))),
+            _ => Err(Error::InvalidOption {
+                name: "metrics".into(),
+                reason: format!(
+                    "unknown metric `{s}` (known: ise, rmse, rmse-to:LABEL, well-side, well-side:STATE)"
+                ),
+            }),
+        }
+    }
+
+    /// The metric's column.
+    pub fn column(&self) -> String {
+        match self {
+            Metric::Ise => "ise".into(),
+            Metric::Rmse => "rmse".into(),
+            Metric::RmseTo(label) => format!("rmse_to_{label}"),
+            Metric::WellSide { state: None, .. } => "well_side".into(),
+            Metric::WellSide { state: Some(s), .. } => format!("well_side_{s}"),
+        }
+    }
+}
+
+/// The value of `metric` for `estimate`, by the rule of the [module documentation](self):
+/// against `truth` (for `ise`, `rmse`, `well-side`) or against the estimate labelled so in
+/// `others` (for `rmse-to`).
+///
+/// Errors: the reference is not given (no truth, no estimate with that label); those of
+/// [`ise`], [`rmse`] and [`same_side_fraction`].
+pub fn measure(
+    metric: &Metric,
+    estimate: &StatePath,
+    truth: Option<&StatePath>,
+    others: &[(&str, &StatePath)],
+) -> Result<f64> {
+    let missing = |what: String| Error::InvalidOption {
+        name: metric.column(),
+        reason: format!("{what} is not available"),
+    };
+    let truth = || truth.ok_or_else(|| missing("the true path".into()));
+    match metric {
+        Metric::Ise => ise(estimate, truth()?, None),
+        Metric::Rmse => rmse(estimate, truth()?, None),
+        Metric::RmseTo(label) => match others.iter().find(|(l, _)| l == label) {
+            Some((_, reference)) => rmse(estimate, reference, None),
+            None => Err(missing(format!("the estimate of `{label}`"))),
+        },
+        Metric::WellSide { state, barrier } => {
+            let truth = truth()?;
+            let state = state.clone().unwrap_or_else(|| truth.names[0].clone());
+            same_side_fraction(estimate, truth, &state, *barrier)
+        }
+    }
+}
 
 /// Linear interpolation of `values` (one value per time of the increasing `times`) at `t`;
 /// `None` outside [times₀, times_last] or on an empty path.

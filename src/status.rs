@@ -37,6 +37,19 @@ pub enum Status {
 }
 
 impl Status {
+    /// Every status.
+    pub const ALL: [Status; 9] = [
+        Status::Converged,
+        Status::Acceptable,
+        Status::MaxIterations,
+        Status::TimeLimit,
+        Status::Infeasible,
+        Status::Unbounded,
+        Status::NumericalFailure,
+        Status::EvaluationError,
+        Status::UserStop,
+    ];
+
     /// Whether the result can be used as a converged one.
     pub fn is_success(self) -> bool {
         matches!(self, Status::Converged | Status::Acceptable)
@@ -70,17 +83,7 @@ mod tests {
 
     #[test]
     fn names_are_the_serde_names() {
-        for s in [
-            Status::Converged,
-            Status::Acceptable,
-            Status::MaxIterations,
-            Status::TimeLimit,
-            Status::Infeasible,
-            Status::Unbounded,
-            Status::NumericalFailure,
-            Status::EvaluationError,
-            Status::UserStop,
-        ] {
+        for s in Status::ALL {
             assert_eq!(serde_json::to_string(&s).unwrap(), format!("\"{}\"", s.name()));
             assert_eq!(s.is_success(), matches!(s, Status::Converged | Status::Acceptable));
         }

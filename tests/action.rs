@@ -172,7 +172,7 @@ fn discrete_identities_hold() {
         assert_relative_eq!(value.z[k], (fp - fm) / (2.0 * h), max_relative = 1e-7);
     }
     // The exact Hessian by tangent sweeps = central differences of the adjoint gradient.
-    let h_exact = action.hessian(&lambda).unwrap();
+    let h_exact = action.hessian(&lambda).unwrap().unwrap();
     let mut fd = action.clone_hessian_fd(&lambda);
     fd = (&fd + fd.transpose()) * 0.5;
     for i in 0..lambda.len() {
@@ -229,11 +229,11 @@ fn dispersion_by_hessian_and_by_lagrange_multipliers_agree() {
     let opts = DualOptions::default().with_tolerance(1e-11);
     let sol = maximize_dual(&mut action, &dd, &opts, None).unwrap();
     assert!(sol.status.is_success());
-    let hess = action.hessian(&sol.lambda).unwrap();
-    let by_h = dispersion_from_hessian(&hess, &dd).unwrap();
-    let by_l = dispersion_by_multipliers(&mut action, &dd, &sol, &opts, None).unwrap();
-    let hist = action.history(&sol.lambda, true).unwrap();
-    let post = posterior_variance(&hist, &hess, &dd).unwrap();
+    let hess = action.hessian(&sol.lambda).unwrap().unwrap();
+    let by_h = dispersion_from_hessian(&hess, &dd).unwrap().unwrap();
+    let by_l = dispersion_by_multipliers(&mut action, &dd, &sol, &opts, None).unwrap().unwrap();
+    let hist = action.history(&sol.lambda, true).unwrap().unwrap();
+    let post = posterior_variance(&hist, &hess, &dd).unwrap().unwrap();
     let kf = ou_kalman(&obs, &data, &hist.times);
     for (k, &t) in data.times.iter().enumerate() {
         assert_relative_eq!(by_h[k][(0, 0)], by_l[k][(0, 0)], max_relative = 1e-5);

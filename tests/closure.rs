@@ -5,13 +5,14 @@ use nalgebra::{DMatrix, DVector};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 
-use onsager::action::closure::{exponential_closure_action, gaussian_closure_action};
+use onsager::action::closure::om::MomentPathOptions;
+use onsager::action::closure::{closure_action, Closure, ExponentialFamily, GaussianFamily};
 use onsager::action::exact::gaussian_dual_data;
 use onsager::action::{
-    closure_estimate, maximize_dual, mean_optimal, ClosureKind, ClosureOptions, DualOptions, EffectiveAction,
-    ExactOptions, GridSpec,
+    maximize_dual, mean_optimal, ClosureOptions, DualOptions, EffectiveAction, ExactOptions, GridSpec,
 };
 use onsager::data::Dataset;
+use onsager::estimate::PathEstimate;
 use onsager::estimate::{EstimationProblem, Status};
 use onsager::kalman::linear::{kalman_rts, LinearGaussianModel};
 use onsager::model::library::{DoubleWell, Ou};
@@ -19,7 +20,60 @@ use onsager::model::observation::StateMeasurement;
 use onsager::model::prior::Prior;
 use onsager::model::Sde;
 use onsager::simulate::{sample_measurements_at, simulate, SimulateOptions};
-use onsager::Error;
+use onsager::{Error, Estimator};
+
+/// The closures of these tests, each with the options of the dual closures (the moment-path
+/// closures take the output step as their grid step).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum ClosureKind {
+    Gaussian,
+    Exponential { degree: usize },
+    Ksp,
+    DoubleExponential,
+}
+
+impl ClosureKind {
+    fn estimator(self, options: &ClosureOptions) -> Estimator {
+        let mut path = MomentPathOptions::new();
+        path.step = options.output_step;
+        match self {
+            ClosureKind::Gaussian => Estimator::GaussianClosure(Closure::gaussian(options.clone())),
+            ClosureKind::Exponential { degree } => {
+                Estimator::ExpClosure(Closure::exponential(degree, options.clone()))
+            }
+            ClosureKind::Ksp => Estimator::KspClosure(path),
+            ClosureKind::DoubleExponential => Estimator::DoubleExpClosure(path),
+        }
+    }
+
+    fn method_name(self) -> &'static str {
+        self.estimator(&ClosureOptions::new()).name()
+    }
+}
+
+/// The estimate of closure `kind` on `problem`.
+fn closure_estimate(
+    problem: &EstimationProblem<'_, impl Sde, StateMeasurement>,
+    kind: &ClosureKind,
+    options: &ClosureOptions,
+) -> onsager::Result<PathEstimate> {
+    kind.estimator(options).run(problem).map(|r| r.estimate)
+}
+
+fn gaussian_closure_action<'a, S: Sde>(
+    problem: &EstimationProblem<'a, S, StateMeasurement>,
+    options: &ClosureOptions,
+) -> onsager::Result<onsager::action::ClosureAction<onsager::action::closure::GaussianDrift<'a, S>>> {
+    closure_action(problem, &Closure::gaussian(options.clone()))
+}
+
+fn exponential_closure_action<'a, S: Sde>(
+    problem: &EstimationProblem<'a, S, StateMeasurement>,
+    degree: usize,
+    options: &ClosureOptions,
+) -> onsager::Result<onsager::action::ClosureAction<onsager::action::closure::ExponentialDrift<'a, S>>> {
+    closure_action(problem, &Closure::exponential(degree, options.clone()))
+}
 
 use crate::action::{gaussian_obs, ou_data, OU_THETA};
 
@@ -46,7 +100,7 @@ fn gaussian_closure_of_ou_is_the_rts_smoother() {
     let options = ClosureOptions::new().with_tolerances(1e-10, 1e-12).with_output_step(0.1);
     let est = closure_estimate(&problem, &ClosureKind::Gaussian, &options).unwrap();
     assert_eq!(est.status, Status::Converged);
-    assert_eq!(est.method, "gaussian-closure");
+    assert_eq!(est.method, onsager::Method::GaussianClosure);
     // The cost counters: every counted sweep takes at least one Runge–Kutta step per interval
     // between measurements; a converged dual has no stop reason.
     let count = |key: &str| est.details[key].as_u64().unwrap();
@@ -245,7 +299,7 @@ impl DoubleWellCase {
 
 /// ∇²F of the tangent sweeps against central differences of the adjoint gradient z(λ).
 fn check_hessian<A: EffectiveAction>(action: &mut A, lambda: &[f64]) {
-    let h = action.hessian(lambda).unwrap();
+    let h = action.hessian(lambda).unwrap().unwrap();
     let m = lambda.len();
     for j in 0..m {
         let step = 1e-4;
@@ -271,15 +325,15 @@ fn cross_covariances_are_the_derivatives_of_the_history() {
     let problem = case.problem();
     let options = ClosureOptions::new().with_output_step(0.25).with_tolerances(1e-12, 1e-13);
     fn check<A: EffectiveAction>(mut action: A, lambda: &[f64]) {
-        let h = action.history(lambda, true).unwrap();
+        let h = action.history(lambda, true).unwrap().unwrap();
         let cross = h.cross.as_ref().unwrap();
         let step = 1e-4;
         for j in 0..lambda.len() {
             let mut l = lambda.to_vec();
             l[j] += step;
-            let plus = action.history(&l, false).unwrap().mean;
+            let plus = action.history(&l, false).unwrap().unwrap().mean;
             l[j] -= 2.0 * step;
-            let minus = action.history(&l, false).unwrap().mean;
+            let minus = action.history(&l, false).unwrap().unwrap().mean;
             for e in 0..h.times.len() {
                 let fd = (plus[e][0] - minus[e][0]) / (2.0 * step);
                 assert_relative_eq!(cross[e][(0, j)], fd, max_relative = 1e-6, epsilon = 1e-8);
@@ -292,7 +346,7 @@ fn cross_covariances_are_the_derivatives_of_the_history() {
         assert!(asym <= 1e-10 * hess.amax(), "∇²F asymmetric by {asym}: {hess}");
         // The same ∇²F as `hessian`, whose sweep has the measurement times only as events
         // (another step sequence: equal to the ODE tolerance).
-        let fit = action.hessian(lambda).unwrap();
+        let fit = action.hessian(lambda).unwrap().unwrap();
         for (a, b) in fit.iter().zip(((&hess + hess.transpose()) * 0.5).iter()) {
             assert_relative_eq!(*a, *b, max_relative = 1e-7, epsilon = 1e-9);
         }
@@ -371,18 +425,18 @@ fn gaussian_closure_gradient_is_the_adjoint() {
 
 #[test]
 fn unsupported_combinations_are_clear_errors() {
-    assert_eq!(ClosureKind::parse("exp-closure", None).unwrap(), ClosureKind::Exponential { degree: 4 });
-    assert_eq!(ClosureKind::parse("gaussian-closure", None).unwrap().method_name(), "gaussian-closure");
-    assert!(matches!(ClosureKind::parse("exp-closure", Some(1)), Err(Error::InvalidOption { .. })));
-    assert!(matches!(ClosureKind::parse("gaussian-closure", Some(3)), Err(Error::InvalidOption { .. })));
-    assert!(matches!(ClosureKind::parse("nope", None), Err(Error::UnknownName { .. })));
+    assert_eq!(Estimator::parse("exp-closure").unwrap(), Estimator::ExpClosure(Closure::default()));
+    assert_eq!(Estimator::parse("gaussian-closure").unwrap().name(), "gaussian-closure");
+    assert!(matches!(Estimator::parse("exp-closure:moments=1"), Err(Error::EstimatorOption { .. })));
+    assert!(matches!(Estimator::parse("gaussian-closure:moments=3"), Err(Error::EstimatorOption { .. })));
+    assert!(matches!(Estimator::parse("nope"), Err(Error::UnknownName { .. })));
     let case = DoubleWellCase::new(1, 2.0);
     let problem = case.problem();
     // The moment-path closures (tested in `action::closure::om`) are reached through
     // `closure_estimate`.
     for kind in [ClosureKind::Ksp, ClosureKind::DoubleExponential] {
         let est = closure_estimate(&problem, &kind, &ClosureOptions::new()).unwrap();
-        assert_eq!(est.method, kind.method_name());
+        assert_eq!(est.method.name(), kind.method_name());
         assert_eq!(est.status, Status::Converged);
     }
     let flat = [Prior::flat()];
@@ -418,8 +472,9 @@ fn unsupported_combinations_are_clear_errors() {
             .unwrap_err();
     assert!(err.to_string().contains("strictly increasing"), "{err}");
     // Two states but one domain interval.
-    let one_interval = ClosureOptions::new().with_domain(&[(-3.0, 3.0)]);
-    let err = closure_estimate(&p3, &ClosureKind::Exponential { degree: 4 }, &one_interval).unwrap_err();
+    let one_interval =
+        Closure::new(ExponentialFamily::of_degree(4).with_domain(&[(-3.0, 3.0)]), ClosureOptions::new());
+    let err = Estimator::ExpClosure(one_interval).run(&p3).unwrap_err();
     assert!(err.to_string().contains("one interval per state"), "{err}");
     // The moment-path closures handle one-state models only.
     let err = closure_estimate(&p3, &ClosureKind::Ksp, &ClosureOptions::new()).unwrap_err();
@@ -480,12 +535,10 @@ fn quadratic_exponential_closure_in_2d_is_the_gaussian_closure_on_a_linear_model
         t0: 0.0,
         seed: 0,
     };
-    let options = ClosureOptions::new()
-        .with_tolerances(1e-9, 1e-11)
-        .with_domain(&[(-3.5, 3.5), (-3.5, 3.5)])
-        .with_dispersion(false);
+    let options = ClosureOptions::new().with_tolerances(1e-9, 1e-11).with_dispersion(false);
     let g = closure_estimate(&problem, &ClosureKind::Gaussian, &options).unwrap();
-    let e = closure_estimate(&problem, &ClosureKind::Exponential { degree: 2 }, &options).unwrap();
+    let family = ExponentialFamily::of_degree(2).with_domain(&[(-3.5, 3.5), (-3.5, 3.5)]);
+    let e = Estimator::ExpClosure(Closure::new(family, options)).run(&problem).unwrap().estimate;
     assert_eq!(e.status, Status::Converged);
     assert_eq!(g.path.times, e.path.times);
     for (a, b) in g.path.values.iter().zip(&e.path.values) {
@@ -555,8 +608,7 @@ fn reduced_gauss_hermite_rule_gives_the_16_point_estimate_on_the_double_well() {
     let problem = case.problem();
     for kind in [ClosureKind::Gaussian, ClosureKind::DoubleExponential] {
         let reduced = closure_estimate(&problem, &kind, &ClosureOptions::new()).unwrap();
-        let full =
-            closure_estimate(&problem, &kind, &ClosureOptions::new().with_gaussian_points(16)).unwrap();
+        let full = with_points(kind, 16).run(&problem).unwrap().estimate;
         assert_eq!(reduced.status, full.status, "{kind:?}");
         assert_eq!(reduced.status, Status::Converged, "{kind:?}");
         assert_eq!(reduced.path.times, full.path.times);
@@ -580,13 +632,33 @@ fn gaussian_points_option_is_validated() {
     let problem = case.problem();
     for kind in [ClosureKind::Gaussian, ClosureKind::Ksp] {
         for bad in [0, 100_000] {
-            let options = ClosureOptions::new().with_gaussian_points(bad);
-            let err = closure_estimate(&problem, &kind, &options).unwrap_err();
-            assert!(
-                matches!(&err, Error::InvalidOption { name, .. } if name == "gaussian points"),
-                "{kind:?}, {bad} points: {err}"
-            );
+            let err = with_points(kind, bad).run(&problem).unwrap_err();
+            let named = match &err {
+                Error::InvalidOption { name, .. } => name == "gaussian_points",
+                Error::EstimatorOption { option, .. } => option == "gaussian_points",
+                _ => false,
+            };
+            assert!(named, "{kind:?}, {bad} points: {err}");
         }
+    }
+}
+
+/// The Gaussian closure or a moment-path closure with `points` Gauss–Hermite points.
+fn with_points(kind: ClosureKind, points: usize) -> Estimator {
+    match kind.estimator(&ClosureOptions::new()) {
+        Estimator::GaussianClosure(mut c) => {
+            c.family = GaussianFamily::default().with_gaussian_points(points);
+            Estimator::GaussianClosure(c)
+        }
+        Estimator::KspClosure(mut o) => {
+            o.gaussian_points = Some(points);
+            Estimator::KspClosure(o)
+        }
+        Estimator::DoubleExpClosure(mut o) => {
+            o.gaussian_points = Some(points);
+            Estimator::DoubleExpClosure(o)
+        }
+        other => other,
     }
 }
 

@@ -5,6 +5,7 @@ use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use onsager::estimate::RowStatus;
 use onsager::experiment::report::parse_results;
 use onsager::experiment::{builtin, run, Experiment, RunOptions, BUILTIN};
 
@@ -51,7 +52,7 @@ fn every_builtin_experiment_runs_quick_with_summary_and_plots() {
         assert_eq!(results.rows.len(), report.total);
         // Every row is an estimate (no `error` rows in the built-in experiments) with finite metrics.
         for r in &results.rows {
-            assert_ne!(r.status, "error", "{name}: {}", r.message);
+            assert_ne!(r.status, RowStatus::Error, "{name}: {}", r.message);
             assert!(r.metrics.iter().all(|v| v.is_finite()), "{name}: {r:?}");
         }
         let summary: serde_json::Value =
@@ -156,13 +157,13 @@ method = "uks"
     assert!(report.complete);
     let text = std::fs::read_to_string(&report.results).unwrap();
     for r in parse_results(&text, &report.results).unwrap().rows {
-        seen.push((r.estimator.clone(), r.status.clone()));
+        seen.push((r.estimator.clone(), r.status.name()));
         if r.estimator == "ksp" {
-            assert_eq!(r.status, "error");
+            assert_eq!(r.status, RowStatus::Error);
             assert!(r.message.contains("grid"), "{}", r.message);
         } else {
             // The reference is missing: the metric is NaN and the message says why.
-            assert_eq!(r.status, "converged");
+            assert_eq!(r.status, RowStatus::Finished(onsager::Status::Converged));
             assert!(r.metrics[1].is_nan() && r.message.contains("ksp"), "{r:?}");
         }
     }

@@ -22,76 +22,78 @@ use crate::{Error, Result};
 
 use super::dual::{maximize_dual, DualData, DualOptions, DualSolution, EffectiveAction, History};
 
-/// (R_a + H_aa)⁻¹ for the present data `a`, by Cholesky.
-fn inner_inverse(hessian: &DMatrix<f64>, data: &DualData, active: &[usize]) -> Result<DMatrix<f64>> {
+/// (R_a + H_aa)⁻¹ for the present data `a`, by Cholesky; `None` when R_a + H_aa is not
+/// positive definite.
+fn inner_inverse(hessian: &DMatrix<f64>, data: &DualData, active: &[usize]) -> Option<DMatrix<f64>> {
     let na = active.len();
     let k = DMatrix::from_fn(na, na, |i, j| {
         hessian[(active[i], active[j])] + if i == j { data.variance[active[i]] } else { 0.0 }
     });
-    let ch = k.cholesky().ok_or_else(|| Error::InvalidOption {
-        name: "hessian".into(),
-        reason: "∇²F + R is not positive definite".into(),
-    })?;
-    Ok(ch.inverse())
+    Some(k.cholesky()?.inverse())
 }
 
 /// The dispersion C_*(t_k) (s × s) at every measurement time from ∇²F:
-/// the diagonal blocks of ((∇²F)⁻¹ + R⁻¹)⁻¹ (`003_d2fc48a470e528fc.txt (I.85)–(I.90)`).
-pub fn dispersion_from_hessian(hessian: &DMatrix<f64>, data: &DualData) -> Result<Vec<DMatrix<f64>>> {
+/// the diagonal blocks of ((∇²F)⁻¹ + R⁻¹)⁻¹ (`003_d2fc48a470e528fc.txt (I.85)–(I.90)`);
+/// `None` when ∇²F + R is not positive definite on the present data (the dispersion is then
+/// undefined). Errors: a Hessian of the wrong size.
+pub fn dispersion_from_hessian(hessian: &DMatrix<f64>, data: &DualData) -> Result<Option<Vec<DMatrix<f64>>>> {
     let m = data.r.len();
     crate::model::check_len("hessian", m, hessian.nrows())?;
     let s = data.output_dim;
     let active = data.active();
-    let inv = inner_inverse(hessian, data, &active)?;
+    let Some(inv) = inner_inverse(hessian, data, &active) else { return Ok(None) };
     let ha = DMatrix::from_fn(m, active.len(), |i, j| hessian[(i, active[j])]);
     let c = hessian - &ha * inv * ha.transpose();
-    Ok((0..m / s).map(|k| c.view((k * s, k * s), (s, s)).into_owned()).collect())
+    Ok(Some((0..m / s).map(|k| c.view((k * s, k * s), (s, s)).into_owned()).collect()))
 }
 
 /// The posterior variance of every state at every time of `history`:
 /// Var(x_i(τ)) − c_aᵀ(R_a + H_aa)⁻¹c_a with c = Cov(x_i(τ), Z_·) under the tilted measure and
 /// H = ∇²F (the Hessian formula of `003_d2fc48a470e528fc.txt (I.85)–(I.90)` with x_i(τ) as an
-/// unmeasured variable). Errors when the history carries no cross-covariances.
+/// unmeasured variable); `None` when ∇²F + R is not positive definite on the present data.
+/// Errors when the history carries no cross-covariances.
 pub fn posterior_variance(
     history: &History,
     hessian: &DMatrix<f64>,
     data: &DualData,
-) -> Result<Vec<Vec<f64>>> {
+) -> Result<Option<Vec<Vec<f64>>>> {
     let cross = history.cross.as_ref().ok_or_else(|| Error::InvalidOption {
         name: "history".into(),
         reason: "the dispersion between measurement times needs the cross-covariances Cov(x(t), Z_k)".into(),
     })?;
     let active = data.active();
-    let inv = inner_inverse(hessian, data, &active)?;
-    Ok(history
-        .variance
-        .iter()
-        .zip(cross)
-        .map(|(var, c)| {
-            (0..var.len())
-                .map(|i| {
-                    let ca = nalgebra::DVector::from_fn(active.len(), |j, _| c[(i, active[j])]);
-                    var[i] - ca.dot(&(&inv * &ca))
-                })
-                .collect()
-        })
-        .collect())
+    let Some(inv) = inner_inverse(hessian, data, &active) else { return Ok(None) };
+    Ok(Some(
+        history
+            .variance
+            .iter()
+            .zip(cross)
+            .map(|(var, c)| {
+                (0..var.len())
+                    .map(|i| {
+                        let ca = nalgebra::DVector::from_fn(active.len(), |j, _| c[(i, active[j])]);
+                        var[i] - ca.dot(&(&inv * &ca))
+                    })
+                    .collect()
+            })
+            .collect(),
+    ))
 }
 
 /// The dispersion C_*(t_k) at every measurement time by the Lagrange-multiplier finite
 /// difference (`003_d2fc48a470e528fc.txt (I.99)–(I.106)`): for each k and component β the dual
 /// is re-solved from λ* with λ̃ = ±δ e_β and C_αβ = (z_kα(+δ) − z_kα(−δ))/(2δ). `delta` is in
 /// units of 1/Z; `None` takes δ = 10⁻³/√R_kβ (10⁻³ for a missing datum). Independent of ∇²F.
+/// `None` when a re-solve does not converge.
 ///
-/// Errors: misuse as [`maximize_dual`]; a re-solve that does not converge is an
-/// [`Error::InvalidOption`] naming the time.
+/// Errors: misuse as [`maximize_dual`].
 pub fn dispersion_by_multipliers<A: EffectiveAction + ?Sized>(
     action: &mut A,
     data: &DualData,
     solution: &DualSolution,
     options: &DualOptions,
     delta: Option<f64>,
-) -> Result<Vec<DMatrix<f64>>> {
+) -> Result<Option<Vec<DMatrix<f64>>>> {
     let s = data.output_dim;
     let n = data.r.len() / s;
     let mut out = Vec::with_capacity(n);
@@ -113,13 +115,7 @@ pub fn dispersion_by_multipliers<A: EffectiveAction + ?Sized>(
                 }
                 let sol = maximize_dual(action, &shifted, options, Some(&start))?;
                 if !sol.status.is_success() {
-                    return Err(Error::InvalidOption {
-                        name: "dispersion".into(),
-                        reason: format!(
-                            "the perturbed dual at measurement {k} did not converge ({})",
-                            sol.status
-                        ),
-                    });
+                    return Ok(None);
                 }
                 zs.push(sol.z);
             }
@@ -129,5 +125,5 @@ pub fn dispersion_by_multipliers<A: EffectiveAction + ?Sized>(
         }
         out.push(c);
     }
-    Ok(out)
+    Ok(Some(out))
 }

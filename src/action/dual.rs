@@ -46,7 +46,10 @@
 //! definite the Newton step with the line search is kept unchanged (the exact grid's F is a
 //! cumulant generating function, convex, and never leaves this branch).
 
+use std::fmt;
+
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
+use serde::{Deserialize, Serialize};
 
 use crate::estimate::Status;
 use crate::{Error, Result};
@@ -83,14 +86,15 @@ pub trait EffectiveAction {
     /// The dimension s of the measured variable Z.
     fn output_dim(&self) -> usize;
 
-    /// F(λ) and z = ∂F/∂λ by one forward and one backward sweep. A non-finite F is returned as
-    /// such (the caller backtracks); misuse (wrong length) is an error.
+    /// F(λ) and z = ∂F/∂λ by one forward and one backward sweep. Where the sweep has no value
+    /// (it fails, or its values overflow) F is returned non-finite and the caller backtracks;
+    /// misuse (wrong length) is an error.
     fn evaluate(&mut self, lambda: &[f64]) -> Result<ActionValue>;
 
-    /// ∇²F(λ) (n·s × n·s). The default takes central differences of [`EffectiveAction::evaluate`]
-    /// with steps 10⁻⁵(1 + |λ_m|) and symmetrises; override it when an exact Hessian is
-    /// available.
-    fn hessian(&mut self, lambda: &[f64]) -> Result<DMatrix<f64>> {
+    /// ∇²F(λ) (n·s × n·s), or why the sweeps have none at λ. The default takes central
+    /// differences of [`EffectiveAction::evaluate`] with steps 10⁻⁵(1 + |λ_m|) and symmetrises;
+    /// override it when an exact Hessian is available.
+    fn hessian(&mut self, lambda: &[f64]) -> Result<Swept<DMatrix<f64>>> {
         let m = lambda.len();
         let mut h = DMatrix::zeros(m, m);
         let mut l = lambda.to_vec();
@@ -105,12 +109,42 @@ pub trait EffectiveAction {
                 h[(i, j)] = (plus[i] - minus[i]) / (2.0 * step);
             }
         }
-        Ok((&h + h.transpose()) * 0.5)
+        Ok(Ok((&h + h.transpose()) * 0.5))
     }
 
-    /// The history of the estimate at λ; with `cross`, also the cross-covariances
-    /// Cov(x_i(τ), Z_m) when the implementation can compute them.
-    fn history(&mut self, lambda: &[f64], cross: bool) -> Result<History>;
+    /// The history of the estimate at λ, or why the sweeps have none; with `cross`, also the
+    /// cross-covariances Cov(x_i(τ), Z_m) when the implementation can compute them.
+    fn history(&mut self, lambda: &[f64], cross: bool) -> Result<Swept<History>>;
+
+    /// The history at λ with its cross-covariances, and ∇²F: what the ensemble dispersion needs
+    /// ([`super::dispersion::posterior_variance`]). The default calls
+    /// [`EffectiveAction::history`] and [`EffectiveAction::hessian`]; an implementation that
+    /// gets both from the same tangent sweeps overrides it.
+    fn history_and_hessian(&mut self, lambda: &[f64]) -> Result<Swept<(History, DMatrix<f64>)>> {
+        let history = match self.history(lambda, true)? {
+            Ok(h) => h,
+            Err(e) => return Ok(Err(e)),
+        };
+        Ok(self.hessian(lambda)?.map(|h| (history, h)))
+    }
+
+    /// The sweeps' relative and absolute tolerances, for an action whose sweeps have them (an
+    /// adaptive integrator); `None` by default.
+    fn tolerances(&self) -> Option<(f64, f64)> {
+        None
+    }
+
+    /// Sets the sweeps' tolerances (see [`EffectiveAction::tolerances`]); the default ignores
+    /// them. Errors: tolerances that are not positive and finite.
+    fn set_tolerances(&mut self, _rtol: f64, _atol: f64) -> Result<()> {
+        Ok(())
+    }
+
+    /// The sweeps run so far and their accepted integration steps, for an action that counts
+    /// them; `None` by default.
+    fn work(&self) -> Option<(usize, usize)> {
+        None
+    }
 }
 
 /// Gaussian measurements of the dual problem, time-major (`k · s + a`): the data r and the
@@ -152,8 +186,10 @@ impl DualData {
     }
 }
 
-/// Options of [`maximize_dual`].
-#[derive(Debug, Clone, PartialEq)]
+/// Options of [`maximize_dual`] (the option `dual` of the mean-optimal estimator and the dual
+/// closures: `dual = { tolerance = 1e-8, max_iterations = 100 }`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 #[non_exhaustive]
 pub struct DualOptions {
     /// Stop when max_m |λ_m − (r_m − z_m)/R_m| ≤ `tolerance` (the optimality condition
@@ -266,7 +302,128 @@ pub struct DualSolution {
     pub hessian: Option<DMatrix<f64>>,
     /// Why the maximisation stopped short of the tolerance (`None` when it converged or hit
     /// the iteration limit; set for `Acceptable` and `NumericalFailure`).
-    pub reason: Option<String>,
+    pub reason: Option<DualStop>,
+}
+
+/// Why an effective action has no value at some multipliers: a numerical outcome of its sweeps
+/// (reported in a status), not misuse.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+#[non_exhaustive]
+pub enum SweepFailure {
+    /// A closure's sweep left its family's moment space (unrealizable moments,
+    /// `003_d2fc48a470e528fc.txt` Sec. II.1).
+    Unrealizable,
+}
+
+impl fmt::Display for SweepFailure {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            SweepFailure::Unrealizable => {
+                f.write_str("the sweep left the family's moment space (unrealizable moments)")
+            }
+        }
+    }
+}
+
+/// A value of an effective action's sweep, or why the sweep has none.
+pub type Swept<T> = std::result::Result<T, SweepFailure>;
+
+/// Why [`maximize_dual`] stopped short of its tolerance (with the optimality residual there);
+/// written in reports as its sentence.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
+pub enum DualStop {
+    /// F or its gradient is not finite at the starting multipliers.
+    NonFiniteStart,
+    /// [`DualOptions::stall_iterations`] full Newton steps without halving the residual.
+    Stalled {
+        /// The full Newton steps.
+        steps: usize,
+        /// The optimality residual.
+        residual: f64,
+    },
+    /// The line search along the Newton direction found no ascent.
+    NoAscent {
+        /// The optimality residual.
+        residual: f64,
+    },
+    /// The trust region shrank to nothing without an increase of Φ.
+    TrustRegionCollapsed {
+        /// The optimality residual.
+        residual: f64,
+    },
+    /// The quadratic model of Φ predicts no increase.
+    NoModelIncrease {
+        /// The optimality residual.
+        residual: f64,
+    },
+    /// ∇²F is not finite, or the eigen-decomposition of ∇²F + R failed.
+    CurvatureFailure {
+        /// The optimality residual.
+        residual: f64,
+    },
+    /// The sweep of ∇²F failed.
+    Sweep {
+        /// Why.
+        failure: SweepFailure,
+        /// The optimality residual.
+        residual: f64,
+    },
+}
+
+impl DualStop {
+    fn of(why: NoStep, residual: f64) -> DualStop {
+        match why {
+            NoStep::NoAscent => DualStop::NoAscent { residual },
+            NoStep::TrustRegionCollapsed => DualStop::TrustRegionCollapsed { residual },
+            NoStep::NoModelIncrease => DualStop::NoModelIncrease { residual },
+            NoStep::CurvatureFailure => DualStop::CurvatureFailure { residual },
+        }
+    }
+
+    /// Whether the iteration stalled at the noise floor of its evaluations
+    /// ([`DualOptions::stall_iterations`]).
+    pub fn is_stall(&self) -> bool {
+        matches!(self, DualStop::Stalled { .. })
+    }
+}
+
+impl fmt::Display for DualStop {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            DualStop::NonFiniteStart => f.write_str("F or its gradient is not finite at the starting multipliers"),
+            DualStop::Stalled { steps, residual } => write!(
+                f,
+                "stalled: {steps} full Newton steps without halving the optimality residual ({residual:.3e})"
+            ),
+            DualStop::NoAscent { residual } => write!(
+                f,
+                "the line search along the Newton direction found no ascent (optimality residual {residual:.3e})"
+            ),
+            DualStop::TrustRegionCollapsed { residual } => write!(
+                f,
+                "the trust region shrank to nothing without an increase of Φ (optimality residual {residual:.3e})"
+            ),
+            DualStop::NoModelIncrease { residual } => write!(
+                f,
+                "the quadratic model of Φ predicts no increase (optimality residual {residual:.3e})"
+            ),
+            DualStop::CurvatureFailure { residual } => write!(
+                f,
+                "non-finite ∇²F or a failed eigen-decomposition of ∇²F + R (optimality residual {residual:.3e})"
+            ),
+            DualStop::Sweep { failure, residual } => {
+                write!(f, "the sweep of ∇²F failed: {failure} (optimality residual {residual:.3e})")
+            }
+        }
+    }
+}
+
+impl Serialize for DualStop {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> std::result::Result<S::Ok, S::Error> {
+        serializer.collect_str(self)
+    }
 }
 
 fn phi(lambda: &[f64], data: &DualData, active: &[usize], f: f64) -> f64 {
@@ -513,6 +670,163 @@ pub fn maximize_dual_chord<A: EffectiveAction + ?Sized>(
     maximize(action, data, options, Some(start), Some(symmetric))
 }
 
+/// The present data of a dual problem, with Φ and the optimality residual on them.
+struct Present<'a> {
+    data: &'a DualData,
+    active: Vec<usize>,
+}
+
+impl Present<'_> {
+    fn phi(&self, lambda: &[f64], f: f64) -> f64 {
+        phi(lambda, self.data, &self.active, f)
+    }
+
+    fn residual(&self, lambda: &[f64], z: &[f64]) -> f64 {
+        residual(lambda, z, self.data, &self.active)
+    }
+
+    /// K = ∇²F + R on the present data.
+    fn k_of(&self, h: &DMatrix<f64>) -> DMatrix<f64> {
+        let (active, data) = (&self.active, self.data);
+        let na = active.len();
+        DMatrix::from_fn(na, na, |i, j| {
+            h[(active[i], active[j])] + if i == j { data.variance[active[i]] } else { 0.0 }
+        })
+    }
+
+    /// g = r − Rλ − z on the present data.
+    fn gradient(&self, lambda: &[f64], z: &[f64]) -> DVector<f64> {
+        let (active, data) = (&self.active, self.data);
+        DVector::from_fn(active.len(), |i, _| {
+            let mi = active[i];
+            data.r[mi] - data.variance[mi] * lambda[mi] - z[mi]
+        })
+    }
+
+    /// λ + the step `p` (on the present data) scaled componentwise by `f(i, p_i)`.
+    fn moved(&self, lambda: &[f64], p: impl Fn(usize) -> f64) -> Vec<f64> {
+        let mut trial = lambda.to_vec();
+        for (i, &mi) in self.active.iter().enumerate() {
+            trial[mi] += p(i);
+        }
+        trial
+    }
+}
+
+/// Why a step of one iteration found no increase of Φ.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum NoStep {
+    NoAscent,
+    TrustRegionCollapsed,
+    NoModelIncrease,
+    CurvatureFailure,
+}
+
+/// An accepted step: the new λ, its value, and whether it was the full Newton step.
+type Step = (Vec<f64>, ActionValue, bool);
+
+fn finite_value(v: &ActionValue) -> bool {
+    v.value.is_finite() && v.z.iter().all(|x| x.is_finite())
+}
+
+/// The Newton step for K positive definite (Cholesky `ch`) with the Armijo backtracking line
+/// search down to [`MIN_STEP_FRACTION`]; near the optimum Φ differences drown in rounding, so a
+/// step that halves the optimality residual is also accepted.
+fn newton_step<A: EffectiveAction + ?Sized>(
+    action: &mut A,
+    present: &Present<'_>,
+    (lambda, cur): (&[f64], &ActionValue),
+    (ch, g): (nalgebra::Cholesky<f64, nalgebra::Dyn>, &DVector<f64>),
+    evaluations: &mut usize,
+) -> Result<std::result::Result<Step, NoStep>> {
+    let phi0 = present.phi(lambda, cur.value);
+    let res0 = present.residual(lambda, &cur.z);
+    let step = ch.solve(g);
+    let slope = g.dot(&step);
+    let mut t = 1.0;
+    while t >= MIN_STEP_FRACTION {
+        let trial = present.moved(lambda, |i| t * step[i]);
+        let val = action.evaluate(&trial)?;
+        *evaluations += 1;
+        if finite_value(&val) {
+            let phi1 = present.phi(&trial, val.value);
+            if phi1 >= phi0 + 1e-4 * t * slope || present.residual(&trial, &val.z) < 0.5 * res0 {
+                return Ok(Ok((trial, val, t == 1.0)));
+            }
+        }
+        t *= 0.5;
+    }
+    Ok(Err(NoStep::NoAscent))
+}
+
+/// A trust-region step in the scaled multipliers D R^{1/2}λ (K̂ = S⁻¹KS⁻¹, ĝ = S⁻¹g with
+/// S = D R^{1/2}, [`trust_region_scaling`]), accepted on the ratio ρ of the actual to the
+/// predicted increase of Φ; `radius` is updated ([`update_radius`]).
+fn trust_region_step_of<A: EffectiveAction + ?Sized>(
+    action: &mut A,
+    present: &Present<'_>,
+    (lambda, cur): (&[f64], &ActionValue),
+    (k, g): (&DMatrix<f64>, &DVector<f64>),
+    radius: &mut f64,
+    evaluations: &mut usize,
+) -> Result<std::result::Result<Step, NoStep>> {
+    let phi0 = present.phi(lambda, cur.value);
+    let sq: Vec<f64> = present.active.iter().map(|&m| present.data.variance[m].sqrt()).collect();
+    let d = trust_region_scaling(k, &sq);
+    let s: Vec<f64> = sq.iter().zip(&d).map(|(a, b)| a * b).collect();
+    let (ks, gs) = scaled_model(k, g, &s);
+    let size = 1.0 + present.active.iter().zip(&s).map(|(&m, q)| (q * lambda[m]).powi(2)).sum::<f64>().sqrt();
+    let eig = eigen_of(&ks, &gs);
+    for _ in 0..60 {
+        let Some((ps, predicted)) =
+            eig.as_ref().and_then(|eig| trust_region_step_with(eig, &ks, &gs, *radius))
+        else {
+            return Ok(Err(NoStep::CurvatureFailure));
+        };
+        if predicted.is_nan() || predicted <= 0.0 {
+            return Ok(Err(NoStep::NoModelIncrease));
+        }
+        let trial = present.moved(lambda, |i| unscaled_step(&ps, &s, i));
+        let val = action.evaluate(&trial)?;
+        *evaluations += 1;
+        let rho = if finite_value(&val) {
+            (present.phi(&trial, val.value) - phi0) / predicted
+        } else {
+            f64::NEG_INFINITY
+        };
+        *radius = update_radius(*radius, ps.norm(), rho);
+        if rho > 1e-4 {
+            return Ok(Ok((trial, val, false)));
+        }
+        if *radius <= 1e-12 * size {
+            break;
+        }
+    }
+    Ok(Err(NoStep::TrustRegionCollapsed))
+}
+
+/// The starting multipliers: `start` (checked) or zeros.
+fn starting_multipliers(start: Option<&[f64]>, mdim: usize) -> Result<Vec<f64>> {
+    match start {
+        Some(l) => {
+            crate::model::check_len("starting multipliers", mdim, l.len())?;
+            if l.iter().any(|v| !v.is_finite()) {
+                return Err(Error::NonFinite { what: "starting multipliers".into() });
+            }
+            Ok(l.to_vec())
+        }
+        None => Ok(vec![0.0; mdim]),
+    }
+}
+
+/// The counters of [`maximize`]'s iteration that decide when it stalls
+/// ([`DualOptions::stall_iterations`]): full Newton steps since the residual last fell to half
+/// of `reference`.
+struct Stall {
+    slow: usize,
+    reference: f64,
+}
+
 fn maximize<A: EffectiveAction + ?Sized>(
     action: &mut A,
     data: &DualData,
@@ -525,205 +839,114 @@ fn maximize<A: EffectiveAction + ?Sized>(
     let s = action.output_dim();
     crate::model::check_len("dual data output dimension", s, data.output_dim)?;
     data.validate(n)?;
-    let mdim = n * s;
-    let mut lambda = match start {
-        Some(l) => {
-            crate::model::check_len("starting multipliers", mdim, l.len())?;
-            if l.iter().any(|v| !v.is_finite()) {
-                return Err(Error::NonFinite { what: "starting multipliers".into() });
-            }
-            l.to_vec()
-        }
-        None => vec![0.0; mdim],
-    };
-    let active = data.active();
+    let mut lambda = starting_multipliers(start, n * s)?;
+    let present = Present { data, active: data.active() };
     let mut cur = action.evaluate(&lambda)?;
     let mut evaluations = 1;
-    if !cur.value.is_finite() || cur.z.iter().any(|v| !v.is_finite()) {
+    let mut hessian = None;
+    let mut iterations = 0;
+    let mut reason = None;
+    if !finite_value(&cur) {
         return Ok(DualSolution {
             residual: f64::NAN,
             phi: f64::NAN,
             f_value: cur.value,
             z: cur.z,
             lambda,
-            iterations: 0,
+            iterations,
             evaluations,
             status: Status::NumericalFailure,
-            hessian: None,
-            reason: Some("F or its gradient is not finite at the starting multipliers".into()),
+            hessian,
+            reason: Some(DualStop::NonFiniteStart),
         });
     }
-    let mut hessian = None;
-    let mut iterations = 0;
-    let mut reason = None;
     // The trust-region radius (scaled multipliers), set when K is first not positive definite and
     // kept across iterations: each iteration reads it in its own metric D R^{1/2} (D from that
     // iteration's K, [`trust_region_scaling`]; Nocedal & Wright, Sec. 4.5).
     let mut tr_radius: Option<f64> = None;
-    // Full Newton steps since the residual last fell to half of `reference`
-    // ([`DualOptions::stall_iterations`]).
-    let mut slow = 0;
-    let mut reference = residual(&lambda, &cur.z, data, &active);
+    let mut stall = Stall { slow: 0, reference: present.residual(&lambda, &cur.z) };
     let status = loop {
-        let res = residual(&lambda, &cur.z, data, &active);
+        let res = present.residual(&lambda, &cur.z);
         if res <= options.tolerance {
             break Status::Converged;
         }
-        if options.stall_iterations.is_some_and(|k| slow >= k) {
-            reason = Some(format!(
-                "stalled: {slow} full Newton steps without halving the optimality residual ({res:.3e})"
-            ));
+        if options.stall_iterations.is_some_and(|k| stall.slow >= k) {
+            reason = Some(DualStop::Stalled { steps: stall.slow, residual: res });
             break Status::Acceptable;
         }
         if iterations >= options.max_iterations {
             break Status::MaxIterations;
         }
         iterations += 1;
-        let na = active.len();
-        // K = ∇²F + R on the present data.
-        let k_of = |h: &DMatrix<f64>| {
-            DMatrix::from_fn(na, na, |i, j| {
-                h[(active[i], active[j])] + if i == j { data.variance[active[i]] } else { 0.0 }
-            })
-        };
-        let g = DVector::from_fn(na, |i, _| {
-            let mi = active[i];
-            data.r[mi] - data.variance[mi] * lambda[mi] - cur.z[mi]
-        });
+        let g = present.gradient(&lambda, &cur.z);
         // The chord's K must be positive definite; otherwise ∇²F at λ from here on.
         let chord_k = chord.take().map(|h| {
-            let k = k_of(&h);
+            let k = present.k_of(&h);
             (h, k)
         });
         let (h, k, is_chord) = match chord_k {
             Some((h, k)) if k.clone().cholesky().is_some() => (h, k, true),
-            _ => {
-                let h = action.hessian(&lambda)?;
-                let k = k_of(&h);
-                hessian = Some(h.clone());
-                (h, k, false)
-            }
-        };
-        let phi0 = phi(&lambda, data, &active, cur.value);
-        let res0 = residual(&lambda, &cur.z, data, &active);
-        // Whether the accepted step is the full Newton step (t = 1), and whether it is a Newton
-        // step at all (K positive definite).
-        let mut full = false;
-        let mut newton = false;
-        let accepted = match k.clone().cholesky() {
-            Some(ch) => {
-                // Φ locally concave: the Newton step with an Armijo backtracking line search.
-                newton = true;
-                let step = ch.solve(&g);
-                let slope = g.dot(&step);
-                let mut t = 1.0;
-                let mut accepted = None;
-                while t >= MIN_STEP_FRACTION {
-                    let mut trial = lambda.clone();
-                    for (i, &mi) in active.iter().enumerate() {
-                        trial[mi] += t * step[i];
-                    }
-                    let val = action.evaluate(&trial)?;
-                    evaluations += 1;
-                    let ok_values = val.value.is_finite() && val.z.iter().all(|v| v.is_finite());
-                    if ok_values {
-                        let phi1 = phi(&trial, data, &active, val.value);
-                        // Armijo; near the optimum Φ differences drown in rounding, so also accept
-                        // a step that decreases the optimality residual.
-                        if phi1 >= phi0 + 1e-4 * t * slope
-                            || residual(&trial, &val.z, data, &active) < 0.5 * res0
-                        {
-                            accepted = Some((trial, val));
-                            full = t == 1.0;
-                            break;
-                        }
-                    }
-                    t *= 0.5;
+            _ => match action.hessian(&lambda)? {
+                Ok(h) => {
+                    let k = present.k_of(&h);
+                    hessian = Some(h.clone());
+                    (h, k, false)
                 }
-                accepted.ok_or("the line search along the Newton direction found no ascent")
-            }
-            None => {
-                // K not positive definite: a trust-region step in the scaled multipliers
-                // D R^{1/2}λ (K̂ = S⁻¹KS⁻¹, ĝ = S⁻¹g with S = D R^{1/2},
-                // [`trust_region_scaling`]), accepted on the ratio ρ of the actual to the
-                // predicted increase of Φ.
-                let sq: Vec<f64> = active.iter().map(|&m| data.variance[m].sqrt()).collect();
-                let d = trust_region_scaling(&k, &sq);
-                let s: Vec<f64> = sq.iter().zip(&d).map(|(a, b)| a * b).collect();
-                let (ks, gs) = scaled_model(&k, &g, &s);
-                let size =
-                    1.0 + active.iter().zip(&s).map(|(&m, q)| (q * lambda[m]).powi(2)).sum::<f64>().sqrt();
-                let radius = tr_radius.get_or_insert(INITIAL_RADIUS);
-                let mut outcome = Err("the trust region shrank to nothing without an increase of Φ");
-                let eig = eigen_of(&ks, &gs);
-                for _ in 0..60 {
-                    let Some((ps, predicted)) =
-                        eig.as_ref().and_then(|eig| trust_region_step_with(eig, &ks, &gs, *radius))
-                    else {
-                        outcome = Err("non-finite ∇²F or a failed eigen-decomposition of ∇²F + R");
-                        break;
-                    };
-                    if predicted.is_nan() || predicted <= 0.0 {
-                        outcome = Err("the quadratic model of Φ predicts no increase");
-                        break;
-                    }
-                    let mut trial = lambda.clone();
-                    for (i, &mi) in active.iter().enumerate() {
-                        trial[mi] += unscaled_step(&ps, &s, i);
-                    }
-                    let val = action.evaluate(&trial)?;
-                    evaluations += 1;
-                    let ok_values = val.value.is_finite() && val.z.iter().all(|v| v.is_finite());
-                    let rho = if ok_values {
-                        (phi(&trial, data, &active, val.value) - phi0) / predicted
+                Err(failure) => {
+                    reason = Some(DualStop::Sweep { failure, residual: res });
+                    break if res <= options.acceptable() {
+                        Status::Acceptable
                     } else {
-                        f64::NEG_INFINITY
+                        Status::NumericalFailure
                     };
-                    *radius = update_radius(*radius, ps.norm(), rho);
-                    if rho > 1e-4 {
-                        outcome = Ok((trial, val));
-                        break;
-                    }
-                    if *radius <= 1e-12 * size {
-                        break;
-                    }
                 }
-                outcome
+            },
+        };
+        let res0 = res;
+        let here = (lambda.as_slice(), &cur);
+        // Whether the accepted step is a Newton step at all (K positive definite).
+        let (newton, accepted) = match k.clone().cholesky() {
+            Some(ch) => (true, newton_step(action, &present, here, (ch, &g), &mut evaluations)?),
+            None => {
+                let radius = tr_radius.get_or_insert(INITIAL_RADIUS);
+                (false, trust_region_step_of(action, &present, here, (&k, &g), radius, &mut evaluations)?)
             }
         };
         match accepted {
-            Ok((l, v)) => {
-                let res1 = residual(&l, &v.z, data, &active);
+            Ok((l, v, full)) => {
+                let res1 = present.residual(&l, &v.z);
                 // A chord step keeps its ∇²F only as a full step that contracted; then with the
                 // step's secant (s = Δλ, y = Δz on the present data) by the symmetric rank-one
                 // update.
                 if is_chord && full && res1 <= CHORD_CONTRACTION * res0 {
-                    let s = DVector::from_fn(na, |i, _| l[active[i]] - lambda[active[i]]);
-                    let y = DVector::from_fn(na, |i, _| v.z[active[i]] - cur.z[active[i]]);
-                    chord = Some(sr1(h, &active, &s, &y));
+                    let active = &present.active;
+                    let s = DVector::from_fn(active.len(), |i, _| l[active[i]] - lambda[active[i]]);
+                    let y = DVector::from_fn(active.len(), |i, _| v.z[active[i]] - cur.z[active[i]]);
+                    chord = Some(sr1(h, active, &s, &y));
                 }
                 lambda = l;
                 cur = v;
-                if res1 <= 0.5 * reference || !newton {
-                    (slow, reference) = (0, res1);
+                if res1 <= 0.5 * stall.reference || !newton {
+                    stall = Stall { slow: 0, reference: res1 };
                 } else if full {
-                    slow += 1;
+                    stall.slow += 1;
                 }
             }
             // A chord step that found no ascent: ∇²F at λ and the iteration again.
             Err(_) if is_chord => {}
             Err(why) => {
-                reason = Some(format!("{why} (optimality residual {res0:.3e})"));
-                if res0 <= options.acceptable() {
-                    break Status::Acceptable;
-                }
-                break Status::NumericalFailure;
+                reason = Some(DualStop::of(why, res0));
+                break if res0 <= options.acceptable() {
+                    Status::Acceptable
+                } else {
+                    Status::NumericalFailure
+                };
             }
         }
     };
     Ok(DualSolution {
-        residual: residual(&lambda, &cur.z, data, &active),
-        phi: phi(&lambda, data, &active, cur.value),
+        residual: present.residual(&lambda, &cur.z),
+        phi: present.phi(&lambda, cur.value),
         f_value: cur.value,
         z: cur.z,
         lambda,
@@ -763,14 +986,14 @@ mod tests {
                 z: z.iter().copied().collect(),
             })
         }
-        fn history(&mut self, lambda: &[f64], _cross: bool) -> Result<History> {
+        fn history(&mut self, lambda: &[f64], _cross: bool) -> Result<Swept<History>> {
             let z = self.evaluate(lambda)?.z;
-            Ok(History {
+            Ok(Ok(History {
                 times: self.times.clone(),
                 mean: z.iter().map(|&v| vec![v]).collect(),
                 variance: (0..z.len()).map(|i| vec![self.c[(i, i)]]).collect(),
                 cross: None,
-            })
+            }))
         }
     }
 
@@ -812,11 +1035,11 @@ mod tests {
                 fn evaluate(&mut self, lambda: &[f64]) -> Result<ActionValue> {
                     self.0.evaluate(lambda)
                 }
-                fn history(&mut self, lambda: &[f64], cross: bool) -> Result<History> {
+                fn history(&mut self, lambda: &[f64], cross: bool) -> Result<Swept<History>> {
                     self.0.history(lambda, cross)
                 }
             }
-            Fd(action).hessian(lambda).unwrap()
+            Fd(action).hessian(lambda).unwrap().unwrap()
         }
     }
 
@@ -843,15 +1066,15 @@ mod tests {
             }
             Ok(v)
         }
-        fn hessian(&mut self, lambda: &[f64]) -> Result<DMatrix<f64>> {
+        fn hessian(&mut self, lambda: &[f64]) -> Result<Swept<DMatrix<f64>>> {
             self.hessians += 1;
             let mut h = self.quadratic.c.clone();
             for (i, &l) in lambda.iter().enumerate() {
                 h[(i, i)] += self.s * l.exp();
             }
-            Ok(h)
+            Ok(Ok(h))
         }
-        fn history(&mut self, lambda: &[f64], cross: bool) -> Result<History> {
+        fn history(&mut self, lambda: &[f64], cross: bool) -> Result<Swept<History>> {
             self.quadratic.history(lambda, cross)
         }
     }
@@ -872,7 +1095,7 @@ mod tests {
         assert!(exact.iterations >= 3, "not a test of the chord: {} Newton iterations", exact.iterations);
         // From a nearby start with ∇²F there: Newton needs a Hessian per iteration, the chord none.
         let start: Vec<f64> = exact.lambda.iter().map(|l| l + 0.01).collect();
-        let h_start = f.hessian(&start).unwrap();
+        let h_start = f.hessian(&start).unwrap().unwrap();
         f.hessians = 0;
         let newton = maximize_dual(&mut f, &data, &options, Some(&start)).unwrap();
         assert_eq!((newton.status, f.hessians), (Status::Converged, newton.iterations));
@@ -911,11 +1134,11 @@ mod tests {
         fn evaluate(&mut self, lambda: &[f64]) -> Result<ActionValue> {
             self.0.evaluate(lambda)
         }
-        fn hessian(&mut self, _lambda: &[f64]) -> Result<DMatrix<f64>> {
+        fn hessian(&mut self, _lambda: &[f64]) -> Result<Swept<DMatrix<f64>>> {
             let n = self.0.c.nrows();
-            Ok(&self.0.c * 5.0 + DMatrix::identity(n, n) * (4.0 * self.1))
+            Ok(Ok(&self.0.c * 5.0 + DMatrix::identity(n, n) * (4.0 * self.1)))
         }
-        fn history(&mut self, lambda: &[f64], cross: bool) -> Result<History> {
+        fn history(&mut self, lambda: &[f64], cross: bool) -> Result<Swept<History>> {
             self.0.history(lambda, cross)
         }
     }
@@ -933,7 +1156,8 @@ mod tests {
         let options = DualOptions::default().with_stall_iterations(Some(3));
         let stalled = maximize_dual(&mut slow, &data, &options, None).unwrap();
         assert_eq!((stalled.status, stalled.iterations), (Status::Acceptable, 3));
-        assert!(stalled.reason.as_deref().unwrap().starts_with("stalled"));
+        assert!(stalled.reason.unwrap().is_stall());
+        assert!(stalled.reason.unwrap().to_string().starts_with("stalled"));
         assert_relative_eq!(stalled.residual, 0.512 * start, max_relative = 1e-9);
         // Four allowed: every fourth step halves the reference (0.8⁴ < ½) and the count restarts.
         let four = DualOptions::default().with_stall_iterations(Some(4));
@@ -965,17 +1189,17 @@ mod tests {
             let bias = if l > self.lambda_star { self.eps } else { -self.eps };
             Ok(ActionValue { value: 0.5 * self.a * l * l, z: vec![self.a * l + bias] })
         }
-        fn hessian(&mut self, _lambda: &[f64]) -> Result<DMatrix<f64>> {
-            Ok(DMatrix::from_element(1, 1, self.a))
+        fn hessian(&mut self, _lambda: &[f64]) -> Result<Swept<DMatrix<f64>>> {
+            Ok(Ok(DMatrix::from_element(1, 1, self.a)))
         }
-        fn history(&mut self, lambda: &[f64], _cross: bool) -> Result<History> {
+        fn history(&mut self, lambda: &[f64], _cross: bool) -> Result<Swept<History>> {
             let z = self.evaluate(lambda)?.z;
-            Ok(History {
+            Ok(Ok(History {
                 times: self.times.clone(),
                 mean: vec![z],
                 variance: vec![vec![self.a]],
                 cross: None,
-            })
+            }))
         }
     }
 
@@ -992,7 +1216,8 @@ mod tests {
         let data = DualData { r: vec![1.0], variance: vec![1.0], output_dim: 1 };
         let sol = maximize_dual(&mut action, &data, &DualOptions::default(), Some(&[0.5 - delta])).unwrap();
         assert_eq!(sol.status, Status::NumericalFailure);
-        assert!(sol.reason.as_deref().unwrap().contains("no ascent"), "{:?}", sol.reason);
+        assert!(matches!(sol.reason, Some(DualStop::NoAscent { .. })), "{:?}", sol.reason);
+        assert!(sol.reason.unwrap().to_string().contains("no ascent"));
         assert_eq!((sol.iterations, sol.evaluations), (1, 12));
         assert_eq!(sol.lambda, vec![0.5 - delta]);
         // Near the tolerance the same stop is `Acceptable`: within 10³ × the tolerance by
@@ -1033,7 +1258,7 @@ mod tests {
         let times = vec![0.0, 1.0];
         let c = DMatrix::from_row_slice(2, 2, &[2.0, 0.5, 0.5, 1.0]);
         let mut q = Quadratic { times, mu: DVector::zeros(2), c: c.clone() };
-        let h = q.hessian(&[0.3, -0.2]).unwrap();
+        let h = q.hessian(&[0.3, -0.2]).unwrap().unwrap();
         for i in 0..2 {
             for j in 0..2 {
                 assert_relative_eq!(h[(i, j)], c[(i, j)], epsilon = 1e-9);
@@ -1098,23 +1323,23 @@ mod tests {
             let dmu = DVector::from_fn(3, |i, _| self.a[i] * (mu[i] - self.c[i]).sin());
             Ok(ActionValue { value, z: (self.q.transpose() * dmu).iter().copied().collect() })
         }
-        fn hessian(&mut self, lambda: &[f64]) -> Result<DMatrix<f64>> {
+        fn hessian(&mut self, lambda: &[f64]) -> Result<Swept<DMatrix<f64>>> {
             let mu = &self.q * DVector::from_column_slice(lambda);
             let d = DMatrix::from_fn(
                 3,
                 3,
                 |i, j| if i == j { self.a[i] * (mu[i] - self.c[i]).cos() } else { 0.0 },
             );
-            Ok(self.q.transpose() * d * &self.q)
+            Ok(Ok(self.q.transpose() * d * &self.q))
         }
-        fn history(&mut self, lambda: &[f64], _cross: bool) -> Result<History> {
+        fn history(&mut self, lambda: &[f64], _cross: bool) -> Result<Swept<History>> {
             let z = self.evaluate(lambda)?.z;
-            Ok(History {
+            Ok(Ok(History {
                 times: self.times.clone(),
                 mean: z.iter().map(|&v| vec![v]).collect(),
                 variance: vec![vec![0.0]; 3],
                 cross: None,
-            })
+            }))
         }
     }
 
@@ -1123,7 +1348,7 @@ mod tests {
         let mut f = Cosines::new();
         let l = [0.3, 2.9, -1.7];
         let v = f.evaluate(&l).unwrap();
-        let h = f.hessian(&l).unwrap();
+        let h = f.hessian(&l).unwrap().unwrap();
         let fd = Quadratic::default_hessian_of(&mut f, &l);
         for m in 0..3 {
             let mut lp = l;
@@ -1148,7 +1373,7 @@ mod tests {
             .iter()
             .copied()
             .collect();
-        let k0 = f.hessian(&start).unwrap() + DMatrix::identity(3, 3) * rho;
+        let k0 = f.hessian(&start).unwrap().unwrap() + DMatrix::identity(3, 3) * rho;
         assert!(k0.clone().cholesky().is_none());
         // Plain Newton, λ ← λ + K⁻¹g, heads for the stationary points of Φ regardless of their
         // type and does not reach λ*.
@@ -1157,7 +1382,7 @@ mod tests {
         for _ in 0..50 {
             let v = f.evaluate(l.as_slice()).unwrap();
             let g = DVector::from_fn(3, |i, _| data.r[i] - rho * l[i] - v.z[i]);
-            let k = f.hessian(l.as_slice()).unwrap() + DMatrix::identity(3, 3) * rho;
+            let k = f.hessian(l.as_slice()).unwrap().unwrap() + DMatrix::identity(3, 3) * rho;
             match k.lu().solve(&g) {
                 Some(step) => l += step,
                 None => break,

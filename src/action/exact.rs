@@ -17,25 +17,32 @@ use std::time::Instant;
 use nalgebra::DMatrix;
 use onsager_closures::dot;
 
-use crate::data::{Dataset, EventTimes};
-use crate::estimate::{EstimationProblem, Status};
+use serde::{Deserialize, Serialize};
+
+use crate::data::{Dataset, EventTimes, StatePath};
+use crate::estimate::{Details, EstimationProblem, Method, MethodRun, PathEstimate, Status};
+use crate::estimator::EstimatorOptions;
 use crate::model::observation::StateMeasurement;
 use crate::model::prior::Prior;
 use crate::model::{Observation, Sde};
 use crate::{Error, Result};
 
-use super::dual::{
-    maximize_dual, ActionValue, DualData, DualOptions, DualSolution, EffectiveAction, History,
-};
-use super::fokker_planck::FokkerPlanck;
+use super::dual::{ActionValue, DualData, DualOptions, DualSolution, EffectiveAction, History, Swept};
+use super::fokker_planck::{check_model_fits_grid, FokkerPlanck};
 use super::grid::{Grid, GridSpec};
+use super::mean_optimal::{DualDetails, DualStart, Plan, SdKind};
 
-/// Options of the exact grid methods.
-#[derive(Debug, Clone, PartialEq)]
+/// Options of the exact grid methods: the discretisation (the options of `ksp`; `mean-optimal`
+/// adds the dual's, [`MeanOptimalOptions`]).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default)]
 #[non_exhaustive]
 pub struct ExactOptions {
-    /// The grid; its axes are the states (noisy then clean).
-    pub grid: GridSpec,
+    /// The grid; its axes are the states (noisy then clean). Default ([`default_grid`]): every
+    /// state measured directly, each axis over the data range widened by a quarter of it and by
+    /// four measurement sd on each side (at least 0.5), 400 cells in one dimension and 120 per
+    /// axis in two.
+    pub grid: Option<GridSpec>,
     /// Time step of the implicit scheme. Default: the output step / 4.
     pub dt: Option<f64>,
     /// Step of the output grid. Default: the mean measurement spacing / 10 (the horizon / 10
@@ -46,20 +53,12 @@ pub struct ExactOptions {
     /// Further output times (finite, ≥ the problem's `t0`; later than the last datum extends the horizon).
     /// Default none.
     pub extra_times: Vec<f64>,
-    /// Options of the dual maximisation (mean-optimal estimator).
-    pub dual: DualOptions,
 }
 
 impl ExactOptions {
     /// Options with the given grid and every other default.
     pub fn new(grid: GridSpec) -> Self {
-        ExactOptions {
-            grid,
-            dt: None,
-            output_step: None,
-            extra_times: Vec::new(),
-            dual: DualOptions::default(),
-        }
+        ExactOptions { grid: Some(grid), ..Default::default() }
     }
 
     /// Sets the time step.
@@ -80,10 +79,123 @@ impl ExactOptions {
         self
     }
 
-    /// Sets the dual options.
-    pub fn with_dual(mut self, dual: DualOptions) -> Self {
-        self.dual = dual;
-        self
+    /// The mean-optimal estimator's options with these and the dual's defaults.
+    pub fn with_dual(self, dual: DualOptions) -> MeanOptimalOptions {
+        MeanOptimalOptions { exact: self, dual }
+    }
+}
+
+fn positive(name: &str, v: Option<f64>) -> Result<()> {
+    match v {
+        Some(x) if !(x.is_finite() && x > 0.0) => {
+            Err(invalid(name, format!("must be positive and finite, got {x}")))
+        }
+        _ => Ok(()),
+    }
+}
+
+impl EstimatorOptions for ExactOptions {
+    /// Checks the grid, positive finite `dt` and `output_step`, finite `extra_times`.
+    fn validate(&self) -> Result<()> {
+        if let Some(g) = &self.grid {
+            g.validate()?;
+        }
+        positive("dt", self.dt)?;
+        positive("output_step", self.output_step)?;
+        match self.extra_times.iter().find(|t| !t.is_finite()) {
+            Some(t) => Err(invalid("extra_times", format!("must be finite, got {t}"))),
+            None => Ok(()),
+        }
+    }
+}
+
+/// Options of the exact mean-optimal estimator (`mean-optimal`): the discretisation and the
+/// dual's options.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default)]
+#[non_exhaustive]
+pub struct MeanOptimalOptions {
+    /// The discretisation (the options `grid`, `dt`, `output_step`, `extra_times`).
+    #[serde(flatten)]
+    pub exact: ExactOptions,
+    /// The dual maximisation (the option `dual`).
+    pub dual: DualOptions,
+}
+
+impl From<ExactOptions> for MeanOptimalOptions {
+    fn from(exact: ExactOptions) -> Self {
+        MeanOptimalOptions { exact, dual: DualOptions::default() }
+    }
+}
+
+impl From<&ExactOptions> for MeanOptimalOptions {
+    fn from(exact: &ExactOptions) -> Self {
+        exact.clone().into()
+    }
+}
+
+impl From<&MeanOptimalOptions> for MeanOptimalOptions {
+    fn from(options: &MeanOptimalOptions) -> Self {
+        options.clone()
+    }
+}
+
+impl EstimatorOptions for MeanOptimalOptions {
+    /// Checks the discretisation and the dual's options.
+    fn validate(&self) -> Result<()> {
+        self.exact.validate()?;
+        self.dual.validate()
+    }
+}
+
+/// The default grid of the exact methods for `problem`: every state must be measured
+/// directly; each axis spans the data range widened by a quarter of it and by four measurement
+/// sd on each side (and by at least 0.5), with 400 cells in one dimension and 120 per axis in
+/// two.
+///
+/// Errors: [`Error::InvalidOption`] (name `grid`) when a state is not measured or the model has
+/// more than two states.
+pub fn default_grid<S: Sde + ?Sized, O: Observation + ?Sized>(
+    problem: &EstimationProblem<'_, S, O>,
+) -> Result<GridSpec> {
+    let n = problem.sde.dims().states();
+    let need = |why: String| invalid("grid", format!("{why}; give one, e.g. `lo=-2.5,hi=2.5,cells=500`"));
+    if n > 2 {
+        return Err(need(format!("the grid methods take one or two states, the model has {n}")));
+    }
+    let sd = problem.observation.gaussian_error_sd(problem.theta).unwrap_or(0.0);
+    let (mut lo, mut hi) = (vec![0.0; n], vec![0.0; n]);
+    let outputs = problem.observation.output_dim();
+    for a in 0..n {
+        let column =
+            (0..outputs).find(|&c| problem.observation.measured_state(c) == Some(a)).ok_or_else(|| {
+                need(format!("state `{}` is not measured, so no default grid", problem.sde.state_names()[a]))
+            })?;
+        let values = problem.data.values.iter().map(|row| row[column]).filter(|y| y.is_finite());
+        let (min, max) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), y| (l.min(y), h.max(y)));
+        if !(min.is_finite() && max.is_finite()) {
+            return Err(need(format!("no finite data of state `{}`", problem.sde.state_names()[a])));
+        }
+        let margin = (0.25 * (max - min) + 4.0 * sd).max(0.5);
+        lo[a] = min - margin;
+        hi[a] = max + margin;
+    }
+    let cells = if n == 1 { vec![400] } else { vec![120; n] };
+    Ok(GridSpec { lo, hi, cells })
+}
+
+/// The grid of `options`, or the default one with a note saying so.
+fn grid_of<S: Sde + ?Sized, O: Observation + ?Sized>(
+    problem: &EstimationProblem<'_, S, O>,
+    options: &ExactOptions,
+) -> Result<(GridSpec, Option<String>)> {
+    match &options.grid {
+        Some(g) => Ok((g.clone(), None)),
+        None => {
+            let g = default_grid(problem)?;
+            let note = format!("grid {g} (the default: data range with margins)");
+            Ok((g, Some(note)))
+        }
     }
 }
 
@@ -161,6 +273,7 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
         options: &ExactOptions,
     ) -> Result<Self> {
         problem.validate()?;
+        let (spec, _) = grid_of(problem, options)?;
         let d = problem.sde.dims();
         if d.noisy > 2 {
             return Err(invalid(
@@ -177,7 +290,7 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
                 "the grid methods do not estimate parameters; θ is taken as given",
             ));
         }
-        let grid = Grid::try_new(options.grid.clone())?;
+        let grid = Grid::try_new(spec)?;
         let data = problem.data;
         let (t0, t_last) = (problem.t0, *data.times.last().expect("validated non-empty"));
         if let Some(&t) = options.extra_times.iter().find(|&&t| !t.is_finite() || t < t0) {
@@ -720,11 +833,18 @@ impl<S: Sde + ?Sized> EffectiveAction for ExactAction<'_, S> {
     }
 
     /// The exact Hessian of the discrete F by one forward tangent sweep per multiplier.
-    fn hessian(&mut self, lambda: &[f64]) -> Result<DMatrix<f64>> {
-        Ok(self.covariances(lambda, false)?.0)
+    fn hessian(&mut self, lambda: &[f64]) -> Result<Swept<DMatrix<f64>>> {
+        Ok(Ok(self.covariances(lambda, false)?.0))
     }
 
-    fn history(&mut self, lambda: &[f64], cross: bool) -> Result<History> {
+    /// The history and ∇²F from the same tangent sweeps.
+    fn history_and_hessian(&mut self, lambda: &[f64]) -> Result<Swept<(History, DMatrix<f64>)>> {
+        let (hessian, cross) = self.covariances(lambda, true)?;
+        let history = self.history(lambda, false)?.map(|h| History { cross, ..h });
+        Ok(history.map(|h| (h, hessian)))
+    }
+
+    fn history(&mut self, lambda: &[f64], cross: bool) -> Result<Swept<History>> {
         let cr = if cross { self.covariances(lambda, true)?.1 } else { None };
         self.sweep(lambda)?;
         let (_, fw, a) = self.cache.as_ref().expect("swept");
@@ -736,7 +856,7 @@ impl<S: Sde + ?Sized> EffectiveAction for ExactAction<'_, S> {
             mean.push(m);
             variance.push(v);
         }
-        Ok(History { times: g.times.clone(), mean, variance, cross: cr })
+        Ok(Ok(History { times: g.times.clone(), mean, variance, cross: cr }))
     }
 }
 
@@ -745,35 +865,43 @@ impl<S: Sde + ?Sized> EffectiveAction for ExactAction<'_, S> {
 pub struct MeanOptimal {
     /// The estimate z(t) of every state at the output times, with the tilted-measure moments.
     pub history: History,
-    /// The ensemble dispersion (sd) of every state at the output times
-    /// ([`super::dispersion::posterior_variance`]).
+    /// The standard deviation of every state at the output times: the ensemble dispersion
+    /// ([`super::dispersion::posterior_variance`]) when the dual succeeded (see `sd_kind`).
     pub sd: Vec<Vec<f64>>,
+    /// What `sd` is.
+    pub sd_kind: SdKind,
     /// The dual solution (λ*, z*, residual, iterations, status).
     pub dual: DualSolution,
+    /// The estimate's status.
+    pub status: Status,
+    /// The report's details.
+    pub details: DualDetails,
     /// Seconds spent in the solve.
     pub solve_seconds: f64,
 }
 
 /// The exact mean-optimal (effective-action) estimator on a grid, `003_d2fc48a470e528fc.txt`
-/// Sec. I.5: maximises the dual Φ(λ) ([`maximize_dual`]) on the [`ExactAction`], starting from
+/// Sec. I.5: maximises the dual Φ(λ) ([`super::dual::maximize_dual`]) on the [`ExactAction`], starting from
 /// λ_k = R_k⁻¹(r_k − z_k^KSP) with the KSP smoothed mean, and reports the history z(t) (`(I.76)`)
-/// and the ensemble dispersion (`(I.85)–(I.90)`).
+/// and the ensemble dispersion (`(I.85)–(I.90)`) by [`super::mean_optimal::solve`].
 ///
-/// When the dual fails numerically ([`Status::NumericalFailure`]) the history at the last λ is
-/// reported with the tilted-measure sd instead of the dispersion.
+/// When the dual does not succeed the history at the last λ is reported with the
+/// tilted-measure sd instead of the dispersion.
 ///
 /// Errors: those of [`ExactAction::try_new`]; a non-Gaussian likelihood
 /// ([`gaussian_dual_data`]).
 pub fn mean_optimal<S: Sde + ?Sized>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
-    options: &ExactOptions,
+    options: impl Into<MeanOptimalOptions>,
 ) -> Result<MeanOptimal> {
+    let options = &options.into();
     let start = Instant::now();
+    options.dual.validate()?;
     let data = gaussian_dual_data(problem)?;
-    let mut action = ExactAction::try_new(problem, options)?;
+    let mut action = ExactAction::try_new(problem, &options.exact)?;
     // Start from λ_k = R_k⁻¹(r_k − z_k) with z_k the KSP smoothed mean (one extra sweep): the
     // condition (I.60) evaluated at the optimal estimate's nearest neighbour (cf. (I.79)).
-    let ksp = ksp_smoother(problem, options)?;
+    let ksp = ksp_smoother(problem, &options.exact)?;
     let s = data.output_dim;
     let mut lambda0 = vec![0.0; data.r.len()];
     for (k, &ev) in action.grid.event_of_meas.iter().enumerate() {
@@ -784,20 +912,18 @@ pub fn mean_optimal<S: Sde + ?Sized>(
             }
         }
     }
-    let dual = maximize_dual(&mut action, &data, &options.dual, Some(&lambda0))?;
-    let (history, sd) = if dual.status == Status::NumericalFailure {
-        let h = action.history(&dual.lambda, false)?;
-        let sd = h.variance.iter().map(|v| v.iter().map(|x| x.sqrt()).collect()).collect();
-        (h, sd)
-    } else {
-        let (hess, cross) = action.covariances(&dual.lambda, true)?;
-        let mut h = action.history(&dual.lambda, false)?;
-        h.cross = cross;
-        let var = super::dispersion::posterior_variance(&h, &hess, &data)?;
-        let sd = var.iter().map(|v| v.iter().map(|x| x.max(0.0).sqrt()).collect()).collect();
-        (h, sd)
-    };
-    Ok(MeanOptimal { history, sd, dual, solve_seconds: start.elapsed().as_secs_f64() })
+    let plan = Plan { dual: options.dual.clone(), stages: None, retry_from_zero: false, dispersion: true };
+    let sol = super::mean_optimal::solve(&mut action, &data, (lambda0, DualStart::Ksp), &plan)?;
+    let details = sol.details(None, action.work(), &plan);
+    Ok(MeanOptimal {
+        history: sol.history,
+        sd: sol.sd,
+        sd_kind: sol.sd_kind,
+        dual: sol.dual,
+        status: sol.status,
+        details,
+        solve_seconds: start.elapsed().as_secs_f64(),
+    })
 }
 
 /// The result of the KSP smoother on a grid.
@@ -880,4 +1006,98 @@ pub fn ksp_smoother<S: Sde + ?Sized, O: Observation + ?Sized>(
     }
     out.solve_seconds = start.elapsed().as_secs_f64();
     Ok(out)
+}
+
+/// The details of a KSP estimate's report.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct KspDetails {
+    /// log p(r_1, …, r_n) (`(A.5)`).
+    pub log_likelihood: f64,
+    /// The number of output times.
+    pub output_times: usize,
+}
+
+/// The grid of `options` for the problem of an estimator, checked against the model and the
+/// data, and the note on a default grid.
+fn estimator_grid<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    options: &ExactOptions,
+) -> Result<(ExactOptions, Vec<String>)> {
+    let (spec, note) = grid_of(problem, options)?;
+    let grid = Grid::try_new(spec.clone())?;
+    check_model_fits_grid(problem.sde, &grid)?;
+    check_grid_covers(&grid, problem.observation, problem.data)?;
+    Ok((ExactOptions { grid: Some(spec), ..options.clone() }, note.into_iter().collect()))
+}
+
+fn estimate_of<S: Sde + ?Sized, O: Observation + ?Sized>(
+    method: Method,
+    problem: &EstimationProblem<'_, S, O>,
+    (times, mean, sd): (&[f64], &[Vec<f64>], &[Vec<f64>]),
+) -> PathEstimate {
+    PathEstimate {
+        method,
+        path: StatePath {
+            names: problem.sde.state_names(),
+            times: times.to_vec(),
+            values: mean.to_vec(),
+            sd: Some(sd.to_vec()),
+        },
+        theta_names: problem.sde.param_names(),
+        theta: problem.theta.to_vec(),
+        estimated: Vec::new(),
+        theta_sd: None,
+        status: Status::Converged,
+        iterations: 0,
+        solve_seconds: 0.0,
+        details: Details::default(),
+    }
+}
+
+/// The KSP result as the common [`PathEstimate`] (method `ksp`): the smoothed mean and sd at
+/// the output times; details: [`KspDetails`].
+pub fn ksp_path_estimate<S: Sde + ?Sized, O: Observation + ?Sized>(
+    problem: &EstimationProblem<'_, S, O>,
+    ksp: &KspSmoothing,
+) -> PathEstimate {
+    let mut est = estimate_of(Method::Ksp, problem, (&ksp.times, &ksp.smoothed_mean, &ksp.smoothed_sd));
+    est.solve_seconds = ksp.solve_seconds;
+    est.details =
+        Details::new(KspDetails { log_likelihood: ksp.log_likelihood, output_times: ksp.times.len() });
+    est
+}
+
+/// The mean-optimal result as the common [`PathEstimate`] (method `mean-optimal`): the history
+/// z(t) and its sd at the output times; details: [`DualDetails`].
+pub fn mean_optimal_path_estimate<S: Sde + ?Sized, O: Observation + ?Sized>(
+    problem: &EstimationProblem<'_, S, O>,
+    mo: &MeanOptimal,
+) -> PathEstimate {
+    let h = &mo.history;
+    let mut est = estimate_of(Method::MeanOptimal, problem, (&h.times, &h.mean, &mo.sd));
+    est.status = mo.status;
+    est.iterations = mo.dual.iterations;
+    est.solve_seconds = mo.solve_seconds;
+    est.details = Details::new(mo.details.clone());
+    est
+}
+
+/// `ksp` as an estimator: [`ksp_smoother`] on the options' grid (by default [`default_grid`],
+/// with a note), which must hold the model's states and cover the data.
+pub fn ksp_estimate<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    options: &ExactOptions,
+) -> Result<MethodRun> {
+    let (options, notes) = estimator_grid(problem, options)?;
+    Ok(MethodRun { estimate: ksp_path_estimate(problem, &ksp_smoother(problem, &options)?), notes })
+}
+
+/// `mean-optimal` as an estimator: [`mean_optimal`] on the options' grid (as [`ksp_estimate`]).
+pub fn mean_optimal_estimate<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    options: &MeanOptimalOptions,
+) -> Result<MethodRun> {
+    let (exact, notes) = estimator_grid(problem, &options.exact)?;
+    let options = MeanOptimalOptions { exact, dual: options.dual.clone() };
+    Ok(MethodRun { estimate: mean_optimal_path_estimate(problem, &mean_optimal(problem, options)?), notes })
 }

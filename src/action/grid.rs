@@ -4,9 +4,16 @@
 //! of s = [x; z] (noisy then clean states). Densities are stored as *cell masses* (probability
 //! of each cell, summing to 1), indexed `i0 + n0 · i1` (axis 0 fastest).
 
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
 use crate::{Error, Result};
 
 /// The box and resolution of a grid: one entry per axis (one or two axes).
+///
+/// In options files and on the command line a grid is written `lo=L,hi=H,cells=N` (two axes:
+/// `lo=L1;L2,hi=H1;H2,cells=N1;N2`, [`GridSpec::parse`]) or as a table
+/// `{ lo = [L1, L2], hi = [H1, H2], cells = [N1, N2] }` (one axis: plain numbers); it is
+/// written back in the first form.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GridSpec {
     /// Lower end of each axis.
@@ -15,6 +22,71 @@ pub struct GridSpec {
     pub hi: Vec<f64>,
     /// Number of cells of each axis (at least 3).
     pub cells: Vec<usize>,
+}
+
+/// One number per axis, or a list of them (the table form of a [`GridSpec`]).
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum PerAxis<T> {
+    One(T),
+    Each(Vec<T>),
+}
+
+impl<T> PerAxis<T> {
+    fn into_vec(self) -> Vec<T> {
+        match self {
+            PerAxis::One(v) => vec![v],
+            PerAxis::Each(v) => v,
+        }
+    }
+}
+
+/// The forms a grid is written in.
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum GridForm {
+    Text(String),
+    Table { lo: PerAxis<f64>, hi: PerAxis<f64>, cells: PerAxis<usize> },
+}
+
+impl<'de> Deserialize<'de> for GridSpec {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> std::result::Result<Self, D::Error> {
+        let form = GridForm::deserialize(deserializer).map_err(|_| {
+            serde::de::Error::custom("expected `lo=L,hi=H,cells=N` or a table { lo = …, hi = …, cells = … }")
+        })?;
+        let spec = match form {
+            GridForm::Text(text) => GridSpec::parse(&text),
+            GridForm::Table { lo, hi, cells } => {
+                let g = GridSpec { lo: lo.into_vec(), hi: hi.into_vec(), cells: cells.into_vec() };
+                g.validate().map(|()| g)
+            }
+        };
+        spec.map_err(|e| match e {
+            Error::InvalidOption { reason, .. } => serde::de::Error::custom(reason),
+            other => serde::de::Error::custom(other),
+        })
+    }
+}
+
+impl Serialize for GridSpec {
+    fn serialize<S: Serializer>(&self, serializer: S) -> std::result::Result<S::Ok, S::Error> {
+        serializer.serialize_str(&self.to_string())
+    }
+}
+
+impl std::fmt::Display for GridSpec {
+    /// The command-line form `lo=L1;L2,hi=H1;H2,cells=N1;N2`, which [`GridSpec::parse`] reads
+    /// back.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let join = |v: Vec<String>| v.join(";");
+        write!(
+            f,
+            "lo={},hi={},cells={}",
+            join(self.lo.iter().map(|x| x.to_string()).collect()),
+            join(self.hi.iter().map(|x| x.to_string()).collect()),
+            join(self.cells.iter().map(|x| x.to_string()).collect())
+        )
+    }
 }
 
 fn bad(reason: impl Into<String>) -> Error {

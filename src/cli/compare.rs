@@ -4,14 +4,20 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use onsager::compare::{compare, default_methods, CompareOptions, Comparison};
+use onsager::action::GridSpec;
+use onsager::compare::{compare, default_estimators, CompareOptions, Comparison};
 use onsager::data::{Dataset, StatePath};
-use onsager::methods::Method;
+use onsager::estimate::EstimationProblem;
+use onsager::estimator::{parse_list, read_list, Estimator, Labelled};
 use onsager::model::{Observation, Sde};
 use onsager::{Error, Result};
 
-use super::estimate::parse_method;
 use super::{create_parent, ModelArgs};
+
+/// Parses `--grid`.
+fn parse_grid(s: &str) -> std::result::Result<GridSpec, String> {
+    GridSpec::parse(s).map_err(|e| e.to_string())
+}
 
 /// Flags of `onsager compare`.
 #[derive(Args, Debug, Clone)]
@@ -25,13 +31,20 @@ pub struct CompareArgs {
     /// it and, for bistable models, the fraction of times on the true well's side.
     #[arg(long)]
     pub truth: Option<PathBuf>,
-    /// Methods to compare, comma-separated (default: ksp and mean-optimal for one or two
-    /// states, the four closures for one state, jme, mee, uks).
-    #[arg(long, value_delimiter = ',', value_parser = parse_method)]
-    pub methods: Vec<Method>,
-    /// Grid of the exact methods (default: the data range with margins).
-    #[arg(long)]
-    pub grid: Option<String>,
+    /// Estimators to compare, each with its own options:
+    /// `METHOD[:NAME=VALUE,…],METHOD…`, e.g. `exp-closure:moments=6,jme:transcription=trapezoidal,uks`
+    /// (a value with commas in double quotes; `label=…` names a row). Default: ksp and
+    /// mean-optimal for one or two states, the four closures for one state, jme, mee, uks.
+    #[arg(long, value_name = "LIST")]
+    pub methods: Option<String>,
+    /// The estimators from a file instead: TOML `[[estimators]]` tables with `method`, `label`
+    /// and `options = { … }` (as in experiment specs), or JSON `{"estimators": [...]}`.
+    #[arg(long, value_name = "FILE", conflicts_with = "methods")]
+    pub estimators: Option<PathBuf>,
+    /// Grid of the exact methods that do not set their own (default: the data range with
+    /// margins).
+    #[arg(long, value_parser = parse_grid)]
+    pub grid: Option<GridSpec>,
     /// Seed of the methods that draw random numbers.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -40,13 +53,39 @@ pub struct CompareArgs {
     pub out_dir: PathBuf,
 }
 
+impl CompareArgs {
+    /// The estimators of the flags (`--methods`, `--estimators` or the defaults), with `--grid`
+    /// given to the exact methods that have no grid of their own.
+    fn estimators(
+        &self,
+        problem: &EstimationProblem<'_, impl Sde, onsager::model::observation::StateMeasurement>,
+    ) -> Result<Vec<Labelled>> {
+        let mut list = match (&self.methods, &self.estimators) {
+            (Some(text), _) => parse_list(text)?,
+            (None, Some(file)) => read_list(file)?,
+            (None, None) => default_estimators(problem),
+        };
+        if let Some(grid) = &self.grid {
+            for e in &mut list {
+                match &mut e.estimator {
+                    Estimator::Ksp(o) if o.grid.is_none() => o.grid = Some(grid.clone()),
+                    Estimator::MeanOptimal(o) if o.exact.grid.is_none() => o.exact.grid = Some(grid.clone()),
+                    _ => {}
+                }
+            }
+        }
+        Ok(list)
+    }
+}
+
 fn cell(x: Option<f64>, digits: usize) -> String {
     x.filter(|v| v.is_finite()).map_or("-".into(), |v| format!("{v:.digits$}"))
 }
 
 /// Prints the comparison table.
 pub fn print_table(c: &Comparison, with_truth: bool, bistable: bool) {
-    let mut header = format!("{:<19} {:<17}", "method", "status");
+    let width = c.rows.iter().map(|r| r.label.chars().count()).max().unwrap_or(0).max(19);
+    let mut header = format!("{:<width$} {:<17}", "method", "status");
     if with_truth {
         header.push_str(&format!(" {:>10}", "rmse_truth"));
     }
@@ -56,9 +95,9 @@ pub fn print_table(c: &Comparison, with_truth: bool, bistable: bool) {
     }
     header.push_str(&format!(" {:>9}", "seconds"));
     outln!("{header}");
-    outln!("{}", "-".repeat(header.len()));
+    outln!("{}", "-".repeat(header.chars().count()));
     for r in &c.rows {
-        let mut line = format!("{:<19} {:<17}", r.method.name(), r.status);
+        let mut line = format!("{:<width$} {:<17}", r.label, r.status.name());
         if with_truth {
             line.push_str(&format!(" {:>10}", cell(r.rmse_truth, 4)));
         }
@@ -71,25 +110,23 @@ pub fn print_table(c: &Comparison, with_truth: bool, bistable: bool) {
     }
     for r in &c.rows {
         if let Some(e) = &r.error {
-            outln!("  {}: {e}", r.method.name());
+            outln!("  {}: {e}", r.label);
         }
         for n in &r.notes {
-            outln!("  {}: note: {n}", r.method.name());
+            outln!("  {}: note: {n}", r.label);
         }
     }
 }
 
-/// Runs `onsager compare`; `Ok(false)` when a method failed or did not converge.
+/// Runs `onsager compare`; `Ok(false)` when an estimator failed or did not converge.
 pub fn run(args: &CompareArgs) -> Result<bool> {
     let preset = args.model.preset()?;
     let data = Dataset::read_csv_for(&args.data, &preset.observation.output_names())?;
     let truth = args.truth.as_ref().map(StatePath::read_csv).transpose()?;
-    let problem = preset.problem(&data, &[]);
+    let problem = EstimationProblem { seed: args.seed, ..preset.problem(&data, &[]) };
     problem.validate()?;
-    let methods = if args.methods.is_empty() { default_methods(&problem) } else { args.methods.clone() };
+    let estimators = args.estimators(&problem)?;
     let mut options = CompareOptions::default();
-    options.grid = args.grid.clone();
-    options.seed = args.seed;
     options.barrier = preset.well_barrier();
     let names = preset.model.state_names();
     if let Some(t) = &truth {
@@ -107,22 +144,22 @@ pub fn run(args: &CompareArgs) -> Result<bool> {
     }
     outln!(
         "comparing {} on {} ({} measurements of {})",
-        methods.iter().map(|m| m.name()).collect::<Vec<_>>().join(", "),
+        estimators.iter().map(|e| e.label.as_str()).collect::<Vec<_>>().join(", "),
         preset.name,
         data.len(),
         data.names.join(", ")
     );
-    let c = compare(&problem, &methods, truth.as_ref(), &options)?;
+    let c = compare(&problem, &estimators, truth.as_ref(), &options)?;
     print_table(&c, truth.is_some(), options.barrier.is_some());
     let dir = &args.out_dir;
     create_parent(&dir.join("x"))?;
     c.write_paths_csv(&dir.join("paths.csv"), &names)?;
-    let summary = serde_json::to_string_pretty(&c.summary_json()).expect("a JSON value serialises");
+    let summary = serde_json::to_string_pretty(&c.summary()).expect("a summary serialises");
     let summary_path = dir.join("summary.json");
     std::fs::write(&summary_path, summary + "\n")
         .map_err(|source| Error::Io { path: summary_path, source })?;
     let title = format!("{}: {} measurements", preset.name, data.len());
     c.figure(&names, &data, &preset.observation, truth.as_ref(), &title).write(&dir.join("compare"))?;
     outln!("wrote {0}/paths.csv, {0}/summary.json, {0}/compare.svg and {0}/compare.png", dir.display());
-    Ok(c.rows.iter().all(|r| r.status == "converged" || r.status == "acceptable"))
+    Ok(c.rows.iter().all(|r| r.status.is_success()))
 }

@@ -5,12 +5,14 @@ use std::path::PathBuf;
 
 use clap::Args;
 
+use onsager::action::GridSpec;
 use onsager::data::Dataset;
 use onsager::estimate::{EstimationProblem, PathEstimate};
-use onsager::methods::{self, Method, MethodOptions};
+use onsager::estimator::{options_from_pairs, Estimator, Method};
 use onsager::model::library::{BuiltinModel, Preset};
 use onsager::model::observation::StateMeasurement;
 use onsager::model::{Observation, Sde};
+use onsager::path::Transcription;
 use onsager::Result;
 
 use super::{create_parent, ModelArgs};
@@ -20,11 +22,35 @@ pub fn parse_method(s: &str) -> std::result::Result<Method, String> {
     s.parse::<Method>().map_err(|e| e.to_string())
 }
 
-/// The `--method` help: every method with its description.
+/// Parses `--grid`.
+fn parse_grid(s: &str) -> std::result::Result<GridSpec, String> {
+    GridSpec::parse(s).map_err(|e| e.to_string())
+}
+
+/// Parses `--transcription`.
+fn parse_transcription(s: &str) -> std::result::Result<Transcription, String> {
+    Transcription::parse(s).map_err(|e| e.to_string())
+}
+
+/// Parses `--option NAME=VALUE`.
+fn parse_pair(s: &str) -> std::result::Result<(String, String), String> {
+    match s.split_once('=') {
+        Some((k, v)) if !k.trim().is_empty() => Ok((k.trim().to_string(), v.trim().to_string())),
+        _ => Err(format!("expected NAME=VALUE, got `{s}`")),
+    }
+}
+
+/// The `--method` help: every method with its description and its options.
 pub fn methods_help() -> String {
-    let mut h = String::from("The estimator:");
-    for m in Method::ALL {
-        h.push_str(&format!("\n  {:<19} {}", m.name(), m.description()));
+    let mut h = String::from("The estimator (its options in brackets, set with --option NAME=VALUE):");
+    for &m in Method::ALL {
+        h.push_str(&format!(
+            "\n  {:<19} {}\n  {:<19} [{}]",
+            m.name(),
+            m.description(),
+            "",
+            Estimator::option_names(m).join(", ")
+        ));
     }
     h
 }
@@ -40,13 +66,18 @@ pub struct EstimateArgs {
     /// The estimator (see `--help` for the list).
     #[arg(long, value_parser = parse_method, long_help = methods_help())]
     pub method: Method,
+    /// An option of the estimator, `NAME=VALUE` (repeatable; nested options with a dotted name,
+    /// `dual.max_iterations=100`; the names are listed under `--method` in `--help` and in
+    /// docs/). The flags below are shorthands for the common ones.
+    #[arg(long = "option", value_name = "NAME=VALUE", value_parser = parse_pair)]
+    pub options: Vec<(String, String)>,
     /// Parameters to estimate, comma-separated names (methods that estimate parameters).
     #[arg(long, value_delimiter = ',')]
     pub estimate: Vec<String>,
     /// Grid of the exact methods: `lo=L,hi=H,cells=N` (two noisy states: `lo=L1;L2,hi=H1;H2,cells=N1;N2`).
-    #[arg(long)]
-    pub grid: Option<String>,
-    /// Time step of the method's time integration (default: the method's).
+    #[arg(long, value_parser = parse_grid)]
+    pub grid: Option<GridSpec>,
+    /// Time step of the method's time integration (grid, Kalman and particle methods).
     #[arg(long, allow_negative_numbers = true)]
     pub dt: Option<f64>,
     /// Number of particles of the particle smoother.
@@ -54,10 +85,10 @@ pub struct EstimateArgs {
     pub particles: Option<usize>,
     /// Transcription of the path-space MAP methods: `hermite-simpson` (default),
     /// `trapezoidal` or `euler`.
-    #[arg(long)]
-    pub transcription: Option<String>,
+    #[arg(long, value_parser = parse_transcription)]
+    pub transcription: Option<Transcription>,
     /// Step of the path-space MAP transcription (default: measurement spacing / 20).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub step: Option<f64>,
     /// Degree of the exponential closure's moments, M = (x, …, x^D) (default 4).
     #[arg(long)]
@@ -80,25 +111,39 @@ pub struct EstimateArgs {
 }
 
 impl EstimateArgs {
-    /// The method options given by the flags.
-    pub fn method_options(&self) -> MethodOptions {
-        let mut o = MethodOptions::default();
-        o.grid = self.grid.clone();
-        o.dt = self.dt;
-        o.particles = self.particles;
-        o.transcription = self.transcription.clone();
-        o.step = self.step;
-        o.seed = self.seed;
-        o.moments = self.moments;
-        o.gaussian_points = self.gaussian_points;
-        o.keep_initial = self
+    /// The estimator of the flags: `--method` with the options of `--option` and of the
+    /// shorthand flags; for `jme` and `mee`, the parameters set by `--param` are kept as the
+    /// initial guess (`keep_initial`). Errors: an option the method does not have, a bad value,
+    /// an option given twice.
+    pub fn estimator(&self) -> Result<Estimator> {
+        let mut pairs = self.options.clone();
+        let mut flag = |name: &str, value: Option<String>| {
+            if let Some(v) = value {
+                pairs.push((name.to_string(), v));
+            }
+        };
+        flag("grid", self.grid.as_ref().map(|g| g.to_string()));
+        flag("dt", self.dt.map(|v| v.to_string()));
+        flag("particles", self.particles.map(|v| v.to_string()));
+        flag("transcription", self.transcription.map(|t| t.name().to_string()));
+        flag("step", self.step.map(|v| v.to_string()));
+        flag("moments", self.moments.map(|v| v.to_string()));
+        flag("gaussian_points", self.gaussian_points.map(|v| v.to_string()));
+        let mut options = options_from_pairs(pairs)?;
+        let kept: Vec<String> = self
             .model
             .params
             .iter()
             .filter_map(|s| s.split_once('='))
             .map(|(k, _)| k.trim().to_string())
             .collect();
-        o
+        if matches!(self.method, Method::Jme | Method::Mee)
+            && !kept.is_empty()
+            && !options.contains_key("keep_initial")
+        {
+            options.insert("keep_initial".into(), serde_json::json!(kept));
+        }
+        Estimator::from_options(self.method, &options)
     }
 }
 
@@ -138,10 +183,11 @@ impl Setup {
 /// Runs `onsager estimate`; `Ok(false)` when the estimator did not succeed (the CLI then exits
 /// non-zero after writing what it has).
 pub fn run(args: &EstimateArgs) -> Result<bool> {
+    let estimator = args.estimator()?;
     let setup = Setup::new(args)?;
-    let problem = setup.problem();
+    let problem = EstimationProblem { seed: args.seed, ..setup.problem() };
     problem.validate()?;
-    let run = methods::run(args.method, &problem, &args.method_options())?;
+    let run = estimator.run(&problem)?;
     for note in &run.notes {
         outln!("note: {note}");
     }

@@ -35,4 +35,4 @@ mod tests;
 
 pub use builtin::{builtin, BUILTIN};
 pub use runner::{replicate_seed, run, Progress, Row, RunOptions, RunReport};
-pub use spec::{Estimator, EstimatorSpec, Experiment, ExperimentSpec, Metric, Scenario};
+pub use spec::{EstimatorSpec, Experiment, ExperimentSpec, Metric, Scenario, ScenarioEstimator};

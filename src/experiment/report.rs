@@ -9,7 +9,8 @@ use serde_json::{json, Map, Value};
 use super::runner::{Row, KEY_COLUMNS};
 use super::spec::{ExperimentSpec, Scenario};
 use crate::data::{Dataset, StatePath};
-use crate::estimate::PathEstimate;
+use crate::estimate::{PathEstimate, RowStatus};
+use crate::estimator::Method;
 use crate::plot::{quantile, BoxGroup, BoxPlot, LinePlot, Panels, Series};
 use crate::{Error, Result};
 
@@ -82,12 +83,14 @@ pub fn parse_results(text: &str, path: &Path) -> Result<Results> {
                 }
             })
             .collect::<Result<Vec<_>>>()?;
+        let method = rec[3].parse::<Method>().map_err(|e| err(line, format!("column `method`: {e}")))?;
+        let status = rec[4].parse::<RowStatus>().map_err(|e| err(line, format!("column `status`: {e}")))?;
         rows.push(Row {
             scenario: f(0),
             replicate,
             estimator: f(2),
-            method: f(3),
-            status: f(4),
+            method,
+            status,
             iterations,
             solve_seconds: num(6)?,
             metrics,
@@ -96,11 +99,6 @@ pub fn parse_results(text: &str, path: &Path) -> Result<Results> {
         });
     }
     Ok(Results { header, metric_columns, theta_columns, rows })
-}
-
-/// Whether a status counts as a usable estimate in the summaries.
-pub fn is_success(status: &str) -> bool {
-    status == "converged" || status == "acceptable"
 }
 
 /// n, median, quartiles and the number of non-finite values of a sample.
@@ -128,10 +126,10 @@ pub fn summary(spec: &ExperimentSpec, scenarios: &[Scenario], results: &Results,
         for e in &s.estimators {
             let rows: Vec<&Row> =
                 results.rows.iter().filter(|r| r.scenario == s.name && r.estimator == e.label).collect();
-            let ok: Vec<&Row> = rows.iter().copied().filter(|r| is_success(&r.status)).collect();
+            let ok: Vec<&Row> = rows.iter().copied().filter(|r| r.status.is_success()).collect();
             let mut failures = BTreeMap::new();
-            for r in rows.iter().filter(|r| !is_success(&r.status)) {
-                *failures.entry(r.status.clone()).or_insert(0usize) += 1;
+            for r in rows.iter().filter(|r| !r.status.is_success()) {
+                *failures.entry(r.status.name().to_string()).or_insert(0usize) += 1;
             }
             let mut metrics = Map::new();
             for (k, c) in results.metric_columns.iter().enumerate() {
@@ -150,7 +148,7 @@ pub fn summary(spec: &ExperimentSpec, scenarios: &[Scenario], results: &Results,
             }
             estimators.push(json!({
                 "estimator": e.label,
-                "method": e.method.name(),
+                "method": e.estimator.name(),
                 "rows": rows.len(),
                 "success": ok.len(),
                 "failures": failures,
@@ -191,7 +189,7 @@ fn columns_for(n: usize) -> usize {
 /// stems written (`DIR/metric_COL`, `DIR/theta_NAME`).
 pub fn summary_plots(scenarios: &[Scenario], results: &Results, dir: &Path) -> Result<Vec<PathBuf>> {
     let mut stems = Vec::new();
-    let ok = |r: &&Row| is_success(&r.status);
+    let ok = |r: &&Row| r.status.is_success();
     for (k, col) in results.metric_columns.iter().enumerate() {
         let panels: Vec<BoxPlot> = scenarios
             .iter()

@@ -13,10 +13,10 @@ use rand::SeedableRng;
 use rayon::prelude::*;
 
 use super::report;
-use super::spec::{Experiment, Metric, Scenario};
+use super::spec::{Experiment, Metric, Scenario, ScenarioEstimator};
 use crate::data::{Dataset, StatePath};
-use crate::estimate::PathEstimate;
-use crate::methods;
+use crate::estimate::{EstimationProblem, PathEstimate, RowStatus};
+use crate::estimator::Method;
 use crate::metrics;
 use crate::simulate::{sample_measurements_at, simulate, SimulateOptions};
 use crate::{Error, Result};
@@ -73,10 +73,10 @@ pub struct Row {
     pub replicate: usize,
     /// Estimator label.
     pub estimator: String,
-    /// Method name.
-    pub method: String,
+    /// The estimator's method.
+    pub method: Method,
     /// The estimate's status, or `error` when the method returned an error.
-    pub status: String,
+    pub status: RowStatus,
     /// Iterations of the method.
     pub iterations: usize,
     /// Solve time in seconds.
@@ -176,8 +176,8 @@ impl Row {
             self.scenario.clone(),
             self.replicate.to_string(),
             self.estimator.clone(),
-            self.method.clone(),
-            self.status.clone(),
+            self.method.name().to_string(),
+            self.status.name().to_string(),
             self.iterations.to_string(),
             format!("{:.6}", self.solve_seconds),
         ];
@@ -220,8 +220,8 @@ pub fn simulate_replicate(scenario: &Scenario, seed: u64) -> Result<(StatePath, 
 }
 
 /// The metrics of `estimate` against the truth and the other estimates of the replicate
-/// (`refs`: label → estimate), in the order of `metric_cols`; NaN (with a message) where a
-/// metric cannot be computed.
+/// (`refs`: label → estimate), in the order of `metric_cols`, by [`metrics::measure`]; NaN (with
+/// a message) where a metric cannot be computed.
 fn metric_values(
     scenario: &Scenario,
     metric_cols: &[String],
@@ -230,26 +230,11 @@ fn metric_values(
     refs: &[(String, PathEstimate)],
     message: &mut Vec<String>,
 ) -> Vec<f64> {
+    let others: Vec<(&str, &StatePath)> = refs.iter().map(|(l, e)| (l.as_str(), &e.path)).collect();
     let mut values = vec![f64::NAN; metric_cols.len()];
     for m in &scenario.metrics {
-        let value = match m {
-            Metric::Ise => metrics::ise(estimate, truth, None),
-            // Over the estimate's times: the truth is interpolated there.
-            Metric::Rmse => metrics::rmse(truth, estimate, None),
-            Metric::RmseTo(label) => match refs.iter().find(|(l, _)| l == label) {
-                Some((_, r)) => metrics::rmse(&r.path, estimate, None),
-                None => Err(Error::InvalidOption {
-                    name: m.column(),
-                    reason: format!("the estimate of `{label}` is not available"),
-                }),
-            },
-            Metric::WellSide(state) => {
-                let state = state.clone().unwrap_or_else(|| truth.names[0].clone());
-                metrics::same_side_fraction(estimate, truth, &state, 0.0)
-            }
-        };
         let col = metric_cols.iter().position(|c| *c == m.column()).expect("every metric has a column");
-        match value {
+        match metrics::measure(m, estimate, Some(truth), &others) {
             Ok(v) => values[col] = v,
             Err(e) => message.push(format!("{}: {e}", m.column())),
         }
@@ -289,6 +274,222 @@ fn read_done(path: &Path, header: &[String]) -> Result<Vec<Row>> {
     Ok(rows.rows)
 }
 
+/// The output folder of a run: `results.csv` opened for appending (with its header), the rows
+/// of an earlier run when resuming, and the key of `run.json`.
+struct Output {
+    results: PathBuf,
+    file: std::fs::File,
+    done: Vec<Row>,
+}
+
+fn io_error(path: &Path) -> impl Fn(std::io::Error) -> Error + '_ {
+    move |source| Error::Io { path: path.to_path_buf(), source }
+}
+
+/// Opens the output folder: checks a resumed run's key, reads its rows, writes `run.json` and
+/// the header of a new `results.csv`.
+fn open_output(out: &Path, header: &[String], key: &str, resume: bool) -> Result<Output> {
+    std::fs::create_dir_all(out).map_err(io_error(out))?;
+    let results = out.join("results.csv");
+    let run_json = out.join("run.json");
+    let done = if results.exists() {
+        if !resume {
+            return Err(Error::InvalidOption {
+                name: "--out".into(),
+                reason: format!(
+                    "{} exists; pass --resume to continue it, or choose another folder",
+                    results.display()
+                ),
+            });
+        }
+        let recorded = std::fs::read_to_string(&run_json).unwrap_or_default();
+        if recorded.trim() != key {
+            return Err(Error::InvalidOption {
+                name: "--resume".into(),
+                reason: format!(
+                    "{} was written by another spec, seed or --quick setting; use another output folder",
+                    out.display()
+                ),
+            });
+        }
+        read_done(&results, header)?
+    } else {
+        Vec::new()
+    };
+    std::fs::write(&run_json, format!("{key}\n")).map_err(io_error(&run_json))?;
+    let mut file = OpenOptions::new().create(true).append(true).open(&results).map_err(io_error(&results))?;
+    if done.is_empty() && file.metadata().map(|m| m.len()).unwrap_or(0) == 0 {
+        file.write_all(csv_line(header).as_bytes()).map_err(io_error(&results))?;
+        file.flush().map_err(io_error(&results))?;
+    }
+    Ok(Output { results, file, done })
+}
+
+/// What every worker of a run shares.
+struct Shared<'a> {
+    scenarios: &'a [Scenario],
+    seed: u64,
+    metric_cols: &'a [String],
+    theta_cols: &'a [String],
+    done: &'a [Row],
+    options: &'a RunOptions,
+    results: &'a Path,
+    writer: Mutex<std::fs::File>,
+    written: AtomicUsize,
+    stop: AtomicBool,
+    plots: Mutex<Vec<PathBuf>>,
+    start: Instant,
+    total: usize,
+    resumed: usize,
+}
+
+/// An estimator's outcome on a replicate: its estimate, or the error's message.
+type Outcome = std::result::Result<PathEstimate, String>;
+
+impl Shared<'_> {
+    fn is_done(&self, scenario: &str, replicate: usize, label: &str) -> bool {
+        self.done
+            .iter()
+            .any(|row| row.scenario == scenario && row.replicate == replicate && row.estimator == label)
+    }
+
+    /// Runs estimator `e` on the replicate's data with its seed (a function of the replicate's
+    /// seed and the label).
+    fn estimate(&self, e: &ScenarioEstimator, data: &Dataset, unit_seed: u64) -> Outcome {
+        let problem = EstimationProblem {
+            seed: mix(unit_seed ^ mix(fnv(&e.label))),
+            ..e.preset.problem(data, &e.estimate)
+        };
+        e.estimator.run(&problem).map(|run| run.estimate).map_err(|err| err.to_string())
+    }
+
+    /// The row of estimator `e` on replicate `r` of `scenario`.
+    fn row(
+        &self,
+        scenario: &Scenario,
+        r: usize,
+        e: &ScenarioEstimator,
+        outcome: Outcome,
+        truth: &StatePath,
+        refs: &[(String, PathEstimate)],
+    ) -> Row {
+        let mut row = Row {
+            scenario: scenario.name.clone(),
+            replicate: r,
+            estimator: e.label.clone(),
+            method: e.estimator.method(),
+            status: RowStatus::Error,
+            iterations: 0,
+            solve_seconds: 0.0,
+            metrics: vec![f64::NAN; self.metric_cols.len()],
+            theta: vec![None; self.theta_cols.len()],
+            message: String::new(),
+        };
+        match outcome {
+            Ok(est) => {
+                let mut messages = Vec::new();
+                row.status = RowStatus::Finished(est.status);
+                row.iterations = est.iterations;
+                row.solve_seconds = est.solve_seconds;
+                row.metrics =
+                    metric_values(scenario, self.metric_cols, &est.path, truth, refs, &mut messages);
+                let names = e.preset.param_names();
+                for &k in &e.estimate {
+                    let c =
+                        self.theta_cols.iter().position(|n| *n == names[k]).expect("a column per parameter");
+                    row.theta[c] = Some(est.theta[k]);
+                }
+                row.message = messages.join("; ");
+            }
+            Err(message) => row.message = message,
+        }
+        row
+    }
+
+    /// Appends `row` to `results.csv` (flushed) and reports progress; `false` once `max_rows`
+    /// rows are written (the run then stops).
+    fn write(&self, row: Row, progress: &(dyn Fn(&Progress) + Sync)) -> Result<bool> {
+        // A worker that panicked while holding the file propagates its panic through the pool;
+        // the file itself is append-only, so its guard is still usable.
+        let mut f = self.writer.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(max) = self.options.max_rows {
+            if self.written.load(Ordering::SeqCst) >= max {
+                self.stop.store(true, Ordering::SeqCst);
+                return Ok(false);
+            }
+        }
+        f.write_all(csv_line(&row.fields()).as_bytes()).map_err(io_error(self.results))?;
+        f.flush().map_err(io_error(self.results))?;
+        let n = self.written.fetch_add(1, Ordering::SeqCst) + 1;
+        progress(&Progress {
+            done: self.resumed + n,
+            total: self.total,
+            resumed: self.resumed,
+            elapsed: self.start.elapsed().as_secs_f64(),
+            row,
+        });
+        Ok(true)
+    }
+
+    /// One replicate of one scenario: simulate, run the missing estimators (the references of
+    /// `rmse-to` first: their rows wait until all references are known, so that they too get
+    /// their distances to each other; then the others, each row written as soon as its
+    /// estimator finishes), and the path plot of replicate 0.
+    fn unit(&self, si: usize, r: usize, progress: &(dyn Fn(&Progress) + Sync)) -> Result<()> {
+        if self.stop.load(Ordering::SeqCst) {
+            return Ok(());
+        }
+        let scenario = &self.scenarios[si];
+        let unit_seed = replicate_seed(self.seed, &scenario.name, r);
+        let (truth, data) = simulate_replicate(scenario, unit_seed)?;
+        let refs: Vec<&str> = scenario
+            .metrics
+            .iter()
+            .filter_map(|m| if let Metric::RmseTo(l) = m { Some(l.as_str()) } else { None })
+            .collect();
+        let mut order: Vec<usize> = (0..scenario.estimators.len()).collect();
+        order.sort_by_key(|&i| !refs.contains(&scenario.estimators[i].label.as_str()));
+        let n_refs = order.iter().filter(|&&i| refs.contains(&scenario.estimators[i].label.as_str())).count();
+        let mut estimates: Vec<(String, PathEstimate)> = Vec::new();
+        let mut pending: Vec<(usize, Outcome)> = Vec::new();
+        for (position, &i) in order.iter().enumerate() {
+            let e = &scenario.estimators[i];
+            let is_ref = position < n_refs;
+            if !is_ref && self.is_done(&scenario.name, r, &e.label) {
+                continue;
+            }
+            if self.stop.load(Ordering::SeqCst) {
+                return Ok(());
+            }
+            let outcome = self.estimate(e, &data, unit_seed);
+            if let Ok(est) = &outcome {
+                estimates.push((e.label.clone(), est.clone()));
+            }
+            pending.push((i, outcome));
+            if is_ref && position + 1 < n_refs {
+                continue;
+            }
+            for (i, outcome) in pending.drain(..) {
+                let e = &scenario.estimators[i];
+                if self.is_done(&scenario.name, r, &e.label) {
+                    continue;
+                }
+                let row = self.row(scenario, r, e, outcome, &truth, &estimates);
+                if !self.write(row, progress)? {
+                    return Ok(());
+                }
+            }
+        }
+        if r == 0 && self.options.plots {
+            let stem =
+                self.options.out.join("plots").join(format!("paths_{}", report::file_name(&scenario.name)));
+            report::path_plot(scenario, &truth, &data, &estimates, &stem)?;
+            self.plots.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push(stem);
+        }
+        Ok(())
+    }
+}
+
 /// Runs the experiment `spec` with `options`: every (scenario, replicate, estimator) row is
 /// appended to `out/results.csv` when its estimator finishes (flushed), `progress` is called
 /// after each row, and at the end `summary.json` and the plots are written.
@@ -314,55 +515,15 @@ pub fn run(
     let scenarios = experiment.scenarios(options.quick)?;
     let spec = scenarios[0].spec.clone();
     let replicates = spec.replicates;
-    let seed = spec.seed;
     let (metric_cols, theta_cols) = columns(&scenarios);
     let header = header(&metric_cols, &theta_cols);
-    let out = &options.out;
-    std::fs::create_dir_all(out).map_err(|source| Error::Io { path: out.clone(), source })?;
-    let results = out.join("results.csv");
-    let run_json = out.join("run.json");
-    let print = experiment.resume_key(options.quick);
-    let io = |path: &Path| {
-        let path = path.to_path_buf();
-        move |source| Error::Io { path: path.clone(), source }
-    };
-    let done_rows = if results.exists() {
-        if !options.resume {
-            return Err(Error::InvalidOption {
-                name: "--out".into(),
-                reason: format!(
-                    "{} exists; pass --resume to continue it, or choose another folder",
-                    results.display()
-                ),
-            });
-        }
-        let recorded = std::fs::read_to_string(&run_json).unwrap_or_default();
-        if recorded.trim() != print {
-            return Err(Error::InvalidOption {
-                name: "--resume".into(),
-                reason: format!(
-                    "{} was written by another spec, seed or --quick setting; use another output folder",
-                    out.display()
-                ),
-            });
-        }
-        read_done(&results, &header)?
-    } else {
-        Vec::new()
-    };
-    std::fs::write(&run_json, format!("{print}\n")).map_err(io(&run_json))?;
-    let mut file = OpenOptions::new().create(true).append(true).open(&results).map_err(io(&results))?;
-    if done_rows.is_empty() && file.metadata().map(|m| m.len()).unwrap_or(0) == 0 {
-        file.write_all(csv_line(&header).as_bytes()).map_err(io(&results))?;
-        file.flush().map_err(io(&results))?;
-    }
-    let is_done = |s: &str, r: usize, e: &str| {
-        done_rows.iter().any(|row| row.scenario == s && row.replicate == r && row.estimator == e)
-    };
+    let Output { results, file, done } =
+        open_output(&options.out, &header, &experiment.resume_key(options.quick), options.resume)?;
     // The work: (scenario, replicate) units with at least one missing row.
-    let mut units = Vec::new();
-    let mut total = 0;
-    let mut resumed = 0;
+    let (mut units, mut total, mut resumed) = (Vec::new(), 0, 0);
+    let is_done = |s: &str, r: usize, e: &str| {
+        done.iter().any(|row| row.scenario == s && row.replicate == r && row.estimator == e)
+    };
     for (si, s) in scenarios.iter().enumerate() {
         for r in 0..replicates {
             let missing = s.estimators.iter().filter(|e| !is_done(&s.name, r, &e.label)).count();
@@ -373,125 +534,21 @@ pub fn run(
             }
         }
     }
-    let start = Instant::now();
-    let writer = Mutex::new(file);
-    let written = AtomicUsize::new(0);
-    let stop = AtomicBool::new(false);
-    let plots_written = Mutex::new(Vec::new());
-    let work = |&(si, r): &(usize, usize)| -> Result<()> {
-        if stop.load(Ordering::SeqCst) {
-            return Ok(());
-        }
-        let scenario = &scenarios[si];
-        let unit_seed = replicate_seed(seed, &scenario.name, r);
-        let (truth, data) = simulate_replicate(scenario, unit_seed)?;
-        // References of `rmse-to` first, then the estimators in order.
-        let refs: Vec<&str> = scenario
-            .metrics
-            .iter()
-            .filter_map(|m| if let Metric::RmseTo(l) = m { Some(l.as_str()) } else { None })
-            .collect();
-        let mut order: Vec<usize> = (0..scenario.estimators.len()).collect();
-        order.sort_by_key(|&i| !refs.contains(&scenario.estimators[i].label.as_str()));
-        // Phase 1 runs the references (whose rows wait until all references are known, so that
-        // they too get their distances to each other); phase 2 the others, each row written as
-        // soon as its estimator finishes.
-        let mut estimates: Vec<(String, PathEstimate)> = Vec::new();
-        let mut pending: Vec<(usize, std::result::Result<PathEstimate, String>)> = Vec::new();
-        let n_refs = order.iter().filter(|&&i| refs.contains(&scenario.estimators[i].label.as_str())).count();
-        for (position, &i) in order.iter().enumerate() {
-            let e = &scenario.estimators[i];
-            let is_ref = position < n_refs;
-            if !is_ref && is_done(&scenario.name, r, &e.label) {
-                continue;
-            }
-            if stop.load(Ordering::SeqCst) {
-                return Ok(());
-            }
-            let mut method_options = e.options.clone();
-            method_options.seed = mix(unit_seed ^ mix(e.options.seed ^ fnv(&e.label)));
-            let problem = e.preset.problem(&data, &e.estimate);
-            let outcome = methods::run(e.method, &problem, &method_options)
-                .map(|run| run.estimate)
-                .map_err(|err| err.to_string());
-            if let Ok(est) = &outcome {
-                estimates.push((e.label.clone(), est.clone()));
-            }
-            pending.push((i, outcome));
-            if is_ref && position + 1 < n_refs {
-                continue;
-            }
-            for (i, outcome) in pending.drain(..) {
-                let e = &scenario.estimators[i];
-                if is_done(&scenario.name, r, &e.label) {
-                    continue;
-                }
-                let names = e.preset.param_names();
-                let mut row = Row {
-                    scenario: scenario.name.clone(),
-                    replicate: r,
-                    estimator: e.label.clone(),
-                    method: e.method.name().to_string(),
-                    status: "error".into(),
-                    iterations: 0,
-                    solve_seconds: 0.0,
-                    metrics: vec![f64::NAN; metric_cols.len()],
-                    theta: vec![None; theta_cols.len()],
-                    message: String::new(),
-                };
-                match outcome {
-                    Ok(est) => {
-                        let mut messages = Vec::new();
-                        row.status = est.status.name().to_string();
-                        row.iterations = est.iterations;
-                        row.solve_seconds = est.solve_seconds;
-                        row.metrics = metric_values(
-                            scenario,
-                            &metric_cols,
-                            &est.path,
-                            &truth,
-                            &estimates,
-                            &mut messages,
-                        );
-                        for &k in &e.estimate {
-                            let c = theta_cols
-                                .iter()
-                                .position(|n| *n == names[k])
-                                .expect("a column per parameter");
-                            row.theta[c] = Some(est.theta[k]);
-                        }
-                        row.message = messages.join("; ");
-                    }
-                    Err(message) => row.message = message,
-                }
-                let mut f = writer.lock().map_err(|_| Error::InvalidOption {
-                    name: "results".into(),
-                    reason: "a worker panicked while writing".into(),
-                })?;
-                if let Some(max) = options.max_rows {
-                    if written.load(Ordering::SeqCst) >= max {
-                        stop.store(true, Ordering::SeqCst);
-                        return Ok(());
-                    }
-                }
-                f.write_all(csv_line(&row.fields()).as_bytes()).map_err(io(&results))?;
-                f.flush().map_err(io(&results))?;
-                let n = written.fetch_add(1, Ordering::SeqCst) + 1;
-                progress(&Progress {
-                    done: resumed + n,
-                    total,
-                    resumed,
-                    elapsed: start.elapsed().as_secs_f64(),
-                    row,
-                });
-            }
-        }
-        if r == 0 && options.plots {
-            let stem = out.join("plots").join(format!("paths_{}", report::file_name(&scenario.name)));
-            report::path_plot(scenario, &truth, &data, &estimates, &stem)?;
-            plots_written.lock().map(|mut v| v.push(stem)).ok();
-        }
-        Ok(())
+    let shared = Shared {
+        scenarios: &scenarios,
+        seed: spec.seed,
+        metric_cols: &metric_cols,
+        theta_cols: &theta_cols,
+        done: &done,
+        options,
+        results: &results,
+        writer: Mutex::new(file),
+        written: AtomicUsize::new(0),
+        stop: AtomicBool::new(false),
+        plots: Mutex::new(Vec::new()),
+        start: Instant::now(),
+        total,
+        resumed,
     };
     let pool = rayon::ThreadPoolBuilder::new().num_threads(options.jobs).build().map_err(|e| {
         Error::InvalidOption {
@@ -499,23 +556,23 @@ pub fn run(
             reason: format!("cannot start the worker threads: {e}"),
         }
     })?;
-    pool.install(|| units.par_iter().try_for_each(work))?;
-    let written = written.into_inner();
-    let mut plots = plots_written.into_inner().unwrap_or_default();
+    pool.install(|| units.par_iter().try_for_each(|&(si, r)| shared.unit(si, r, progress)))?;
+    let written = shared.written.into_inner();
+    let mut plots = shared.plots.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner);
     let complete = resumed + written == total;
     let mut summary = None;
     if complete {
-        let text = std::fs::read_to_string(&results).map_err(io(&results))?;
+        let text = std::fs::read_to_string(&results).map_err(io_error(&results))?;
         let mut table = report::parse_results(&text, &results)?;
         // A resumed run may ask for fewer replicates than were computed: summarise its own.
         table.rows.retain(|r| r.replicate < replicates && scenarios.iter().any(|s| s.name == r.scenario));
-        let path = out.join("summary.json");
+        let path = options.out.join("summary.json");
         let json = report::summary(&spec, &scenarios, &table, options.quick);
         let pretty = serde_json::to_string_pretty(&json).expect("a JSON value serialises");
-        std::fs::write(&path, pretty + "\n").map_err(io(&path))?;
+        std::fs::write(&path, pretty + "\n").map_err(io_error(&path))?;
         summary = Some(path);
         if options.plots {
-            plots.extend(report::summary_plots(&scenarios, &table, &out.join("plots"))?);
+            plots.extend(report::summary_plots(&scenarios, &table, &options.out.join("plots"))?);
         }
     }
     plots.sort();

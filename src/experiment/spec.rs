@@ -20,7 +20,8 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
-use crate::methods::{Method, MethodOptions};
+use crate::estimator::{Estimator, Method};
+pub use crate::metrics::Metric;
 use crate::model::library::{self, Preset};
 use crate::model::observation::Noise;
 use crate::model::prior::Prior;
@@ -124,7 +125,9 @@ pub struct MeasurementSpec {
     pub x0_prior: BTreeMap<String, String>,
 }
 
-/// One estimator of an experiment.
+/// One estimator of an experiment: an [`Estimator`] as written (`method` and `options`, the
+/// option names of the method's options type), with its label, the parameters it estimates and
+/// its likelihood.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct EstimatorSpec {
@@ -138,9 +141,9 @@ pub struct EstimatorSpec {
     /// Likelihood of this estimator (default: `measurements.estimate`), e.g. a Gaussian one for
     /// the Kalman methods when the others use a Student-t likelihood.
     pub likelihood: Option<String>,
-    /// The method's options.
+    /// The method's options (see [`Estimator`]).
     #[serde(default)]
-    pub options: MethodOptions,
+    pub options: toml::Table,
 }
 
 impl EstimatorSpec {
@@ -148,69 +151,36 @@ impl EstimatorSpec {
     pub fn label(&self) -> String {
         self.label.clone().unwrap_or_else(|| self.method.name().to_string())
     }
-}
 
-/// A metric recorded for every (replicate, estimator) row.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Metric {
-    /// Normalised integrated square error to the truth over all states,
-    /// `000_74b95e149527c64e.txt (4.1)` (column `ise`).
-    Ise,
-    /// Root-mean-square error to the truth over the estimate's times, all states (`rmse`).
-    Rmse,
-    /// Root-mean-square error to the estimate of another estimator of the same replicate, over
-    /// this estimate's times (`rmse_to_LABEL`).
-    RmseTo(String),
-    /// Fraction of the truth's times at which the estimate of `state` is on the true side of 0
-    /// (the true well of a symmetric double well) (`well_side`).
-    WellSide(Option<String>),
-}
-
-impl Metric {
-    /// Parses `ise`, `rmse`, `rmse-to:LABEL` or `well-side[:STATE]`.
-    pub fn parse(s: &str) -> Result<Metric> {
-        let s = s.trim();
-        match s.split_once(':') {
-            None if s == "ise" => Ok(Metric::Ise),
-            None if s == "rmse" => Ok(Metric::Rmse),
-            None if s == "well-side" => Ok(Metric::WellSide(None)),
-            Some(("rmse-to", label)) if !label.trim().is_empty() => Ok(Metric::RmseTo(label.trim().into())),
-            Some(("well-side", state)) if !state.trim().is_empty() => {
-                Ok(Metric::WellSide(Some(state.trim().into())))
-            }
-            _ => Err(invalid(
-                "metrics",
-                format!("unknown metric `{s}` (known: ise, rmse, rmse-to:LABEL, well-side, well-side:STATE)"),
-            )),
-        }
-    }
-
-    /// The metric's column in `results.csv`.
-    pub fn column(&self) -> String {
-        match self {
-            Metric::Ise => "ise".into(),
-            Metric::Rmse => "rmse".into(),
-            Metric::RmseTo(label) => format!("rmse_to_{label}"),
-            Metric::WellSide(None) => "well_side".into(),
-            Metric::WellSide(Some(s)) => format!("well_side_{s}"),
-        }
+    /// The estimator with its options. Errors: [`Error::InvalidOption`] named
+    /// `estimators.LABEL.options.NAME` for an option the method does not have or a bad value.
+    pub fn estimator(&self) -> Result<Estimator> {
+        let options = match serde_json::to_value(&self.options) {
+            Ok(serde_json::Value::Object(map)) => map,
+            _ => serde_json::Map::new(),
+        };
+        Estimator::from_options(self.method, &options).map_err(|e| match e {
+            Error::EstimatorOption { method, option, reason } => invalid(
+                format!("estimators.{}.options.{option}", self.label()),
+                format!("{reason} (`{method}`)"),
+            ),
+            other => other,
+        })
     }
 }
 
 /// One estimator of a scenario, resolved against the model.
 #[derive(Debug, Clone)]
-pub struct Estimator {
+pub struct ScenarioEstimator {
     /// Label in the results.
     pub label: String,
-    /// The method.
-    pub method: Method,
+    /// The estimator with its options.
+    pub estimator: Estimator,
     /// The preset the estimator sees: the scenario's model with the estimator's likelihood and
     /// the estimators' initial-state prior.
     pub preset: Preset,
     /// Indices of the estimated parameters.
     pub estimate: Vec<usize>,
-    /// The method's options.
-    pub options: MethodOptions,
 }
 
 /// One point of the grid, resolved: everything a replicate needs.
@@ -231,7 +201,7 @@ pub struct Scenario {
     /// Measurement times.
     pub times: Vec<f64>,
     /// The estimators.
-    pub estimators: Vec<Estimator>,
+    pub estimators: Vec<ScenarioEstimator>,
     /// The metrics.
     pub metrics: Vec<Metric>,
 }
@@ -424,7 +394,6 @@ fn blame_section(section: &str, value: &toml::Value) -> Option<(String, String)>
         "model" => blame::<ModelSpec>(t),
         "simulation" => blame::<SimulationSpec>(t),
         "measurements" => blame::<MeasurementSpec>(t),
-        "options" => blame::<MethodOptions>(t),
         _ => blame::<EstimatorSpec>(t),
     }
 }
@@ -447,11 +416,6 @@ fn deserialize(table: &toml::Table) -> Result<ExperimentSpec> {
                     .find_map(|k| t.get(*k).and_then(|v| v.as_str()).map(String::from))
                     .unwrap_or_else(|| i.to_string());
                 if let Some((k, m)) = blame_section("estimator", item) {
-                    if k == "options" {
-                        if let Some((o, m)) = blame_section("options", &t["options"]) {
-                            return Some((format!("estimators.{label}.options.{o}"), m));
-                        }
-                    }
                     return Some((format!("estimators.{label}.{k}"), m));
                 }
                 de::<EstimatorSpec>(t).err().map(|m| (format!("estimators.{label}"), m))
@@ -630,7 +594,7 @@ impl Scenario {
         if spec.estimators.is_empty() {
             return Err(invalid("estimators", "at least one estimator is required"));
         }
-        let mut estimators: Vec<Estimator> = Vec::new();
+        let mut estimators: Vec<ScenarioEstimator> = Vec::new();
         for e in &spec.estimators {
             let label = e.label();
             let key = format!("estimators.{label}");
@@ -666,13 +630,7 @@ impl Scenario {
                     format!("`{}` takes the parameters as given", e.method),
                 ));
             }
-            estimators.push(Estimator {
-                label,
-                method: e.method,
-                preset: ep,
-                estimate,
-                options: e.options.clone(),
-            });
+            estimators.push(ScenarioEstimator { label, estimator: e.estimator()?, preset: ep, estimate });
         }
         let mut metrics = Vec::new();
         for s in &spec.metrics {
@@ -681,7 +639,7 @@ impl Scenario {
                 Metric::RmseTo(label) if !estimators.iter().any(|e| &e.label == label) => {
                     return Err(invalid("metrics", format!("`{s}`: no estimator is labelled `{label}`")));
                 }
-                Metric::WellSide(Some(state)) if !p.model.state_names().contains(state) => {
+                Metric::WellSide { state: Some(state), .. } if !p.model.state_names().contains(state) => {
                     return Err(invalid("metrics", format!("`{s}`: unknown state `{state}`")));
                 }
                 _ => {}

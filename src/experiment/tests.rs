@@ -118,14 +118,14 @@ sd = [0.1, 0.3]
     assert_eq!(s[0].name, "estimators.jme.options.step=0.1,sd=0.1");
     assert_eq!(s[1].name, "estimators.jme.options.step=0.1,sd=0.3");
     assert_eq!(s[5].name, "estimators.jme.options.step=0.025,sd=0.3");
-    assert_eq!(s[5].estimators[1].options.step, Some(0.025));
+    assert_eq!(step_of(&s[5].estimators[1]), Some(0.025));
     assert_eq!(s[5].truth.observation.noise.gaussian_sd(&s[5].truth.theta), Some(0.3));
     // The estimators use the generating likelihood unless told otherwise.
     assert_eq!(s[1].estimators[0].preset.observation.noise.gaussian_sd(&[0.5]), Some(0.3));
     // A whole-string variable keeps the value's type.
     let typed = spec("", "[grid]\nh = [0.2]").replace("step = 0.1", "step = \"{h}\"");
     let s = Experiment::from_toml(&typed).unwrap().scenarios(false).unwrap();
-    assert_eq!(s[0].estimators[1].options.step, Some(0.2));
+    assert_eq!(step_of(&s[0].estimators[1]), Some(0.2));
 }
 
 #[test]
@@ -139,7 +139,7 @@ fn quick_overrides_apply_only_when_asked() {
     let quick = &e.scenarios(true).unwrap()[0];
     assert_eq!((full.spec.replicates, full.truth.t_end), (2, 2.0));
     assert_eq!((quick.spec.replicates, quick.truth.t_end), (1, 1.0));
-    assert_eq!(quick.estimators[1].options.step, Some(0.25));
+    assert_eq!(step_of(&quick.estimators[1]), Some(0.25));
     assert_eq!(quick.times, vec![0.0, 0.5, 1.0]);
     let e = e.with_replicates(7).with_seed(u64::MAX);
     let s = &e.scenarios(true).unwrap()[0];
@@ -183,4 +183,12 @@ fn results_parse_back_with_quoted_names_empty_and_nan_cells() {
     let short =
         "scenario,replicate,estimator,method,status,iterations,solve_seconds,message\ndefault,0,uks\n";
     assert!(matches!(parse_results(short, Path::new("r.csv")), Err(Error::Data { line: 2, .. })));
+}
+
+/// The transcription step of a MAP estimator of a scenario.
+fn step_of(e: &super::ScenarioEstimator) -> Option<f64> {
+    match &e.estimator {
+        crate::Estimator::Jme(o) | crate::Estimator::Mee(o) => o.step,
+        other => panic!("not a MAP estimator: {other:?}"),
+    }
 }

@@ -54,15 +54,16 @@ mod tests;
 use std::time::Instant;
 
 use nalgebra::DMatrix;
-use serde_json::{json, Map};
+use serde::{Deserialize, Serialize};
 
 use crate::data::StatePath;
-use crate::estimate::{EstimationProblem, PathEstimate, Status};
+use crate::estimate::{Details, EstimationProblem, Method, PathEstimate, Status};
+use crate::estimator::EstimatorOptions;
 use crate::model::observation::StateMeasurement;
 use crate::model::Sde;
 use crate::{Error, Result};
 
-pub use pem::{pem, PemOptions};
+pub use pem::{pem, PemDetails, PemOptions};
 
 pub(crate) use filter::build_nodes;
 
@@ -87,7 +88,8 @@ impl Gaussian {
 /// 1/(2(n + λ)) (the others) (Julier & Uhlmann 2004; Särkkä 2008, eq. (5)). The covariance
 /// weight β of the centre point does not enter the moment ODEs (the centre has zero deviation)
 /// and is therefore not a parameter.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct UnscentedParams {
     /// Spread α > 0. Default 1.
     pub alpha: f64,
@@ -127,8 +129,10 @@ impl UnscentedParams {
     }
 }
 
-/// Options of the Kalman filters and smoothers.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+/// Options of the Kalman filters and smoothers (the options of `ukf` and `uks`; `ekf` and `eks`
+/// take [`ExtendedOptions`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default)]
 #[non_exhaustive]
 pub struct KalmanOptions {
     /// Largest Runge–Kutta step of the moment ODEs; each interval between consecutive times
@@ -136,8 +140,96 @@ pub struct KalmanOptions {
     /// the initial time and the measurement times (the lower median, so that a few nearly
     /// coincident times do not force a tiny step everywhere), and at most 0.01.
     pub dt: Option<f64>,
-    /// Sigma points of the unscented methods.
+    /// Sigma points of the unscented methods (written as the options `alpha` and `kappa`).
+    #[serde(flatten)]
     pub unscented: UnscentedParams,
+}
+
+/// Checks an optional integration step: positive and finite.
+fn check_dt(dt: Option<f64>) -> Result<()> {
+    match dt {
+        Some(dt) if !(dt.is_finite() && dt > 0.0) => Err(Error::InvalidOption {
+            name: "dt".into(),
+            reason: format!("must be positive and finite, got {dt}"),
+        }),
+        _ => Ok(()),
+    }
+}
+
+impl EstimatorOptions for KalmanOptions {
+    /// Checks `dt` (positive, finite) and α (positive, finite), κ (finite); α²(n + κ) > 0 is
+    /// checked against the model's dimension when the filter runs.
+    fn validate(&self) -> Result<()> {
+        check_dt(self.dt)?;
+        let u = self.unscented;
+        if !(u.alpha.is_finite() && u.alpha > 0.0) {
+            return Err(Error::InvalidOption {
+                name: "alpha".into(),
+                reason: format!("must be positive and finite, got {}", u.alpha),
+            });
+        }
+        if !u.kappa.is_finite() {
+            return Err(Error::InvalidOption {
+                name: "kappa".into(),
+                reason: format!("must be finite, got {}", u.kappa),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Options of the extended Kalman filter and smoother (`ekf`, `eks`).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default)]
+#[non_exhaustive]
+pub struct ExtendedOptions {
+    /// Largest Runge–Kutta step of the moment ODEs (see [`KalmanOptions::dt`]). Default: a
+    /// tenth of the median interval between the measurement times, at most 0.01.
+    pub dt: Option<f64>,
+}
+
+impl ExtendedOptions {
+    /// The filter options.
+    pub fn kalman(&self) -> KalmanOptions {
+        KalmanOptions { dt: self.dt, unscented: UnscentedParams::default() }
+    }
+}
+
+impl EstimatorOptions for ExtendedOptions {
+    /// Checks `dt` (positive, finite).
+    fn validate(&self) -> Result<()> {
+        check_dt(self.dt)
+    }
+}
+
+/// Why a smoother ends `numerical-failure` after its filter succeeded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum SmootherFailure {
+    /// A predicted covariance of the filter is singular, so the RTS gain does not exist.
+    #[serde(rename = "a predicted covariance is singular")]
+    SingularPrediction,
+    /// The UKS at the PEM's estimate failed.
+    #[serde(rename = "the UKS failed at the estimate")]
+    FailedAtEstimate,
+}
+
+/// The details of a Kalman estimate's report.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct KalmanDetails {
+    /// The filter's log-likelihood of the data (NaN when it failed).
+    pub log_likelihood: f64,
+    /// The integration step.
+    pub dt: f64,
+    /// The initial time.
+    pub t0: f64,
+    /// Points of the integration grid.
+    pub grid_points: usize,
+    /// The time at which the filter failed, if it did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub failed_at: Option<f64>,
+    /// Why the smoother failed, if it did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub smoother: Option<SmootherFailure>,
 }
 
 impl KalmanOptions {
@@ -193,11 +285,16 @@ pub enum KalmanMethod {
 impl KalmanMethod {
     /// The method's name as on the command line.
     pub fn name(self) -> &'static str {
+        self.method().name()
+    }
+
+    /// The estimator's method.
+    pub fn method(self) -> Method {
         match self {
-            KalmanMethod::Ekf => "ekf",
-            KalmanMethod::Eks => "eks",
-            KalmanMethod::Ukf => "ukf",
-            KalmanMethod::Uks => "uks",
+            KalmanMethod::Ekf => Method::Ekf,
+            KalmanMethod::Eks => Method::Eks,
+            KalmanMethod::Ukf => Method::Ukf,
+            KalmanMethod::Uks => Method::Uks,
         }
     }
 
@@ -400,7 +497,7 @@ pub fn estimate<S: Sde + ?Sized>(
             Some(s) => s,
             None => {
                 status = Status::NumericalFailure;
-                details.insert("smoother".into(), json!("a predicted covariance is singular"));
+                details.smoother = Some(SmootherFailure::SingularPrediction);
                 run.filtered.clone()
             }
         }
@@ -408,7 +505,7 @@ pub fn estimate<S: Sde + ?Sized>(
         run.filtered.clone()
     };
     Ok(PathEstimate {
-        method: method.name().into(),
+        method: method.method(),
         path: path_of(problem.sde.state_names(), &run.times, &moments),
         theta_names: problem.sde.param_names(),
         theta: problem.theta.to_vec(),
@@ -417,18 +514,17 @@ pub fn estimate<S: Sde + ?Sized>(
         status,
         iterations: 0,
         solve_seconds: start.elapsed().as_secs_f64(),
-        details,
+        details: Details::new(details),
     })
 }
 
-fn run_details(run: &KalmanRun, t0: f64) -> Map<String, serde_json::Value> {
-    let mut d = Map::new();
-    d.insert("log_likelihood".into(), json!(run.log_likelihood));
-    d.insert("dt".into(), json!(run.dt));
-    d.insert("t0".into(), json!(t0));
-    d.insert("grid_points".into(), json!(run.times.len()));
-    if let Some(t) = run.failed_at {
-        d.insert("failed_at".into(), json!(t));
+fn run_details(run: &KalmanRun, t0: f64) -> KalmanDetails {
+    KalmanDetails {
+        log_likelihood: run.log_likelihood,
+        dt: run.dt,
+        t0,
+        grid_points: run.times.len(),
+        failed_at: run.failed_at,
+        smoother: None,
     }
-    d
 }

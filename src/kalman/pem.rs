@@ -24,21 +24,25 @@ use std::time::Instant;
 
 use nalgebra::DMatrix;
 use num_dual::Dual64;
-use serde_json::json;
 
 use super::filter::{self, Rule, Setup};
-use super::{path_of, run_details, KalmanOptions, KalmanRun};
-use crate::estimate::{EstimationProblem, PathEstimate, Status};
+use serde::{Deserialize, Serialize};
+
+use super::{path_of, run_details, KalmanDetails, KalmanOptions, KalmanRun, SmootherFailure};
+use crate::estimate::{Details, EstimationProblem, Method, PathEstimate, Status};
+use crate::estimator::EstimatorOptions;
 use crate::model::observation::{Noise, StateMeasurement};
 use crate::model::prior::{Prior, PriorDensity};
 use crate::model::{Param, Scalar, Sde};
 use crate::{Error, Result};
 
-/// Options of [`pem()`].
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// Options of [`pem()`] (`pem`: the options `dt`, `alpha`, `kappa` of the UKF and those below).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 #[non_exhaustive]
 pub struct PemOptions {
     /// Options of the UKF inside the objective and of the final UKS.
+    #[serde(flatten)]
     pub kalman: KalmanOptions,
     /// Largest number of BFGS iterations. Default 200.
     pub max_iterations: usize,
@@ -72,8 +76,19 @@ impl PemOptions {
         self.max_iterations = max_iterations;
         self
     }
+}
 
+impl EstimatorOptions for PemOptions {
+    /// Checks the UKF's options, a positive finite `gradient_tolerance` and at least one
+    /// iteration.
     fn validate(&self) -> Result<()> {
+        self.kalman.validate()?;
+        if self.max_iterations == 0 {
+            return Err(Error::InvalidOption {
+                name: "max_iterations".into(),
+                reason: "must be at least 1, got 0".into(),
+            });
+        }
         if !(self.gradient_tolerance > 0.0 && self.gradient_tolerance.is_finite()) {
             return Err(Error::InvalidOption {
                 name: "gradient_tolerance".into(),
@@ -431,21 +446,24 @@ pub fn pem<S: Sde + ?Sized>(
     let approximation = super::Approximation::Unscented(options.kalman.unscented);
     let run: KalmanRun = super::filter_named(problem, &theta, approximation, &options.kalman, "pem")?;
     let mut status = min.status;
-    let mut details = run_details(&run, problem.t0);
+    let mut run_details = run_details(&run, problem.t0);
     let moments = match run.smooth() {
         Some(s) => s,
         None => {
             status = Status::NumericalFailure;
-            details.insert("smoother".into(), json!("the UKS failed at the estimate"));
+            run_details.smoother = Some(SmootherFailure::FailedAtEstimate);
             run.filtered.clone()
         }
     };
-    details.insert("log_posterior".into(), json!(-min.value));
-    details.insert("gradient_norm".into(), json!(min.gradient.iter().fold(0.0f64, |a, &b| a.max(b.abs()))));
-    details.insert("filter_evaluations".into(), json!(min.evaluations));
-    details.insert("theta_start".into(), json!(problem.theta));
+    let details = PemDetails {
+        run: run_details,
+        log_posterior: -min.value,
+        gradient_norm: min.gradient.iter().fold(0.0f64, |a, &b| a.max(b.abs())),
+        filter_evaluations: min.evaluations,
+        theta_start: problem.theta.to_vec(),
+    };
     Ok(PathEstimate {
-        method: "pem".into(),
+        method: Method::Pem,
         path: path_of(problem.sde.state_names(), &run.times, &moments),
         theta_names: names,
         theta,
@@ -454,8 +472,24 @@ pub fn pem<S: Sde + ?Sized>(
         status,
         iterations: min.iterations,
         solve_seconds: start.elapsed().as_secs_f64(),
-        details,
+        details: Details::new(details),
     })
+}
+
+/// The details of a PEM estimate's report: those of the UKS at θ̂ and of the optimisation.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PemDetails {
+    /// The UKS at θ̂.
+    #[serde(flatten)]
+    pub run: KalmanDetails,
+    /// The log-posterior at θ̂.
+    pub log_posterior: f64,
+    /// max |∂ℓ/∂u| at the end, in the optimisation coordinates.
+    pub gradient_norm: f64,
+    /// Filter runs of the optimisation.
+    pub filter_evaluations: usize,
+    /// θ at the start.
+    pub theta_start: Vec<f64>,
 }
 
 #[cfg(test)]

@@ -175,7 +175,7 @@ fn non_gaussian_likelihood_and_prior_are_errors() {
 fn estimate_reports_the_path_on_the_grid_with_sd() {
     let case = oscillator_case();
     let est = estimate(&problem(&case), KalmanMethod::Uks, &KalmanOptions::default().with_dt(0.05)).unwrap();
-    assert_eq!(est.method, "uks");
+    assert_eq!(est.method, crate::Method::Uks);
     assert_eq!(est.status, Status::Converged);
     // t0 = 0 is the first measurement time; 20 intervals of 0.2 with 4 steps each.
     assert_eq!(est.path.times.len(), 81);

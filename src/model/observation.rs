@@ -73,6 +73,18 @@ pub trait Observation {
         rng: &mut R,
         y: &mut [f64],
     );
+
+    /// The state (index into s = [x; z]) that output `output` measures directly, if it does.
+    /// Default: none.
+    fn measured_state(&self, _output: usize) -> Option<usize> {
+        None
+    }
+
+    /// The standard deviation of the measurement errors at θ when they are Gaussian with one
+    /// sd for every output. Default: none.
+    fn gaussian_error_sd(&self, _theta: &[f64]) -> Option<f64> {
+        None
+    }
 }
 
 /// A scalar quantity of a likelihood or prior: a fixed number or a component of θ.
@@ -574,6 +586,14 @@ impl StateMeasurement {
 impl Observation for StateMeasurement {
     fn output_names(&self) -> Vec<String> {
         self.names.clone()
+    }
+
+    fn measured_state(&self, output: usize) -> Option<usize> {
+        self.states.get(output).copied()
+    }
+
+    fn gaussian_error_sd(&self, theta: &[f64]) -> Option<f64> {
+        self.noise.gaussian_sd(theta)
     }
 
     fn output_dim(&self) -> usize {

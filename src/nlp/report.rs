@@ -6,7 +6,7 @@ use std::time::Duration;
 pub use crate::status::Status;
 
 /// Number of calls of each problem function.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct EvaluationCounts {
     /// Objective evaluations.
     pub objective: usize,

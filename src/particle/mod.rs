@@ -42,16 +42,19 @@ use std::time::Instant;
 
 use rand::{Rng, RngExt};
 use rand_distr::{Distribution, StandardNormal};
-use serde_json::{json, Map};
+use serde::{Deserialize, Serialize};
 
 use crate::data::StatePath;
-use crate::estimate::{EstimationProblem, PathEstimate, Status};
+use crate::estimate::{Details, EstimationProblem, Method, PathEstimate, Status};
+use crate::estimator::EstimatorOptions;
 use crate::kalman::build_nodes;
 use crate::model::{Observation, Sde};
 use crate::{Error, Result};
 
-/// Options of the particle smoother.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// Options of the particle smoother (`particle`). Its random numbers come from the problem's
+/// seed.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 #[non_exhaustive]
 pub struct ParticleOptions {
     /// Number of particles N ≥ 2. Default 1000.
@@ -91,7 +94,10 @@ impl ParticleOptions {
         self.dt = Some(dt);
         self
     }
+}
 
+impl EstimatorOptions for ParticleOptions {
+    /// Checks N ≥ 2, M ≥ 1, the ESS threshold in [0, 1] and a positive finite `dt`.
     fn validate(&self) -> Result<()> {
         let bad = |name: &str, reason: String| Err(Error::InvalidOption { name: name.into(), reason });
         if self.particles < 2 {
@@ -113,12 +119,36 @@ impl ParticleOptions {
 }
 
 /// Which smoother produced the backward paths.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub enum Smoother {
     /// Forward-filtering backward-simulation (models without clean states).
+    #[serde(rename = "ffbsi")]
     Ffbsi,
     /// Ancestral paths of the filter (models with clean states).
+    #[serde(rename = "ancestral-paths")]
     Ancestral,
+}
+
+/// The details of a particle estimate's report.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ParticleDetails {
+    /// The filter's estimate of ln p(y | θ).
+    pub log_likelihood: f64,
+    /// N.
+    pub particles: usize,
+    /// M, the backward paths.
+    pub backward_paths: usize,
+    /// Resampling steps.
+    pub resamplings: usize,
+    /// The smallest effective sample size.
+    pub min_ess: f64,
+    /// The smoother.
+    pub smoother: Smoother,
+    /// The substep.
+    pub dt: f64,
+    /// The time at which every particle's weight vanished, if it happened.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub failed_at: Option<f64>,
 }
 
 impl Smoother {
@@ -447,19 +477,18 @@ where
     let start = Instant::now();
     let out = smooth(problem, options, rng)?;
     let (mean, sd) = out.mean_and_sd();
-    let mut details = Map::new();
-    details.insert("log_likelihood".into(), json!(out.log_likelihood));
-    details.insert("particles".into(), json!(options.particles));
-    details.insert("backward_paths".into(), json!(out.paths.len()));
-    details.insert("resamplings".into(), json!(out.resamplings));
-    details.insert("min_ess".into(), json!(out.ess.iter().copied().fold(f64::INFINITY, f64::min)));
-    details.insert("smoother".into(), json!(out.smoother.name()));
-    details.insert("dt".into(), json!(out.dt));
-    if let Some(t) = out.failed_at {
-        details.insert("failed_at".into(), json!(t));
-    }
+    let details = ParticleDetails {
+        log_likelihood: out.log_likelihood,
+        particles: options.particles,
+        backward_paths: out.paths.len(),
+        resamplings: out.resamplings,
+        min_ess: out.ess.iter().copied().fold(f64::INFINITY, f64::min),
+        smoother: out.smoother,
+        dt: out.dt,
+        failed_at: out.failed_at,
+    };
     Ok(PathEstimate {
-        method: "particle".into(),
+        method: Method::Particle,
         path: StatePath {
             names: problem.sde.state_names(),
             times: out.times.clone(),
@@ -473,6 +502,6 @@ where
         status: out.status,
         iterations: 0,
         solve_seconds: start.elapsed().as_secs_f64(),
-        details,
+        details: Details::new(details),
     })
 }

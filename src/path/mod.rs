@@ -40,6 +40,7 @@
 
 mod guess;
 mod laplace;
+mod map;
 mod transcription;
 
 #[cfg(test)]
@@ -47,15 +48,16 @@ mod tests;
 
 use std::time::Instant;
 
-use serde_json::{json, Map};
+use serde::{Deserialize, Serialize};
 
 use crate::data::{Dataset, StatePath};
-use crate::estimate::{EstimationProblem, PathEstimate};
+use crate::estimate::{Details, EstimationProblem, Method, PathEstimate, Status};
 use crate::model::{Observation, Sde};
 use crate::nlp::{self, NlpOptions, NlpProblem, NlpReport};
 use crate::{Error, Result};
 
 pub use guess::{derivative_states, regression_theta_guess, spline_guess, ThetaGuess, ThetaSource};
+pub use map::{map_estimate, MapOptions};
 pub use transcription::{MeritParts, PathNlp};
 
 /// Which continuous-time merit the path maximises.
@@ -70,15 +72,22 @@ pub enum Merit {
 impl Merit {
     /// The method's command-line name: `jme` or `mee`.
     pub fn method_name(self) -> &'static str {
+        self.method().name()
+    }
+
+    /// The estimator's method: `jme` or `mee`.
+    pub fn method(self) -> Method {
         match self {
-            Merit::OnsagerMachlup => "jme",
-            Merit::Energy => "mee",
+            Merit::OnsagerMachlup => Method::Jme,
+            Merit::Energy => Method::Mee,
         }
     }
 }
 
-/// The transcription of the path into a finite-dimensional program.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// The transcription of the path into a finite-dimensional program (written `hermite-simpson`,
+/// `trapezoidal` or `euler`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Transcription {
     /// The Euler-discretized MAP (`001_8aefdf0570c96f51.txt (19)`); the [`Merit`] is ignored
     /// (the scheme has no divergence term and converges to the energy merit).
@@ -86,7 +95,8 @@ pub enum Transcription {
     /// The trapezoidal-discretized MAP (`001_8aefdf0570c96f51.txt (22)`); the [`Merit`] is
     /// ignored (the scheme's volume term converges to the Onsager–Machlup divergence).
     Trapezoidal,
-    /// Hermite–Simpson collocation of the chosen continuous merit.
+    /// Hermite–Simpson collocation of the chosen continuous merit (the default).
+    #[default]
     HermiteSimpson,
 }
 
@@ -451,42 +461,33 @@ pub fn estimate_path_with<S: Sde + ?Sized, O: Observation + ?Sized, K: nlp::KktS
     let grid = nlp_problem.grid().clone();
     let theta = nlp_problem.theta(w);
     let report = solution.report;
-    let method = match options.transcription {
-        Transcription::HermiteSimpson => options.merit.method_name().to_string(),
-        t => format!("{}-{}", options.merit.method_name(), t.name()),
+    let details = PathDetails {
+        transcription: options.transcription,
+        step: grid.step,
+        t0: grid.t0,
+        merit: parts.total(),
+        log_likelihood: parts.log_likelihood,
+        log_prior: parts.log_prior,
+        minus_half_int_energy: parts.energy,
+        minus_half_int_div: parts.divergence,
+        nlp_status: report.status,
+        nlp_iterations: report.iterations,
+        primal_infeasibility: report.primal_infeasibility,
+        dual_infeasibility: report.dual_infeasibility,
+        unknowns: w.len(),
+        evaluation_seconds: report.times.evaluation.as_secs_f64(),
+        factorization_seconds: report.times.factorization.as_secs_f64(),
+        kkt_solve_seconds: report.times.solve.as_secs_f64(),
+        numeric_factorizations: report.numeric_factorizations,
+        inertia_correction_factorizations: report.inertia_correction_factorizations,
+        other_factorizations: report.other_factorizations,
+        evaluations: report.evaluations,
+        linear_solver: report.linear_solver,
+        kkt_nnz: report.kkt_nnz,
+        factor_nnz: report.factor_nnz,
     };
-    let mut details = Map::new();
-    details.insert("transcription".into(), json!(options.transcription.name()));
-    details.insert("step".into(), json!(grid.step));
-    details.insert("t0".into(), json!(grid.t0));
-    details.insert("merit".into(), json!(parts.total()));
-    details.insert("log_likelihood".into(), json!(parts.log_likelihood));
-    details.insert("log_prior".into(), json!(parts.log_prior));
-    details.insert("minus_half_int_energy".into(), json!(parts.energy));
-    details.insert("minus_half_int_div".into(), json!(parts.divergence));
-    details.insert("nlp_status".into(), json!(report.status.name()));
-    details.insert("nlp_iterations".into(), json!(report.iterations));
-    details.insert("primal_infeasibility".into(), json!(report.primal_infeasibility));
-    details.insert("dual_infeasibility".into(), json!(report.dual_infeasibility));
-    details.insert("unknowns".into(), json!(w.len()));
-    details.insert("evaluation_seconds".into(), json!(report.times.evaluation.as_secs_f64()));
-    details.insert("factorization_seconds".into(), json!(report.times.factorization.as_secs_f64()));
-    details.insert("kkt_solve_seconds".into(), json!(report.times.solve.as_secs_f64()));
-    details.insert("numeric_factorizations".into(), json!(report.numeric_factorizations));
-    details
-        .insert("inertia_correction_factorizations".into(), json!(report.inertia_correction_factorizations));
-    details.insert("other_factorizations".into(), json!(report.other_factorizations));
-    let e = &report.evaluations;
-    details.insert(
-        "evaluations".into(),
-        json!({"objective": e.objective, "gradient": e.gradient, "constraints": e.constraints,
-               "jacobian": e.jacobian, "hessian": e.hessian}),
-    );
-    details.insert("linear_solver".into(), json!(report.linear_solver));
-    details.insert("kkt_nnz".into(), json!(report.kkt_nnz));
-    details.insert("factor_nnz".into(), json!(report.factor_nnz));
     let estimate = PathEstimate {
-        method,
+        method: options.merit.method(),
         path: StatePath {
             names: problem.sde.state_names(),
             times: grid.times(),
@@ -500,7 +501,58 @@ pub fn estimate_path_with<S: Sde + ?Sized, O: Observation + ?Sized, K: nlp::KktS
         status: report.status,
         iterations: report.iterations,
         solve_seconds,
-        details,
+        details: Details::new(details),
     };
     Ok(PathSolution { estimate, parts, report, grid })
+}
+
+/// The details of a path-space MAP estimate's report.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PathDetails {
+    /// The transcription.
+    pub transcription: Transcription,
+    /// The grid's step.
+    pub step: f64,
+    /// The grid's initial time.
+    pub t0: f64,
+    /// The log-merit J at the optimum.
+    pub merit: f64,
+    /// Its measurement part Σ ln ψ.
+    pub log_likelihood: f64,
+    /// Its prior part.
+    pub log_prior: f64,
+    /// −½∫|w|² dt (discretised).
+    pub minus_half_int_energy: f64,
+    /// −½∫div f dt (discretised; 0 for the energy merit).
+    pub minus_half_int_div: f64,
+    /// The NLP solver's status.
+    pub nlp_status: Status,
+    /// Its iterations.
+    pub nlp_iterations: usize,
+    /// Constraint violation at the end.
+    pub primal_infeasibility: f64,
+    /// Optimality error at the end.
+    pub dual_infeasibility: f64,
+    /// Unknowns of the program.
+    pub unknowns: usize,
+    /// Seconds in function evaluations.
+    pub evaluation_seconds: f64,
+    /// Seconds in factorisations.
+    pub factorization_seconds: f64,
+    /// Seconds in KKT solves.
+    pub kkt_solve_seconds: f64,
+    /// Numeric factorisations.
+    pub numeric_factorizations: usize,
+    /// Factorisations for the inertia correction.
+    pub inertia_correction_factorizations: usize,
+    /// Other factorisations.
+    pub other_factorizations: usize,
+    /// Evaluations of each function.
+    pub evaluations: nlp::EvaluationCounts,
+    /// The KKT solver.
+    pub linear_solver: &'static str,
+    /// Non-zeros of the KKT matrix.
+    pub kkt_nnz: usize,
+    /// Non-zeros of its factor.
+    pub factor_nnz: usize,
 }

@@ -24,90 +24,194 @@ pub mod sweep;
 pub use drift::{ClosureDrift, ExponentialDrift, FamilyMoments, GaussianDrift, Unrealizable};
 pub use sweep::ClosureAction;
 
+use std::fmt::Debug;
 use std::time::Instant;
 
-use nalgebra::DMatrix;
 use onsager_closures::{Exponential, LegendreOptions, TrialFamily};
-use serde_json::json;
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
 
-use crate::data::StatePath;
-use crate::estimate::{EstimationProblem, PathEstimate, Status};
+use crate::estimate::{Details, EstimationProblem, Method, PathEstimate};
+use crate::estimator::EstimatorOptions;
 use crate::model::observation::StateMeasurement;
 use crate::model::prior::{Prior, PriorDensity};
 use crate::model::Sde;
 use crate::{Error, Result};
 
-use super::dual::{maximize_dual, maximize_dual_chord, DualData, DualOptions, DualSolution, EffectiveAction};
+use super::dual::{DualData, DualOptions, EffectiveAction};
 use super::exact::gaussian_dual_data;
+use super::mean_optimal::{self, DualStart, Plan};
 
-/// Which closure.
-#[non_exhaustive]
-#[derive(Debug, Clone, PartialEq)]
-pub enum ClosureKind {
-    /// The Gaussian family M = (x_i, x_ix_j) on all states (any dimension).
-    Gaussian,
-    /// The polynomial exponential family M = (x, x², …, x^degree) (1-D models), e.g. the
-    /// quartic family (degree 4) for the double well.
-    Exponential {
-        /// The highest power (≥ 2).
-        degree: usize,
-    },
-    /// The closure of the KSP smoother (`(II.64)–(II.65)`), a moment-path problem ([`om`];
-    /// one-state models).
-    Ksp,
-    /// The double-exponential closure (`(II.54)–(II.63)`), a moment-path problem ([`om`];
-    /// one-state models).
-    DoubleExponential,
+/// What a family of trial densities brings to a closure estimator: its options (the struct
+/// itself, written flat beside the [`ClosureOptions`] as the estimator's options), its drift
+/// on a model, and the initial natural parameters. A new family is its drift and one of these,
+/// registered as an [`Estimator`](crate::estimator::Estimator) (docs/extending.md).
+pub trait ClosureFamily: Serialize + DeserializeOwned + Default + Clone + Debug + PartialEq {
+    /// The closure drift of the family on a model with parameters θ.
+    type Drift<'a, S: Sde + ?Sized + 'a>: ClosureDrift;
+
+    /// The estimator's method.
+    const METHOD: Method;
+
+    /// The family as written in reports (`Gaussian`, `Exponential { degree: 4 }`).
+    fn describe(&self) -> String;
+
+    /// Checks the family's options. Errors: [`Error::InvalidOption`] naming the option.
+    fn validate(&self) -> Result<()>;
+
+    /// The drift on `problem`'s model, λ(t₀) of the initial law (the x0 and z0 priors), and for
+    /// each measured output the index of its state's linear moment.
+    ///
+    /// Errors: a model or prior the family cannot take.
+    fn setup<'a, S: Sde + ?Sized>(
+        &self,
+        problem: &EstimationProblem<'a, S, StateMeasurement>,
+    ) -> Result<FamilySetup<Self::Drift<'a, S>>>;
 }
 
-impl ClosureKind {
-    /// The method's name on the command line.
-    pub fn method_name(&self) -> &'static str {
-        match self {
-            ClosureKind::Gaussian => "gaussian-closure",
-            ClosureKind::Exponential { .. } => "exp-closure",
-            ClosureKind::Ksp => "ksp-closure",
-            ClosureKind::DoubleExponential => "double-exp-closure",
-        }
-    }
+/// A family's drift on a model with its start (see [`ClosureFamily::setup`]).
+#[derive(Debug)]
+pub struct FamilySetup<D> {
+    /// The drift.
+    pub drift: D,
+    /// λ(t₀): the natural parameters of the initial law.
+    pub lambda0: Vec<f64>,
+    /// The linear moment of each measured output's state.
+    pub measured: Vec<usize>,
+}
 
-    /// The kind of a method name (`gaussian-closure`, `exp-closure`, `ksp-closure`,
-    /// `double-exp-closure`); `degree` is the exponential family's degree (default 4).
-    /// Errors: [`Error::UnknownName`] for another name, [`Error::InvalidOption`] for a degree
-    /// given to another closure or a degree below 2.
-    pub fn parse(method: &str, degree: Option<usize>) -> Result<ClosureKind> {
-        let kind = match method {
-            "gaussian-closure" => ClosureKind::Gaussian,
-            "exp-closure" => ClosureKind::Exponential { degree: degree.unwrap_or(4) },
-            "ksp-closure" => ClosureKind::Ksp,
-            "double-exp-closure" => ClosureKind::DoubleExponential,
-            _ => {
-                return Err(Error::UnknownName {
-                    kind: "closure method".into(),
-                    name: method.into(),
-                    known: ["gaussian-closure", "exp-closure", "ksp-closure", "double-exp-closure"]
-                        .map(String::from)
-                        .to_vec(),
-                })
-            }
-        };
-        match (&kind, degree) {
-            (ClosureKind::Exponential { degree }, _) if *degree < 2 => Err(Error::InvalidOption {
-                name: "moments".into(),
-                reason: format!("the exponential closure needs degree ≥ 2, got {degree}"),
-            }),
-            (ClosureKind::Exponential { .. }, _) | (_, None) => Ok(kind),
-            (_, Some(_)) => Err(Error::InvalidOption {
-                name: "moments".into(),
-                reason: format!("--moments applies to exp-closure only, not {method}"),
-            }),
-        }
+/// The Gaussian family M = (x_i, x_ix_j) on all states, any dimension (`gaussian-closure`).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default)]
+#[non_exhaustive]
+pub struct GaussianFamily {
+    /// Gauss–Hermite points per dimension of the averages, k^n nodes on n states; at least 1.
+    /// Default `None`: automatic ([`drift::gaussian_closure_rule`]): for a model that declares
+    /// a polynomial drift of degree d ([`Sde::drift_polynomial_degree`]) and 1–3 states,
+    /// ⌊(d + 1)/2⌋ + 1 points, which take the averages exactly (3 for the cubic double well);
+    /// otherwise 16 / 8 / 5 points per dimension for 1 / 2 / 3 states and a fifth-degree
+    /// cubature from 4 states.
+    pub gaussian_points: Option<usize>,
+}
+
+impl GaussianFamily {
+    /// Sets the Gauss–Hermite points per dimension.
+    pub fn with_gaussian_points(mut self, points_per_dim: usize) -> Self {
+        self.gaussian_points = Some(points_per_dim);
+        self
     }
 }
 
-/// Options of [`closure_estimate`].
+impl ClosureFamily for GaussianFamily {
+    type Drift<'a, S: Sde + ?Sized + 'a> = GaussianDrift<'a, S>;
+    const METHOD: Method = Method::GaussianClosure;
+
+    fn describe(&self) -> String {
+        "Gaussian".into()
+    }
+
+    fn validate(&self) -> Result<()> {
+        if self.gaussian_points == Some(0) {
+            return Err(invalid("gaussian_points", "must be at least 1, got 0"));
+        }
+        Ok(())
+    }
+
+    fn setup<'a, S: Sde + ?Sized>(
+        &self,
+        problem: &EstimationProblem<'a, S, StateMeasurement>,
+    ) -> Result<FamilySetup<GaussianDrift<'a, S>>> {
+        let (drift, lambda0) = gaussian_setup(problem, self.gaussian_points)?;
+        Ok(FamilySetup { drift, lambda0, measured: problem.observation.states.clone() })
+    }
+}
+
+/// The polynomial exponential family M = the monomials of total degree ≤ `moments` (1-D:
+/// x, …, x^moments; 2-D: x^i y^j, i + j ≤ moments) on a fixed quadrature grid (`exp-closure`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 #[non_exhaustive]
-#[derive(Debug, Clone, PartialEq)]
+pub struct ExponentialFamily {
+    /// The highest total degree: 2 to 12 in 1-D, 2 to 6 in 2-D. Default 4 (the quartic family).
+    pub moments: usize,
+    /// Support of the family (its quadrature grid): one interval [a, b] per state, or empty for
+    /// the default: per state, the range of its data and of its initial prior (mean ± 5 sd),
+    /// widened by half its width plus 1 on each side. Set it for a state that is not measured
+    /// and whose range the prior does not cover.
+    pub domain: Vec<(f64, f64)>,
+    /// Panels × 8 Gauss–Legendre points per dimension of the grid. Default 12 (96 nodes in 1-D;
+    /// the double-well estimates of `benches/closure.rs` agree with 24 panels to 1e-5); in 2-D
+    /// half as many per dimension (6 × 8 = 48, 2304 nodes).
+    pub panels: usize,
+}
+
+impl Default for ExponentialFamily {
+    fn default() -> Self {
+        ExponentialFamily { moments: 4, domain: Vec::new(), panels: 12 }
+    }
+}
+
+impl ExponentialFamily {
+    /// The family of the monomials up to `degree`, on the default support.
+    pub fn of_degree(degree: usize) -> Self {
+        ExponentialFamily { moments: degree, ..Default::default() }
+    }
+
+    /// Sets the support, one interval per state.
+    pub fn with_domain(mut self, domain: &[(f64, f64)]) -> Self {
+        self.domain = domain.to_vec();
+        self
+    }
+
+    /// Sets the number of Gauss–Legendre panels per dimension.
+    pub fn with_panels(mut self, panels: usize) -> Self {
+        self.panels = panels;
+        self
+    }
+}
+
+impl ClosureFamily for ExponentialFamily {
+    type Drift<'a, S: Sde + ?Sized + 'a> = ExponentialDrift<'a, S>;
+    const METHOD: Method = Method::ExpClosure;
+
+    fn describe(&self) -> String {
+        format!("Exponential {{ degree: {} }}", self.moments)
+    }
+
+    fn validate(&self) -> Result<()> {
+        if !(2..=12).contains(&self.moments) {
+            return Err(invalid("moments", format!("must be 2 to 12 (2 to 6 in 2-D), got {}", self.moments)));
+        }
+        if self.panels == 0 {
+            return Err(invalid("panels", "must be at least 1, got 0"));
+        }
+        match self.domain.iter().find(|(a, b)| !(a.is_finite() && b.is_finite() && a < b)) {
+            Some((a, b)) => Err(invalid("domain", format!("need finite a < b, got [{a}, {b}]"))),
+            None => Ok(()),
+        }
+    }
+
+    fn setup<'a, S: Sde + ?Sized>(
+        &self,
+        problem: &EstimationProblem<'a, S, StateMeasurement>,
+    ) -> Result<FamilySetup<ExponentialDrift<'a, S>>> {
+        let (drift, lambda0) = exponential_setup(problem, self)?;
+        let measured = problem
+            .observation
+            .states
+            .iter()
+            .map(|&s| {
+                drift.linear_index(s).ok_or_else(|| invalid("moments", "the family has no linear moment"))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(FamilySetup { drift, lambda0, measured })
+    }
+}
+
+/// Options of the dual closures, common to every family.
+#[non_exhaustive]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct ClosureOptions {
     /// Step of the output grid. Default: the mean measurement spacing / 10 (the horizon / 10
     /// with a single measurement).
@@ -119,27 +223,11 @@ pub struct ClosureOptions {
     pub rtol: f64,
     /// Absolute tolerance of the Runge–Kutta integration. Default 1e-9.
     pub atol: f64,
-    /// Support of the exponential family (its quadrature grid): one interval [a, b] per state,
-    /// or empty for the default: per state, the range of its data and of its initial prior
-    /// (mean ± 5 sd), widened by half its width plus 1 on each side. Set it for a state that is
-    /// not measured and whose range the prior does not cover.
-    pub domain: Vec<(f64, f64)>,
-    /// Panels × 8 Gauss–Legendre points per dimension of the exponential family's grid.
-    /// Default 12 (96 nodes in 1-D; the double-well estimates of `benches/closure.rs` agree with
-    /// 24 panels to 1e-5); in 2-D half as many per dimension (6 × 8 = 48, 2304 nodes).
-    pub panels: usize,
-    /// Further output times (finite, ≥ `t0`). Default none.
+    /// Further output times (finite, ≥ the problem's `t0`). Default none.
     pub extra_times: Vec<f64>,
-    /// Gauss–Hermite points per dimension of the Gaussian closures' averages (`gaussian-closure`
-    /// and, on its moment path, `double-exp-closure` / `ksp-closure`), k^n nodes on n states;
-    /// at least 1. Default `None`: automatic ([`drift::gaussian_closure_rule`]): for a model that
-    /// declares a polynomial drift of degree d ([`Sde::drift_polynomial_degree`]) and 1–3 states,
-    /// ⌊(d + 1)/2⌋ + 1 points, which take the averages exactly (3 for the cubic double well);
-    /// otherwise 16 / 8 / 5 points per dimension for 1 / 2 / 3 states and a fifth-degree
-    /// cubature from 4 states.
-    pub gaussian_points: Option<usize>,
     /// Whether to compute the ensemble dispersion (sd columns) at the output times
-    /// (`(I.85)–(I.90)`; costs 2 history sweeps per measurement). Default true.
+    /// (`(I.85)–(I.90)`, from the tangent sweeps of ∇²F); otherwise the closure density's
+    /// variance. Default true.
     pub dispersion: bool,
     /// Whether the dual may also stop where its optimality residual is a tenth of the sweeps'
     /// accuracy, in measurement units: max_m |λ_m − (r_m − z_m)/R_m| ≤
@@ -163,10 +251,7 @@ impl Default for ClosureOptions {
             output_step: None,
             rtol: 1e-6,
             atol: 1e-9,
-            domain: Vec::new(),
-            panels: 12,
             extra_times: Vec::new(),
-            gaussian_points: None,
             dispersion: true,
             dual_matched_to_sweeps: true,
             dual: DualOptions::default(),
@@ -193,28 +278,9 @@ impl ClosureOptions {
         self
     }
 
-    /// Sets the exponential family's support, one interval per state.
-    pub fn with_domain(mut self, domain: &[(f64, f64)]) -> Self {
-        self.domain = domain.to_vec();
-        self
-    }
-
-    /// Sets the number of Gauss–Legendre panels of the exponential family's grid.
-    pub fn with_panels(mut self, panels: usize) -> Self {
-        self.panels = panels;
-        self
-    }
-
     /// Adds output times.
     pub fn with_extra_times(mut self, times: &[f64]) -> Self {
         self.extra_times.extend_from_slice(times);
-        self
-    }
-
-    /// Sets the Gauss–Hermite points per dimension of the Gaussian closures (see
-    /// [`ClosureOptions::gaussian_points`]).
-    pub fn with_gaussian_points(mut self, points_per_dim: usize) -> Self {
-        self.gaussian_points = Some(points_per_dim);
         self
     }
 
@@ -238,27 +304,63 @@ impl ClosureOptions {
     }
 
     fn validate(&self) -> Result<()> {
-        let bad = |name: &str, reason: String| Err(Error::InvalidOption { name: name.into(), reason });
         if let Some(s) = self.output_step {
             if !(s.is_finite() && s > 0.0) {
-                return bad("output step", format!("must be positive and finite, got {s}"));
+                return Err(invalid("output_step", format!("must be positive and finite, got {s}")));
             }
         }
-        for &(a, b) in &self.domain {
-            if !(a.is_finite() && b.is_finite() && a < b) {
-                return bad("domain", format!("need finite a < b, got [{a}, {b}]"));
+        for (name, v) in [("rtol", self.rtol), ("atol", self.atol)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(invalid(name, format!("must be positive and finite, got {v}")));
             }
-        }
-        if self.panels == 0 {
-            return bad("panels", "must be at least 1".into());
-        }
-        if self.gaussian_points == Some(0) {
-            return bad("gaussian points", "must be at least 1".into());
         }
         if let Some(&t) = self.extra_times.iter().find(|&&t| !t.is_finite()) {
-            return bad("output times", format!("must be finite, got {t}"));
+            return Err(invalid("extra_times", format!("must be finite, got {t}")));
         }
         self.dual.validate()
+    }
+}
+
+/// A dual closure estimator: the family's options and the common ones, written flat
+/// (`{"moments": 6, "rtol": 1e-8}`).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default)]
+#[non_exhaustive]
+pub struct Closure<F> {
+    /// The family and its options.
+    #[serde(flatten)]
+    pub family: F,
+    /// The options common to the dual closures.
+    #[serde(flatten)]
+    pub options: ClosureOptions,
+}
+
+impl<F: ClosureFamily> Closure<F> {
+    /// The closure of `family` with `options`.
+    pub fn new(family: F, options: ClosureOptions) -> Self {
+        Closure { family, options }
+    }
+}
+
+impl Closure<GaussianFamily> {
+    /// The Gaussian closure with `options`.
+    pub fn gaussian(options: ClosureOptions) -> Self {
+        Closure::new(GaussianFamily::default(), options)
+    }
+}
+
+impl Closure<ExponentialFamily> {
+    /// The polynomial exponential closure of `degree` with `options`.
+    pub fn exponential(degree: usize, options: ClosureOptions) -> Self {
+        Closure::new(ExponentialFamily::of_degree(degree), options)
+    }
+}
+
+impl<F: ClosureFamily> EstimatorOptions for Closure<F> {
+    /// Checks the family's and the common options.
+    fn validate(&self) -> Result<()> {
+        self.family.validate()?;
+        self.options.validate()
     }
 }
 
@@ -316,44 +418,15 @@ fn default_domain(values: &[f64], mean: f64, var: f64) -> (f64, f64) {
     (a - 0.5 * w - 1.0, b + 0.5 * w + 1.0)
 }
 
-/// The dual's coarse first stage: its status, Newton iterations and relative tolerance.
-type CoarseStage = (Status, usize, f64);
-
-/// The mean-optimal estimate of a closure: the action, the dual solution and the estimate.
-#[derive(Debug)]
-struct Solved {
-    history: crate::action::dual::History,
-    sd: Vec<Vec<f64>>,
-    /// What the sd columns are.
-    sd_kind: &'static str,
-    dual: DualSolution,
-    sweeps: usize,
-    /// Accepted Runge–Kutta steps of those sweeps.
-    rk_steps: usize,
-    /// The coarse first stage of the dual from the first start, when there was one (also when the
-    /// retry from λ = 0 gave the estimate: its iterations are in the total).
-    coarse_stage: Option<CoarseStage>,
-    /// The tolerance the dual ran to ([`ClosureOptions::dual_matched_to_sweeps`]).
-    dual_tolerance: f64,
-    /// The start of the reported dual solution: "filter" (the assumed-density filter's
-    /// multipliers), "prior" (½R⁻¹(r − z(0)), when the filter fails) or "zero" (the retry).
-    dual_start: &'static str,
-}
-
 /// The dual's first stage runs its sweeps at this multiple of the relative (and absolute)
 /// tolerance, ...
 const COARSE_FACTOR: f64 = 100.0;
 /// ... but at a relative tolerance of at most this (at 10⁻³ the double-well duals no longer
 /// converged: the step-size noise in F defeats the line search).
 const COARSE_RTOL: f64 = 1e-4;
-/// The first stage's dual tolerance (optimality residual; the default's 10⁻⁹ is the second's).
-const COARSE_DUAL_TOLERANCE: f64 = 1e-3;
 /// The dual's residual, in measurement units, may stop at this fraction of the sweeps'
 /// accuracy ([`ClosureOptions::dual_matched_to_sweeps`]).
 const SWEEP_MATCH: f64 = 0.1;
-/// The first stage ends after this many full Newton steps without halving the residual: the
-/// coarse sweeps' noise floor lies above its tolerance (`DualOptions::stall_iterations`).
-const COARSE_STALL: usize = 3;
 
 /// The dual's options at the requested sweep tolerances: `options.dual`, and with
 /// [`ClosureOptions::dual_matched_to_sweeps`] the tolerance raised to
@@ -383,224 +456,61 @@ fn fine_dual_options(data: &DualData, rtol: f64, atol: f64, options: &ClosureOpt
     strict.with_tolerance(matched).with_acceptable_tolerance(Some(acceptable))
 }
 
-/// The dual from one start: with `coarse` tolerances (rtol, atol), the first stage with those
-/// sweeps to [`COARSE_DUAL_TOLERANCE`], then at `tolerances` by chord steps
-/// ([`maximize_dual_chord`]), or, when the chord steps fail, the one-stage iteration from
-/// `start`; when the first stage fails (its iteration limit in a trust-region crawl, say), the
-/// one-stage iteration from where it got to (which has usually raised Φ: every trust-region and
-/// Armijo step does, a Newton step accepted for halving the residual need not). Without
-/// `coarse`, the one-stage iteration from `start`. Iterations and evaluations are summed over
-/// the stages; the coarse stage's status and iterations are returned with its rtol.
-fn attempt<D: ClosureDrift>(
+/// The closure's start of the dual: its assumed-density filter (each λ_k from the filter
+/// condition with the earlier multipliers fixed); on long bistable records the closure's prior
+/// prediction (λ = 0) is far from the data, and a non-convex Rayleigh–Ritz F lets Newton's
+/// method wander from there. Fallback: λ_k = ½R⁻¹(r_k − z_k(0)).
+fn dual_start<D: ClosureDrift>(
     action: &mut ClosureAction<D>,
     data: &DualData,
-    start: &[f64],
-    fine: &DualOptions,
-    tolerances: (f64, f64),
-    coarse: Option<(f64, f64)>,
-) -> Result<(DualSolution, Option<CoarseStage>)> {
-    let Some((coarse_rtol, coarse_atol)) = coarse else {
-        return Ok((maximize_dual(action, data, fine, Some(start))?, None));
-    };
-    action.set_tolerances(coarse_rtol, coarse_atol)?;
-    let loose = fine
-        .clone()
-        .with_tolerance(fine.tolerance.max(COARSE_DUAL_TOLERANCE))
-        .with_acceptable_tolerance(None)
-        .with_stall_iterations(Some(COARSE_STALL));
-    let first = maximize_dual(action, data, &loose, Some(start))?;
-    action.set_tolerances(tolerances.0, tolerances.1)?;
-    let mut second = match (&first.hessian, first.status.is_success()) {
-        (Some(h), true) => {
-            let chord = maximize_dual_chord(action, data, fine, &first.lambda, h.clone())?;
-            if chord.status.is_success() {
-                chord
-            } else {
-                let mut one = maximize_dual(action, data, fine, Some(start))?;
-                one.iterations += chord.iterations;
-                one.evaluations += chord.evaluations;
-                one
-            }
-        }
-        _ if first.phi.is_finite() => maximize_dual(action, data, fine, Some(&first.lambda))?,
-        _ => maximize_dual(action, data, fine, Some(start))?,
-    };
-    second.iterations += first.iterations;
-    second.evaluations += first.evaluations;
-    Ok((second, Some((first.status, first.iterations, coarse_rtol))))
-}
-
-fn solve<D: ClosureDrift>(
-    mut action: ClosureAction<D>,
-    data: &DualData,
-    measured_states: &[usize],
-    options: &ClosureOptions,
-) -> Result<Solved> {
-    // Start from the closure's assumed-density filter (each λ_k from the filter condition with
-    // the earlier multipliers fixed): on long bistable records the closure's prior prediction
-    // (λ = 0) is far from the data, and a non-convex Rayleigh–Ritz F lets Newton's method wander
-    // from there. Fallback: λ_k = ½R⁻¹(r_k − z_k(0)).
-    //
-    // Two stages (inexact Newton, the sweeps' accuracy matched to the distance from the optimum):
-    // the dual to a residual of 10⁻³ with coarse sweeps (rtol × 100, at most 10⁻⁴: about half
-    // the steps), then at the requested tolerances by chord steps with the first stage's last
-    // ∇²F (`maximize_dual_chord`; full Newton once a chord step does not contract), to the dual
-    // tolerance matched to the sweeps (`fine_dual_options`); see `attempt` for the fallbacks. Without
-    // a coarser tolerance (rtol ≥ 10⁻⁴) one stage. If the start from the filter fails, one stage
-    // from λ = 0. Each stage has `options.dual.max_iterations`; the reported iterations and
-    // evaluations are the sum over all.
-    let (rtol, atol) = action.tolerances();
-    let fine = fine_dual_options(data, rtol, atol, options);
-    let coarse_rtol = (COARSE_FACTOR * rtol).min(COARSE_RTOL);
-    let coarse = (coarse_rtol > rtol).then_some((coarse_rtol, atol * coarse_rtol / rtol));
-    if let Some((c_rtol, c_atol)) = coarse {
-        action.set_tolerances(c_rtol, c_atol)?;
+) -> Result<(Vec<f64>, DualStart)> {
+    if let Some(l) = action.filter_start(data) {
+        return Ok((l, DualStart::Filter));
     }
-    let (start, start_kind): (Vec<f64>, &'static str) = match action.filter_start(data) {
-        Some(l) => (l, "filter"),
-        None => {
-            let zero = vec![0.0; data.r.len()];
-            let prior = action.evaluate(&zero)?;
-            let half = if prior.z.iter().all(|v| v.is_finite()) {
-                (0..zero.len())
-                    .map(|m| {
-                        if data.r[m].is_nan() {
-                            0.0
-                        } else {
-                            0.5 * (data.r[m] - prior.z[m]) / data.variance[m]
-                        }
-                    })
-                    .collect()
-            } else {
-                zero
-            };
-            (half, "prior")
-        }
+    let zero = vec![0.0; data.r.len()];
+    let prior = action.evaluate(&zero)?;
+    let half = if prior.z.iter().all(|v| v.is_finite()) {
+        (0..zero.len())
+            .map(|m| if data.r[m].is_nan() { 0.0 } else { 0.5 * (data.r[m] - prior.z[m]) / data.variance[m] })
+            .collect()
+    } else {
+        zero
     };
-    let (mut dual, coarse_stage) = attempt(&mut action, data, &start, &fine, (rtol, atol), coarse)?;
-    let mut dual_start = start_kind;
-    if !dual.status.is_success() {
-        // Retry from λ = 0 (the closure's prior prediction), in one stage (in two, on one of the
-        // 24 double-well records of docs/closures.md, it failed where this converged).
-        let retry = maximize_dual(&mut action, data, &fine, None)?;
-        let totals = (dual.iterations + retry.iterations, dual.evaluations + retry.evaluations);
-        if retry.status.is_success() || retry.residual < dual.residual {
-            (dual, dual_start) = (retry, "zero");
-        }
-        (dual.iterations, dual.evaluations) = totals;
-    }
-    let ok = dual.status.is_success();
-    let mut history = action.history(&dual.lambda, ok && options.dispersion)?;
-    let mut sd_note = None;
-    let sd = match &history.cross {
-        Some(cross) => {
-            // ∇²F from the same tangents: Cov(Z_k, Z_j) is the cross-covariance at t_k.
-            let s = data.output_dim;
-            let m = data.r.len();
-            let times = action.measurement_times().to_vec();
-            let mut h = DMatrix::zeros(m, m);
-            for (k, &tk) in times.iter().enumerate() {
-                let e = history.times.iter().position(|&t| t == tk).ok_or_else(|| {
-                    invalid("closure", "a measurement time is missing from the output times")
-                })?;
-                for b in 0..s {
-                    for j in 0..m {
-                        h[(k * s + b, j)] = cross[e][(measured_states[b], j)];
-                    }
-                }
-            }
-            let h = (&h + h.transpose()) * 0.5;
-            match super::dispersion::posterior_variance(&history, &h, data) {
-                Ok(var) => var.iter().map(|v| v.iter().map(|x| x.max(0.0).sqrt()).collect()).collect(),
-                // At a stationary point where ∇²F + R is not positive definite the ensemble
-                // dispersion is undefined: report the closure's own variance. Other errors pass.
-                Err(Error::InvalidOption { name, .. }) if name == "hessian" => {
-                    sd_note = Some("closure variance (∇²F + R is not positive definite at the solution)");
-                    history.variance.iter().map(|v| v.iter().map(|x| x.sqrt()).collect()).collect()
-                }
-                Err(e) => return Err(e),
-            }
-        }
-        None => history.variance.iter().map(|v| v.iter().map(|x| x.sqrt()).collect()).collect(),
-    };
-    history.cross = None;
-    let sd_kind = match (sd_note, ok && options.dispersion) {
-        (Some(note), _) => note,
-        (None, true) => "ensemble dispersion",
-        (None, false) => "closure variance",
-    };
-    Ok(Solved {
-        history,
-        sd,
-        sd_kind,
-        dual,
-        sweeps: action.sweeps(),
-        rk_steps: action.steps(),
-        coarse_stage,
-        dual_tolerance: fine.tolerance,
-        dual_start,
-    })
+    Ok((half, DualStart::Prior))
 }
 
 /// The closure's [`ClosureAction`] for a problem, built as [`closure_estimate`] builds it (for
 /// tests, diagnostics and custom solvers). Errors as [`closure_estimate`].
-pub fn gaussian_closure_action<'a, S: Sde + ?Sized>(
+pub fn closure_action<'a, S: Sde + ?Sized, F: ClosureFamily>(
     problem: &EstimationProblem<'a, S, StateMeasurement>,
-    options: &ClosureOptions,
-) -> Result<ClosureAction<GaussianDrift<'a, S>>> {
-    let (drift, lambda0) = gaussian_setup(problem, options.gaussian_points)?;
-    let measured = problem.observation.states.clone();
-    action_of(problem, options, drift, lambda0, measured)
+    closure: &Closure<F>,
+) -> Result<ClosureAction<F::Drift<'a, S>>> {
+    common_checks(problem, closure)?;
+    let setup = closure.family.setup(problem)?;
+    let outs = output_times(problem.t0, &problem.data.times, &closure.options)?;
+    ClosureAction::try_new(
+        setup.drift,
+        problem.t0,
+        setup.lambda0,
+        &problem.data.times,
+        setup.measured,
+        &outs,
+        closure.options.rtol,
+        closure.options.atol,
+    )
 }
 
-/// The polynomial exponential closure's [`ClosureAction`] of `degree` for a 1-D problem.
-/// Errors as [`closure_estimate`].
-pub fn exponential_closure_action<'a, S: Sde + ?Sized>(
-    problem: &EstimationProblem<'a, S, StateMeasurement>,
-    degree: usize,
-    options: &ClosureOptions,
-) -> Result<ClosureAction<ExponentialDrift<'a, S>>> {
-    let (drift, lambda0) = exponential_setup(problem, degree, options)?;
-    let measured = problem
-        .observation
-        .states
-        .iter()
-        .map(|&s| drift.linear_index(s).ok_or_else(|| invalid("method", "no linear moment")))
-        .collect::<Result<Vec<_>>>()?;
-    action_of(problem, options, drift, lambda0, measured)
-}
-
-fn common_checks<S: Sde + ?Sized>(
+fn common_checks<S: Sde + ?Sized, F: ClosureFamily>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
-    options: &ClosureOptions,
+    closure: &Closure<F>,
 ) -> Result<()> {
     problem.validate()?;
-    options.validate()?;
+    closure.validate()?;
     problem.observation.validate(problem.sde.dims(), problem.theta)?;
     if !problem.estimate.is_empty() {
         return Err(invalid("estimate", "the closures do not estimate parameters; θ is taken as given"));
     }
     Ok(())
-}
-
-fn action_of<S: Sde + ?Sized, D: ClosureDrift>(
-    problem: &EstimationProblem<'_, S, StateMeasurement>,
-    options: &ClosureOptions,
-    drift: D,
-    lambda0: Vec<f64>,
-    measured: Vec<usize>,
-) -> Result<ClosureAction<D>> {
-    let outs = output_times(problem.t0, &problem.data.times, options)?;
-    ClosureAction::try_new(
-        drift,
-        problem.t0,
-        lambda0,
-        &problem.data.times,
-        measured,
-        &outs,
-        options.rtol,
-        options.atol,
-    )
 }
 
 fn gaussian_setup<'a, S: Sde + ?Sized>(
@@ -627,9 +537,9 @@ fn gaussian_setup<'a, S: Sde + ?Sized>(
 
 fn exponential_setup<'a, S: Sde + ?Sized>(
     problem: &EstimationProblem<'a, S, StateMeasurement>,
-    degree: usize,
-    options: &ClosureOptions,
+    options: &ExponentialFamily,
 ) -> Result<(ExponentialDrift<'a, S>, Vec<f64>)> {
+    let degree = options.moments;
     let n = problem.sde.dims().states();
     if !(1..=2).contains(&n) {
         return Err(invalid(
@@ -699,80 +609,67 @@ fn exponential_setup<'a, S: Sde + ?Sized>(
 }
 
 /// The mean-optimal estimate of a Rayleigh–Ritz closure (`003_d2fc48a470e528fc.txt` Part II)
-/// as the common [`PathEstimate`] (method = `kind.method_name()`): the history m(t) of every
-/// state at the output times (`(II.48)`), the ensemble dispersion as sd columns
-/// (`(I.85)–(I.90)` with the closure's F), the dual status and Newton iterations; details:
-/// λ*, z* at the measurement times, the optimality residual, F(λ*), Φ(λ*), sweeps, the family,
-/// the dual's tolerance (`dual_tolerance`), its start (`dual_start`: `filter`, `prior` or
-/// `zero`) and its coarse stage (`coarse_stage`).
+/// as the common [`PathEstimate`] (method of the family): the history m(t) of every state at
+/// the output times (`(II.48)`), the ensemble dispersion as sd columns (`(I.85)–(I.90)` with the
+/// closure's F), the status and Newton iterations of the dual; details:
+/// [`mean_optimal::DualDetails`].
+///
+/// The dual starts from the closure's assumed-density filter and runs in two stages (coarse
+/// sweeps at min(100 · rtol, 10⁻⁴), then chord steps at `rtol`, to the tolerance matched to the
+/// sweeps, [`ClosureOptions::dual_matched_to_sweeps`]); if that fails, once more from λ = 0
+/// ([`mean_optimal::solve`]).
 ///
 /// The measurements must be Gaussian measurements of states (as for the exact mean-optimal
 /// estimator, the dual needs Gaussian errors, `(I.52)`), the initial priors Gaussian.
-/// `ksp-closure` and `double-exp-closure` are not dual problems: their estimate is the
-/// minimising moment path of [`om::moment_path_estimate`] (grid step = `output_step`).
 ///
 /// Errors ([`Error::InvalidOption`] unless noted): a non-Gaussian likelihood or prior, parameters
-/// to estimate, data before `t0`, invalid options, an exponential closure on a model with more
-/// than two states, `ksp-closure` and `double-exp-closure` on a model with more than one state
-/// (see [`om::moment_path_estimate`]).
-/// Non-convergence of the dual, or sweeps that leave the moment space, are a [`Status`].
-pub fn closure_estimate<S: Sde + ?Sized>(
+/// to estimate, invalid options, a model the family cannot take (the exponential closure on more
+/// than two states). Non-convergence of the dual, or sweeps that leave the moment space, are
+/// the estimate's [`Status`](crate::Status).
+pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
-    kind: &ClosureKind,
-    options: &ClosureOptions,
+    closure: &Closure<F>,
 ) -> Result<PathEstimate> {
     let start = Instant::now();
-    common_checks(problem, options)?;
+    common_checks(problem, closure)?;
     let data = gaussian_dual_data(problem)?;
-    let states = &problem.observation.states;
-    let solved = match kind {
-        ClosureKind::Gaussian => solve(gaussian_closure_action(problem, options)?, &data, states, options)?,
-        ClosureKind::Exponential { degree } => {
-            solve(exponential_closure_action(problem, *degree, options)?, &data, states, options)?
-        }
-        ClosureKind::Ksp | ClosureKind::DoubleExponential => {
-            let mut o = om::MomentPathOptions::new();
-            if let Some(s) = options.output_step {
-                o = o.with_step(s);
-            }
-            o.gaussian_points = options.gaussian_points;
-            return om::moment_path_estimate(problem, kind, &o);
-        }
-    };
-    let path = StatePath {
-        names: problem.sde.state_names(),
-        times: solved.history.times.clone(),
-        values: solved.history.mean.clone(),
-        sd: Some(solved.sd.clone()),
-    };
-    let mut est = super::base_estimate(kind.method_name(), problem, path);
-    let dual = &solved.dual;
-    est.status = dual.status;
-    est.iterations = dual.iterations;
-    est.solve_seconds = start.elapsed().as_secs_f64();
-    let finite =
-        |v: &[f64]| v.iter().map(|x| if x.is_finite() { json!(x) } else { json!(null) }).collect::<Vec<_>>();
-    est.details.insert("closure".into(), json!(format!("{kind:?}")));
-    est.details.insert("lambda".into(), json!(finite(&dual.lambda)));
-    est.details.insert("z_at_measurements".into(), json!(finite(&dual.z)));
-    est.details.insert("optimality_residual".into(), json!(finite(&[dual.residual])[0]));
-    est.details.insert("f_value".into(), json!(finite(&[dual.f_value])[0]));
-    est.details.insert("phi".into(), json!(finite(&[dual.phi])[0]));
-    if let Some(reason) = &dual.reason {
-        est.details.insert("dual_reason".into(), json!(reason));
+    let mut action = closure_action(problem, closure)?;
+    let options = &closure.options;
+    let (rtol, atol) = (options.rtol, options.atol);
+    let fine = fine_dual_options(&data, rtol, atol, options);
+    // Two stages (inexact Newton, the sweeps' accuracy matched to the distance from the
+    // optimum) when a coarser tolerance exists; the filter start runs with the coarse sweeps.
+    let coarse_rtol = (COARSE_FACTOR * rtol).min(COARSE_RTOL);
+    let coarse = (coarse_rtol > rtol).then_some((coarse_rtol, atol * coarse_rtol / rtol));
+    if let Some((c_rtol, c_atol)) = coarse {
+        action.set_tolerances(c_rtol, c_atol)?;
     }
-    est.details.insert("dual_tolerance".into(), json!(solved.dual_tolerance));
-    est.details.insert("dual_start".into(), json!(solved.dual_start));
-    est.details.insert("sweeps".into(), json!(solved.sweeps));
-    est.details.insert("rk_steps".into(), json!(solved.rk_steps));
-    if let Some((status, iterations, rtol)) = solved.coarse_stage {
-        est.details.insert(
-            "coarse_stage".into(),
-            json!({"status": status.name(), "iterations": iterations, "rtol": rtol}),
-        );
-    }
-    est.details.insert("sd".into(), json!(solved.sd_kind));
-    Ok(est)
+    let begin = dual_start(&mut action, &data)?;
+    let plan = Plan {
+        dual: fine,
+        stages: coarse.map(|c| (c, (rtol, atol))),
+        retry_from_zero: true,
+        dispersion: options.dispersion,
+    };
+    let sol = mean_optimal::solve(&mut action, &data, begin, &plan)?;
+    let details = sol.details(Some(closure.family.describe()), action.work(), &plan);
+    Ok(PathEstimate {
+        method: F::METHOD,
+        path: crate::data::StatePath {
+            names: problem.sde.state_names(),
+            times: sol.history.times,
+            values: sol.history.mean,
+            sd: Some(sol.sd),
+        },
+        theta_names: problem.sde.param_names(),
+        theta: problem.theta.to_vec(),
+        estimated: Vec::new(),
+        theta_sd: None,
+        status: sol.status,
+        iterations: sol.dual.iterations,
+        solve_seconds: start.elapsed().as_secs_f64(),
+        details: Details::new(details),
+    })
 }
 
 #[cfg(test)]

@@ -37,10 +37,11 @@
 use std::time::Instant;
 
 use onsager_closures::Gaussian;
-use serde_json::json;
+use serde::{Deserialize, Serialize};
 
 use crate::data::StatePath;
-use crate::estimate::{EstimationProblem, PathEstimate};
+use crate::estimate::{Details, EstimationProblem, Method, PathEstimate};
+use crate::estimator::EstimatorOptions;
 use crate::model::ad::{hessian_into, ScalarFn};
 use crate::model::observation::StateMeasurement;
 use crate::model::{Scalar, Sde};
@@ -49,11 +50,36 @@ use crate::{Error, Result};
 
 use super::super::exact::gaussian_dual_data;
 use super::drift::gaussian_closure_rule;
-use super::{gaussian_prior, invalid, ClosureKind};
+use super::{gaussian_prior, invalid};
 
-/// Options of [`moment_path_estimate`].
+/// The moment-path closures.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MomentPathKind {
+    /// The closure of the KSP smoother (`ksp-closure`, `(II.64)–(II.65)`).
+    Ksp,
+    /// The double-exponential closure (`double-exp-closure`, `(II.54)–(II.63)`).
+    DoubleExponential,
+}
+
+impl MomentPathKind {
+    /// The estimator's method.
+    pub fn method(self) -> Method {
+        match self {
+            MomentPathKind::Ksp => Method::KspClosure,
+            MomentPathKind::DoubleExponential => Method::DoubleExpClosure,
+        }
+    }
+
+    /// The method's command-line name.
+    pub fn method_name(self) -> &'static str {
+        self.method().name()
+    }
+}
+
+/// Options of [`moment_path_estimate`] (the options of `ksp-closure` and `double-exp-closure`).
 #[non_exhaustive]
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct MomentPathOptions {
     /// Largest step of the transcription grid (each spacing between t0 and the measurement
     /// times is divided into ⌈spacing/step⌉ equal pieces). Default: the mean measurement
@@ -92,7 +118,11 @@ impl MomentPathOptions {
         self.tolerance = tolerance;
         self
     }
+}
 
+impl EstimatorOptions for MomentPathOptions {
+    /// Checks a positive finite `step` and `tolerance`, at least one iteration and at least one
+    /// Gauss–Hermite point.
     fn validate(&self) -> Result<()> {
         if let Some(s) = self.step {
             if !(s.is_finite() && s > 0.0) {
@@ -103,10 +133,10 @@ impl MomentPathOptions {
             return Err(invalid("tolerance", format!("must be positive and finite, got {}", self.tolerance)));
         }
         if self.max_iterations == 0 {
-            return Err(invalid("max iterations", "must be at least 1"));
+            return Err(invalid("max_iterations", "must be at least 1"));
         }
         if self.gaussian_points == Some(0) {
-            return Err(invalid("gaussian points", "must be at least 1"));
+            return Err(invalid("gaussian_points", "must be at least 1"));
         }
         Ok(())
     }
@@ -293,22 +323,13 @@ impl<S: Sde + ?Sized> MomentPath<'_, S> {
 
 fn build<'a, S: Sde + ?Sized>(
     problem: &EstimationProblem<'a, S, StateMeasurement>,
-    kind: &ClosureKind,
+    kind: MomentPathKind,
     options: &MomentPathOptions,
 ) -> Result<MomentPath<'a, S>> {
     options.validate()?;
     problem.validate()?;
     problem.observation.validate(problem.sde.dims(), problem.theta)?;
-    let ksp = match kind {
-        ClosureKind::Ksp => true,
-        ClosureKind::DoubleExponential => false,
-        _ => {
-            return Err(invalid(
-                "method",
-                format!("{} is not a moment-path closure; use closure_estimate", kind.method_name()),
-            ))
-        }
-    };
+    let ksp = kind == MomentPathKind::Ksp;
     let dims = problem.sde.dims();
     if dims.states() != 1 || dims.noisy != 1 {
         return Err(invalid(
@@ -406,7 +427,7 @@ fn build<'a, S: Sde + ?Sized>(
 /// invalid options; a singular diffusion ([`Error::SingularDiffusion`]).
 pub fn moment_path_estimate<S: Sde + ?Sized>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
-    kind: &ClosureKind,
+    kind: MomentPathKind,
     options: &MomentPathOptions,
 ) -> Result<PathEstimate> {
     let start = Instant::now();
@@ -427,17 +448,39 @@ pub fn moment_path_estimate<S: Sde + ?Sized>(
         values: w.chunks(2).map(|c| vec![c[0]]).collect(),
         sd: Some(w.chunks(2).map(|c| vec![c[1].max(0.0).sqrt()]).collect()),
     };
-    let mut est = super::super::base_estimate(kind.method_name(), problem, path);
-    est.status = sol.report.status;
-    est.iterations = sol.report.iterations;
-    est.solve_seconds = start.elapsed().as_secs_f64();
     let mut g = vec![0.0; w.len()];
     let f = mp.value_grad(w, &mut g);
-    est.details.insert("closure".into(), json!(format!("{kind:?}")));
-    est.details.insert("action".into(), if f.is_finite() { json!(f) } else { json!(null) });
-    est.details.insert("grid_nodes".into(), json!(mp.times.len()));
-    est.details.insert("sd".into(), json!("closure variance"));
-    Ok(est)
+    let details = MomentPathDetails {
+        closure: format!("{kind:?}"),
+        action: f,
+        grid_nodes: mp.times.len(),
+        sd: "closure variance",
+    };
+    Ok(PathEstimate {
+        method: kind.method(),
+        path,
+        theta_names: problem.sde.param_names(),
+        theta: problem.theta.to_vec(),
+        estimated: Vec::new(),
+        theta_sd: None,
+        status: sol.report.status,
+        iterations: sol.report.iterations,
+        solve_seconds: start.elapsed().as_secs_f64(),
+        details: Details::new(details),
+    })
+}
+
+/// The details of a moment-path closure's report.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MomentPathDetails {
+    /// `Ksp` or `DoubleExponential`.
+    pub closure: String,
+    /// The minimised action at the solution.
+    pub action: f64,
+    /// Nodes of the transcription grid.
+    pub grid_nodes: usize,
+    /// What the sd columns are: the closure's variance.
+    pub sd: &'static str,
 }
 
 #[cfg(test)]
@@ -463,7 +506,7 @@ mod tests {
         Dataset::try_new(vec!["y".into()], times, values).unwrap()
     }
 
-    fn rts_distance(kind: &ClosureKind, step: f64) -> (f64, f64) {
+    fn rts_distance(kind: MomentPathKind, step: f64) -> (f64, f64) {
         let ob = obs(0.2);
         let data = ou_dataset();
         let priors = [Prior::flat(), Prior::flat()];
@@ -504,12 +547,12 @@ mod tests {
 
     #[test]
     fn ou_closures_converge_to_the_rts_smoother() {
-        for kind in [ClosureKind::DoubleExponential, ClosureKind::Ksp] {
-            let (m1, s1) = rts_distance(&kind, 0.05);
-            let (m2, s2) = rts_distance(&kind, 0.025);
+        for kind in [MomentPathKind::DoubleExponential, MomentPathKind::Ksp] {
+            let (m1, s1) = rts_distance(kind, 0.05);
+            let (m2, s2) = rts_distance(kind, 0.025);
             println!("{kind:?}: step 0.05: |Δmean| {m1:.3e} |Δsd| {s1:.3e}; step 0.025: {m2:.3e} {s2:.3e}");
             assert!(m1 < 1e-2 && m2 < m1 / 3.0, "mean: {m1} {m2}");
-            if kind == ClosureKind::Ksp {
+            if kind == MomentPathKind::Ksp {
                 assert!(s1 < 1e-2 && s2 < s1 / 3.0, "sd: {s1} {s2}");
             }
         }
@@ -548,8 +591,8 @@ mod tests {
         let (ob, data) = (obs(0.2), well_data());
         let (priors, x0) = ([Prior::flat()], [Prior::gaussian(-1.0, 0.3)]);
         let problem = well_problem(&ob, &data, &priors, &x0);
-        for kind in [ClosureKind::DoubleExponential, ClosureKind::Ksp] {
-            let mut mp = build(&problem, &kind, &MomentPathOptions::new().with_step(0.5)).unwrap();
+        for kind in [MomentPathKind::DoubleExponential, MomentPathKind::Ksp] {
+            let mut mp = build(&problem, kind, &MomentPathOptions::new().with_step(0.5)).unwrap();
             let n = mp.num_variables();
             let mut w = vec![0.0; n];
             mp.initial_point(&mut w);
@@ -614,8 +657,8 @@ mod tests {
             assert!(n > 50, "common times {n}");
             (s / n as f64).sqrt()
         };
-        for kind in [ClosureKind::DoubleExponential, ClosureKind::Ksp] {
-            let est = moment_path_estimate(&problem, &kind, &MomentPathOptions::new()).unwrap();
+        for kind in [MomentPathKind::DoubleExponential, MomentPathKind::Ksp] {
+            let est = moment_path_estimate(&problem, kind, &MomentPathOptions::new()).unwrap();
             assert!(est.status.is_success(), "{kind:?}: {:?}", est.status);
             let (e_mo, e_ksp) = (
                 rmse(&est, &exact.history.times, &exact.history.mean),
@@ -641,22 +684,21 @@ mod tests {
             Err(Error::InvalidOption { name, .. }) => assert_eq!(name, what),
             other => panic!("expected InvalidOption({what}), got {other:?}"),
         };
-        is_invalid(moment_path_estimate(&problem, &ClosureKind::Gaussian, &o), "method");
-        is_invalid(moment_path_estimate(&problem, &ClosureKind::Ksp, &o.clone().with_step(-1.0)), "step");
+        is_invalid(moment_path_estimate(&problem, MomentPathKind::Ksp, &o.clone().with_step(-1.0)), "step");
         is_invalid(
-            moment_path_estimate(&problem, &ClosureKind::Ksp, &o.clone().with_tolerance(0.0)),
+            moment_path_estimate(&problem, MomentPathKind::Ksp, &o.clone().with_tolerance(0.0)),
             "tolerance",
         );
         let late = EstimationProblem { t0: 2.0, ..problem };
-        is_invalid(moment_path_estimate(&late, &ClosureKind::Ksp, &o), "t0");
+        is_invalid(moment_path_estimate(&late, MomentPathKind::Ksp, &o), "t0");
         let p2 = well_problem(&ob, &data, &priors, &flat);
-        is_invalid(moment_path_estimate(&p2, &ClosureKind::Ksp, &o), "x0 prior");
+        is_invalid(moment_path_estimate(&p2, MomentPathKind::Ksp, &o), "x0 prior");
         let student = StateMeasurement::new(
             vec![0],
             vec!["y".into()],
             Noise::StudentT { nu: Param::Fixed(4.0), scale: Param::Fixed(0.2) },
         );
         let p3 = well_problem(&student, &data, &priors, &x0);
-        is_invalid(moment_path_estimate(&p3, &ClosureKind::DoubleExponential, &o), "likelihood");
+        is_invalid(moment_path_estimate(&p3, MomentPathKind::DoubleExponential, &o), "likelihood");
     }
 }

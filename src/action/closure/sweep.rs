@@ -31,7 +31,7 @@ use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
 
 use nalgebra::DMatrix;
 
-use crate::action::dual::{ActionValue, DualData, EffectiveAction, History};
+use crate::action::dual::{ActionValue, DualData, EffectiveAction, History, SweepFailure as Failure, Swept};
 use crate::{Error, Result};
 
 use super::drift::{ClosureDrift, Unrealizable};
@@ -1231,6 +1231,18 @@ impl<D: ClosureDrift> ClosureAction<D> {
             reason: "the closure sweep left the family's moment space (unrealizable moments)".into(),
         }
     }
+
+    /// The linear moment of every state (index into M).
+    fn linear_moments(&self) -> Result<Vec<usize>> {
+        (0..self.drift.state_dim())
+            .map(|i| {
+                self.drift.linear_index(i).ok_or_else(|| Error::InvalidOption {
+                    name: "closure".into(),
+                    reason: format!("the family has no linear moment of state {i}"),
+                })
+            })
+            .collect()
+    }
 }
 
 impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
@@ -1266,41 +1278,36 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
     /// ∇²F = ∂z/∂λ of the computed F, exactly to round-off, by the tangent sweeps of
     /// `tangents` (each interval's J_e and Q_e, chained over the events for all
     /// multipliers); symmetrised.
-    fn hessian(&mut self, lambda: &[f64]) -> Result<DMatrix<f64>> {
+    fn hessian(&mut self, lambda: &[f64]) -> Result<Swept<DMatrix<f64>>> {
         self.check(lambda)?;
         let events = self.fit_events.clone();
-        let (_, tangents) = self.tangents(&events, lambda).map_err(|_| self.failed())?;
+        let Ok((_, tangents)) = self.tangents(&events, lambda) else { return Ok(Err(Failure::Unrealizable)) };
         let m = lambda.len();
         let event_of: Vec<usize> =
             events.meas.iter().enumerate().filter_map(|(e, mm)| mm.map(|_| e)).collect();
         let s = self.measured.len();
         let h = DMatrix::from_fn(m, m, |i, j| tangents.at(j, event_of[i / s])[self.measured[i % s]]);
-        Ok((&h + h.transpose()) * 0.5)
+        Ok(Ok((&h + h.transpose()) * 0.5))
     }
 
     /// m(t) of every state at the output times (`(II.48)`); the variance is m_{x²} − m_x² when
     /// the family has the square moments; `cross` (Cov(x_i(τ), Z_j) = ∂m_{x_i}(τ)/∂λ_j) by
     /// the tangent sweeps of [`EffectiveAction::hessian`].
-    fn history(&mut self, lambda: &[f64], cross: bool) -> Result<History> {
+    fn history(&mut self, lambda: &[f64], cross: bool) -> Result<Swept<History>> {
         self.check(lambda)?;
         let n = self.drift.state_dim();
         let events = self.out_events.clone();
-        let lin: Vec<usize> = (0..n)
-            .map(|i| {
-                self.drift.linear_index(i).ok_or_else(|| Error::InvalidOption {
-                    name: "closure".into(),
-                    reason: format!("the family has no linear moment of state {i}"),
-                })
-            })
-            .collect::<Result<_>>()?;
+        let lin = self.linear_moments()?;
         let (m, cr) = if cross {
-            let (m, t) = self.tangents(&events, lambda).map_err(|_| self.failed())?;
+            let Ok((m, t)) = self.tangents(&events, lambda) else { return Ok(Err(Failure::Unrealizable)) };
             let nm = lambda.len();
             let cr =
                 (0..m.len()).map(|e| DMatrix::from_fn(n, nm, |i, j| t.at(j, e)[lin[i]])).collect::<Vec<_>>();
             (m, Some(cr))
         } else {
-            let (fw, g, _) = self.value(&events, lambda, false).map_err(|_| self.failed())?;
+            let Ok((fw, g, _)) = self.value(&events, lambda, false) else {
+                return Ok(Err(Failure::Unrealizable));
+            };
             (Self::moments_at_events(&fw, &g), None)
         };
         let sq: Vec<Option<usize>> = (0..n).map(|i| self.drift.square_index(i)).collect();
@@ -1313,7 +1320,50 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
                     .collect()
             })
             .collect();
-        Ok(History { times: events.times, mean, variance, cross: cr })
+        Ok(Ok(History { times: events.times, mean, variance, cross: cr }))
+    }
+
+    /// The history with its cross-covariances, and ∇²F read from the same tangents:
+    /// Cov(Z_k, Z_j) is the cross-covariance of the measured states at t_k.
+    fn history_and_hessian(&mut self, lambda: &[f64]) -> Result<Swept<(History, DMatrix<f64>)>> {
+        let history = match self.history(lambda, true)? {
+            Ok(h) => h,
+            Err(e) => return Ok(Err(e)),
+        };
+        let cross = history.cross.as_ref().expect("asked for the cross-covariances");
+        let lin = self.linear_moments()?;
+        let states: Vec<usize> = self
+            .measured
+            .iter()
+            .map(|&a| lin.iter().position(|&l| l == a).expect("a measured moment is a linear moment"))
+            .collect();
+        let (s, m) = (states.len(), lambda.len());
+        let mut h = DMatrix::zeros(m, m);
+        for (k, &tk) in self.meas_times.iter().enumerate() {
+            let e = history.times.iter().position(|&t| t == tk).ok_or_else(|| Error::InvalidOption {
+                name: "closure".into(),
+                reason: "a measurement time is missing from the output times".into(),
+            })?;
+            for (b, &state) in states.iter().enumerate() {
+                for j in 0..m {
+                    h[(k * s + b, j)] = cross[e][(state, j)];
+                }
+            }
+        }
+        let h = (&h + h.transpose()) * 0.5;
+        Ok(Ok((history, h)))
+    }
+
+    fn tolerances(&self) -> Option<(f64, f64)> {
+        Some(ClosureAction::tolerances(self))
+    }
+
+    fn set_tolerances(&mut self, rtol: f64, atol: f64) -> Result<()> {
+        ClosureAction::set_tolerances(self, rtol, atol)
+    }
+
+    fn work(&self) -> Option<(usize, usize)> {
+        Some((self.sweeps(), self.steps()))
     }
 }
 
@@ -1382,7 +1432,10 @@ mod tests {
         assert!(kept.keep_hessians && !evaluated.keep_hessians);
         for lambda in [[1.5, -2.0, 0.7], [-20.0, 25.0, 3.0]] {
             assert_eq!(kept.hessian(&lambda).unwrap(), evaluated.hessian(&lambda).unwrap());
-            let (a, b) = (kept.history(&lambda, true).unwrap(), evaluated.history(&lambda, true).unwrap());
+            let (a, b) = (
+                kept.history(&lambda, true).unwrap().unwrap(),
+                evaluated.history(&lambda, true).unwrap().unwrap(),
+            );
             assert_eq!(a.cross, b.cross);
             assert_eq!(a.mean, b.mean);
         }

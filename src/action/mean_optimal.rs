@@ -1,0 +1,289 @@
+//! The mean-optimal estimator of an effective action, written once for the exact grid and every
+//! dual closure (`003_d2fc48a470e528fc.txt` Sec. I.5–I.6 and Part II): from a start, the dual
+//! Φ(λ) is maximised ([`maximize_dual`], `(I.57)–(I.60)`), in two stages when the action's sweeps
+//! have tolerances (coarse sweeps first, then chord steps at the requested tolerance,
+//! [`maximize_dual_chord`]), with a retry from λ = 0 when asked; at the solution the history
+//! z(t) is the estimate (`(I.76)`, `(II.48)`) and the ensemble dispersion
+//! ((∇²F)⁻¹ + R⁻¹)⁻¹ (`(I.85)–(I.90)`, [`posterior_variance`]) its standard deviation.
+
+use serde::Serialize;
+
+use super::dispersion::posterior_variance;
+use super::dual::{
+    maximize_dual, maximize_dual_chord, DualData, DualOptions, DualSolution, DualStop, EffectiveAction,
+    History, SweepFailure, Swept,
+};
+use crate::estimate::Status;
+use crate::Result;
+
+/// Where the dual's iteration started.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+#[non_exhaustive]
+pub enum DualStart {
+    /// λ_k = R_k⁻¹(r_k − z_k) with z_k the exact KSP smoothed mean (the exact grid).
+    Ksp,
+    /// The closure's assumed-density filter (each λ_k from the filter condition with the
+    /// earlier multipliers fixed).
+    Filter,
+    /// λ_k = ½R_k⁻¹(r_k − z_k(0)) from the prior prediction (when the filter fails).
+    Prior,
+    /// λ = 0 (the retry after a failed start).
+    Zero,
+}
+
+/// What the standard deviations of a mean-optimal estimate are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[non_exhaustive]
+pub enum SdKind {
+    /// The ensemble dispersion ((∇²F)⁻¹ + R⁻¹)⁻¹ (`(I.85)–(I.90)`).
+    #[serde(rename = "ensemble dispersion")]
+    EnsembleDispersion,
+    /// The variance of the estimator's own density at the solution (the tilted density on the
+    /// grid, the closure's trial density): the dispersion was not asked for, or the dual did not
+    /// succeed.
+    #[serde(rename = "density variance")]
+    DensityVariance,
+    /// The density's variance, because ∇²F + R is not positive definite at the solution (a
+    /// non-concave Rayleigh–Ritz dual), where the dispersion is undefined.
+    #[serde(rename = "density variance (∇²F + R is not positive definite at the solution)")]
+    Indefinite,
+    /// The density's variance, because the tangent sweeps of the dispersion failed.
+    #[serde(rename = "density variance (the dispersion's sweeps failed)")]
+    DispersionFailed,
+    /// None: the history's sweep failed at the solution (the path is empty).
+    #[serde(rename = "none (the history's sweep failed)")]
+    None,
+}
+
+/// The coarse first stage of a two-stage dual.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct CoarseStage {
+    /// Its status.
+    pub status: Status,
+    /// Its Newton iterations.
+    pub iterations: usize,
+    /// The relative tolerance of its sweeps.
+    pub rtol: f64,
+}
+
+/// How to solve: the dual's options at the requested tolerances, and what else to do.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Plan {
+    /// The dual's options (of the last stage).
+    pub dual: DualOptions,
+    /// The sweeps' (rtol, atol) of a coarse first stage, and those of the second; `None`: one
+    /// stage at the action's tolerances.
+    pub stages: Option<((f64, f64), (f64, f64))>,
+    /// Whether a failed start is retried from λ = 0 in one stage.
+    pub retry_from_zero: bool,
+    /// Whether to compute the ensemble dispersion (otherwise the density's variance).
+    pub dispersion: bool,
+}
+
+/// The mean-optimal estimate of an effective action.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Solution {
+    /// The history at the output times (without cross-covariances); empty when its sweep failed.
+    pub history: History,
+    /// The standard deviation of every state at the output times.
+    pub sd: Vec<Vec<f64>>,
+    /// What `sd` is.
+    pub sd_kind: SdKind,
+    /// The dual's solution (iterations and evaluations summed over the stages and the retry).
+    pub dual: DualSolution,
+    /// The estimate's status: the dual's, or `NumericalFailure` when the history's sweep failed.
+    pub status: Status,
+    /// Where the reported dual solution started.
+    pub start: DualStart,
+    /// The coarse stage from the first start, when there was one.
+    pub coarse_stage: Option<CoarseStage>,
+    /// Why the history has no value at λ*, if so (the path is then empty).
+    pub history_failure: Option<SweepFailure>,
+}
+
+/// The first stage's dual tolerance (optimality residual).
+const COARSE_DUAL_TOLERANCE: f64 = 1e-3;
+/// The first stage ends after this many full Newton steps without halving the residual: the
+/// coarse sweeps' noise floor lies above its tolerance (`DualOptions::stall_iterations`).
+const COARSE_STALL: usize = 3;
+
+/// The dual from one start: with two stages, the first with coarse sweeps to
+/// [`COARSE_DUAL_TOLERANCE`] (stopping at its noise floor, [`COARSE_STALL`]), then at the
+/// requested tolerances by chord steps ([`maximize_dual_chord`]), or, when the chord steps fail,
+/// the one-stage iteration from `start`; when the first stage fails (its iteration limit in a
+/// trust-region crawl, say), the one-stage iteration from where it got to, where Φ is usually
+/// higher. Iterations and evaluations are summed over the stages.
+fn attempt<A: EffectiveAction + ?Sized>(
+    action: &mut A,
+    data: &DualData,
+    start: &[f64],
+    plan: &Plan,
+) -> Result<(DualSolution, Option<CoarseStage>)> {
+    let fine = &plan.dual;
+    let Some(((coarse_rtol, coarse_atol), (rtol, atol))) = plan.stages else {
+        return Ok((maximize_dual(action, data, fine, Some(start))?, None));
+    };
+    action.set_tolerances(coarse_rtol, coarse_atol)?;
+    let loose = fine
+        .clone()
+        .with_tolerance(fine.tolerance.max(COARSE_DUAL_TOLERANCE))
+        .with_acceptable_tolerance(None)
+        .with_stall_iterations(Some(COARSE_STALL));
+    let first = maximize_dual(action, data, &loose, Some(start))?;
+    action.set_tolerances(rtol, atol)?;
+    let mut second = match (&first.hessian, first.status.is_success()) {
+        (Some(h), true) => {
+            let chord = maximize_dual_chord(action, data, fine, &first.lambda, h.clone())?;
+            if chord.status.is_success() {
+                chord
+            } else {
+                let mut one = maximize_dual(action, data, fine, Some(start))?;
+                one.iterations += chord.iterations;
+                one.evaluations += chord.evaluations;
+                one
+            }
+        }
+        _ if first.phi.is_finite() => maximize_dual(action, data, fine, Some(&first.lambda))?,
+        _ => maximize_dual(action, data, fine, Some(start))?,
+    };
+    second.iterations += first.iterations;
+    second.evaluations += first.evaluations;
+    Ok((second, Some(CoarseStage { status: first.status, iterations: first.iterations, rtol: coarse_rtol })))
+}
+
+/// The square roots of the variances, negative round-off clipped.
+fn sqrt_of(variance: &[Vec<f64>]) -> Vec<Vec<f64>> {
+    variance.iter().map(|v| v.iter().map(|x| x.max(0.0).sqrt()).collect()).collect()
+}
+
+/// The history at λ* with its standard deviations: the ensemble dispersion when the dual
+/// succeeded and `plan.dispersion`, else (or where the dispersion is undefined or its sweeps
+/// fail) the density's variance; why not, when the history's sweep fails.
+fn history_at<A: EffectiveAction + ?Sized>(
+    action: &mut A,
+    data: &DualData,
+    lambda: &[f64],
+    dispersion: bool,
+) -> Result<Swept<(History, Vec<Vec<f64>>, SdKind)>> {
+    let mut kind = SdKind::DensityVariance;
+    if dispersion {
+        match action.history_and_hessian(lambda)? {
+            Ok((mut history, hessian)) => {
+                let var = posterior_variance(&history, &hessian, data)?;
+                history.cross = None;
+                match var {
+                    Some(var) => return Ok(Ok((history, sqrt_of(&var), SdKind::EnsembleDispersion))),
+                    None => {
+                        let sd = sqrt_of(&history.variance);
+                        return Ok(Ok((history, sd, SdKind::Indefinite)));
+                    }
+                }
+            }
+            Err(_) => kind = SdKind::DispersionFailed,
+        }
+    }
+    Ok(action.history(lambda, false)?.map(|history| {
+        let sd = sqrt_of(&history.variance);
+        (history, sd, kind)
+    }))
+}
+
+/// The mean-optimal estimate of `action` on `data` from `start` (see the
+/// [module documentation](self)).
+///
+/// Errors: misuse (lengths, invalid options, a history without cross-covariances when the
+/// action's [`EffectiveAction::history_and_hessian`] is the default one and cannot give them).
+/// Non-convergence, a failed sweep or an undefined dispersion are the solution's status and
+/// [`SdKind`].
+pub fn solve<A: EffectiveAction + ?Sized>(
+    action: &mut A,
+    data: &DualData,
+    (start, start_kind): (Vec<f64>, DualStart),
+    plan: &Plan,
+) -> Result<Solution> {
+    let (mut dual, coarse_stage) = attempt(action, data, &start, plan)?;
+    let mut start = start_kind;
+    if plan.retry_from_zero && !dual.status.is_success() {
+        let retry = maximize_dual(action, data, &plan.dual, None)?;
+        let totals = (dual.iterations + retry.iterations, dual.evaluations + retry.evaluations);
+        if retry.status.is_success() || retry.residual < dual.residual {
+            (dual, start) = (retry, DualStart::Zero);
+        }
+        (dual.iterations, dual.evaluations) = totals;
+    }
+    let with_dispersion = plan.dispersion && dual.status.is_success();
+    let (history, sd, sd_kind, history_failure) =
+        match history_at(action, data, &dual.lambda, with_dispersion)? {
+            Ok((history, sd, kind)) => (history, sd, kind, None),
+            Err(failure) => {
+                let empty =
+                    History { times: Vec::new(), mean: Vec::new(), variance: Vec::new(), cross: None };
+                (empty, Vec::new(), SdKind::None, Some(failure))
+            }
+        };
+    let status = if history_failure.is_some() { Status::NumericalFailure } else { dual.status };
+    Ok(Solution { history, sd, sd_kind, dual, status, start, coarse_stage, history_failure })
+}
+
+/// The report's details of a mean-optimal estimate (the exact grid's and the dual closures').
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DualDetails {
+    /// The closure's family, for a closure.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub closure: Option<String>,
+    /// λ* (time-major).
+    pub lambda: Vec<f64>,
+    /// z* = ∂F/∂λ at λ*: the estimate at the measurement times.
+    pub z_at_measurements: Vec<f64>,
+    /// max |λ_m − (r_m − z_m)/R_m| at λ*.
+    pub optimality_residual: f64,
+    /// F(λ*).
+    pub f_value: f64,
+    /// Φ(λ*).
+    pub phi: f64,
+    /// Why the dual stopped short of its tolerance, if it did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dual_reason: Option<DualStop>,
+    /// The tolerance the dual ran to.
+    pub dual_tolerance: f64,
+    /// Where it started.
+    pub dual_start: DualStart,
+    /// Sweeps of the action (F evaluations of the dual when the action does not count them).
+    pub sweeps: usize,
+    /// Accepted integration steps of those sweeps, when counted.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rk_steps: Option<usize>,
+    /// The coarse first stage, when there was one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub coarse_stage: Option<CoarseStage>,
+    /// What the sd columns are.
+    pub sd: SdKind,
+    /// Why the history has no value at λ*, if so.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub history_failure: Option<SweepFailure>,
+}
+
+impl Solution {
+    /// The report's details; `closure` names the closure's family, `work` is the action's
+    /// [`EffectiveAction::work`].
+    pub fn details(&self, closure: Option<String>, work: Option<(usize, usize)>, plan: &Plan) -> DualDetails {
+        let d = &self.dual;
+        DualDetails {
+            closure,
+            lambda: d.lambda.clone(),
+            z_at_measurements: d.z.clone(),
+            optimality_residual: d.residual,
+            f_value: d.f_value,
+            phi: d.phi,
+            dual_reason: d.reason,
+            dual_tolerance: plan.dual.tolerance,
+            dual_start: self.start,
+            sweeps: work.map_or(d.evaluations, |w| w.0),
+            rk_steps: work.map(|w| w.1),
+            coarse_stage: self.coarse_stage,
+            sd: self.sd_kind,
+            history_failure: self.history_failure,
+        }
+    }
+}

@@ -1,0 +1,333 @@
+//! Every estimator as a value: a [`Method`] (its name) with its typed options, the
+//! [`Estimator`]. The command line, `onsager compare`, the experiment specs and the JSON form
+//! (for other languages) all build the same value, and [`Estimator::run`] is the one way in:
+//!
+//! ```
+//! use onsager::estimator::{Estimator, Method};
+//! use onsager::model::library::preset;
+//! use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
+//! use rand::SeedableRng;
+//!
+//! let p = preset("double-well")?;
+//! let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+//! let truth = simulate(&p.model, &p.theta, &[1.0], &[], &SimulateOptions::new(0.0, 4.0, 0.01), &mut rng)?;
+//! let data = sample_measurements(&p.observation, &p.theta, &truth, 1, 0.5, &mut rng)?;
+//! let problem = p.problem(&data, &[]);
+//! // From text, as on the command line; the same options as JSON or TOML.
+//! let quartic = Estimator::parse("exp-closure:moments=4")?;
+//! let same: Estimator = serde_json::from_str(r#"{"method": "exp-closure", "options": {"moments": 4}}"#).unwrap();
+//! assert_eq!(quartic, same);
+//! let run = Estimator::new(Method::Uks).run(&problem)?;
+//! assert_eq!(run.estimate.method, Method::Uks);
+//! # Ok::<(), onsager::Error>(())
+//! ```
+//!
+//! Options are written with the names of the fields of each method's options type (see
+//! [`Estimator`]); an unknown option, a value of the wrong type or outside its domain is an
+//! [`Error::EstimatorOption`] naming the method, the option and what is allowed.
+
+mod parse;
+
+use std::fmt;
+use std::str::FromStr;
+
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Deserializer, Serialize};
+use serde_json::{Map, Value};
+
+use crate::action::closure::om::{moment_path_estimate, MomentPathKind, MomentPathOptions};
+use crate::action::closure::{closure_estimate, Closure, ExponentialFamily, GaussianFamily};
+use crate::action::exact::{ksp_estimate, mean_optimal_estimate, ExactOptions, MeanOptimalOptions};
+use crate::estimate::{EstimationProblem, MethodRun};
+use crate::kalman::{self, ExtendedOptions, KalmanMethod, KalmanOptions, PemOptions};
+use crate::model::observation::StateMeasurement;
+use crate::model::Sde;
+use crate::particle::{self, ParticleOptions};
+use crate::path::{map_estimate, MapOptions, Merit};
+use crate::{Error, Result};
+
+pub use parse::{options_from_pairs, parse_list, read_list};
+
+/// What every options type of an estimator provides: defaults, serde (the field names are the
+/// option names) and a check of the values that names the field and the bad value.
+pub trait EstimatorOptions: Serialize + DeserializeOwned + Default + Clone + fmt::Debug + PartialEq {
+    /// Checks every value against its domain. Errors: [`Error::InvalidOption`] with the
+    /// option's name and the value.
+    fn validate(&self) -> Result<()>;
+}
+
+/// The estimators, one line each: variant, command-line name, options type, description. This
+/// table is the registration of an estimator (docs/extending.md).
+macro_rules! estimators {
+    ($($(#[$doc:meta])* $variant:ident, $name:literal, $options:ty, $description:literal;)*) => {
+        /// The estimators of the library by name (the `method` of every front door).
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+        #[serde(rename_all = "kebab-case")]
+        #[non_exhaustive]
+        pub enum Method {
+            $($(#[$doc])* $variant,)*
+        }
+
+        impl Method {
+            /// Every method, in the order of the tables.
+            pub const ALL: &'static [Method] = &[$(Method::$variant),*];
+
+            /// The command-line name (also the `method` of reports and tables).
+            pub fn name(self) -> &'static str {
+                match self {
+                    $(Method::$variant => $name,)*
+                }
+            }
+
+            /// One line describing the method.
+            pub fn description(self) -> &'static str {
+                match self {
+                    $(Method::$variant => $description,)*
+                }
+            }
+        }
+
+        /// An estimator: a method with its typed options. Serialised as
+        /// `{"method": "exp-closure", "options": {"moments": 6}}` (TOML:
+        /// `method = "exp-closure"` and `options = { moments = 6 }`); every option has a
+        /// default, so `options` may be left out.
+        #[derive(Debug, Clone, PartialEq, Serialize)]
+        #[serde(tag = "method", content = "options", rename_all = "kebab-case")]
+        #[non_exhaustive]
+        pub enum Estimator {
+            $($(#[$doc])* $variant($options),)*
+        }
+
+        impl Estimator {
+            /// The estimator `method` with its default options.
+            pub fn new(method: Method) -> Estimator {
+                match method {
+                    $(Method::$variant => Estimator::$variant(<$options>::default()),)*
+                }
+            }
+
+            /// Its method.
+            pub fn method(&self) -> Method {
+                match self {
+                    $(Estimator::$variant(_) => Method::$variant,)*
+                }
+            }
+
+            /// The estimator `method` with `options` (option name → value, as in JSON). Errors:
+            /// [`Error::EstimatorOption`] for an option `method` does not have (naming its
+            /// options), a value of the wrong type or outside its domain.
+            pub fn from_options(method: Method, options: &Map<String, Value>) -> Result<Estimator> {
+                Ok(match method {
+                    $(Method::$variant => Estimator::$variant(parse::typed::<$options>(method, options)?),)*
+                })
+            }
+
+            /// The names of the options of `method`.
+            pub fn option_names(method: Method) -> Vec<String> {
+                match method {
+                    $(Method::$variant => parse::option_names::<$options>(),)*
+                }
+            }
+
+            /// Checks the options' values (as [`Estimator::from_options`] does).
+            pub fn validate(&self) -> Result<()> {
+                let method = self.method();
+                match self {
+                    $(Estimator::$variant(o) => o.validate().map_err(|e| parse::named(method, e)),)*
+                }
+            }
+
+            /// The options as a JSON object (every option, defaults included).
+            pub fn options_json(&self) -> Map<String, Value> {
+                let value = match self {
+                    $(Estimator::$variant(o) => serde_json::to_value(o),)*
+                };
+                match value {
+                    Ok(Value::Object(map)) => map,
+                    _ => Map::new(),
+                }
+            }
+        }
+    };
+}
+
+estimators! {
+    /// Exact Kushner–Stratonovich–Pardoux smoother on a grid (`003_d2fc48a470e528fc.txt (0.3)–(0.7)`).
+    Ksp, "ksp", ExactOptions,
+        "exact Kushner-Stratonovich-Pardoux smoother on a grid (003 eq. 0.3-0.7)";
+    /// Exact mean-optimal (effective-action) estimator on a grid (`003 (I.60)–(I.76)`).
+    MeanOptimal, "mean-optimal", MeanOptimalOptions,
+        "exact mean-optimal (effective-action) estimator on a grid (003 I.60-I.76)";
+    /// Gaussian Rayleigh–Ritz closure of the mean-optimal estimator (`003 (II.36)–(II.53)`).
+    GaussianClosure, "gaussian-closure", Closure<GaussianFamily>,
+        "Gaussian Rayleigh-Ritz closure of the mean-optimal estimator (003 II.36-II.53)";
+    /// Exponential-family closure with the polynomial moments of total degree `moments`
+    /// (`003 (II.36)–(II.53)`).
+    ExpClosure, "exp-closure", Closure<ExponentialFamily>,
+        "exponential-family closure, polynomial moments up to degree `moments`, 1-D or 2-D (003 II.36-II.53)";
+    /// Closure of the KSP smoother (`003 (II.64)–(II.65)`).
+    KspClosure, "ksp-closure", MomentPathOptions,
+        "closure of the KSP smoother (003 II.64-II.65)";
+    /// Double-exponential closure (`003 (II.54)–(II.63)`).
+    DoubleExpClosure, "double-exp-closure", MomentPathOptions,
+        "double-exponential closure (003 II.54-II.63)";
+    /// Joint Onsager–Machlup MAP path and parameters (`000_74b95e149527c64e.txt (2.49)–(2.51)`).
+    Jme, "jme", MapOptions,
+        "joint Onsager-Machlup MAP path and parameters (000 eq. 2.49-2.51)";
+    /// Minimum-energy path and parameters (`000 (2.58)–(2.60)`).
+    Mee, "mee", MapOptions,
+        "minimum-energy path and parameters (000 eq. 2.58-2.60)";
+    /// Continuous-discrete extended Kalman filter.
+    Ekf, "ekf", ExtendedOptions,
+        "continuous-discrete extended Kalman filter";
+    /// Extended Rauch–Tung–Striebel smoother.
+    Eks, "eks", ExtendedOptions,
+        "extended Rauch-Tung-Striebel smoother";
+    /// Continuous-discrete unscented Kalman filter.
+    Ukf, "ukf", KalmanOptions,
+        "continuous-discrete unscented Kalman filter";
+    /// Unscented Rauch–Tung–Striebel smoother.
+    Uks, "uks", KalmanOptions,
+        "unscented Rauch-Tung-Striebel smoother";
+    /// Prediction error method (UKF likelihood) followed by the UKS at θ̂.
+    Pem, "pem", PemOptions,
+        "prediction error method (UKF likelihood), then the UKS at the estimate";
+    /// Bootstrap particle filter with a backward-simulation smoother.
+    Particle, "particle", ParticleOptions,
+        "bootstrap particle filter with a backward-simulation smoother";
+}
+
+impl Method {
+    /// Whether the method estimates parameters (the problem's `estimate`); the others take θ
+    /// as given.
+    pub fn estimates_parameters(self) -> bool {
+        matches!(self, Method::Jme | Method::Mee | Method::Pem)
+    }
+
+    /// Whether the method is one of the exact grid methods (one or two states).
+    pub fn uses_grid(self) -> bool {
+        matches!(self, Method::Ksp | Method::MeanOptimal)
+    }
+}
+
+impl fmt::Display for Method {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Method {
+    type Err = Error;
+
+    fn from_str(s: &str) -> Result<Method> {
+        Method::ALL.iter().copied().find(|m| m.name() == s.trim()).ok_or_else(|| Error::UnknownName {
+            kind: "method".into(),
+            name: s.trim().into(),
+            known: Method::ALL.iter().map(|m| m.name().to_string()).collect(),
+        })
+    }
+}
+
+impl Estimator {
+    /// The command-line name of its method.
+    pub fn name(&self) -> &'static str {
+        self.method().name()
+    }
+
+    /// Parses the text form `METHOD` or `METHOD:NAME=VALUE,NAME=VALUE…` (nested options with
+    /// dotted names, `dual.max_iterations=100`; a value with commas in double quotes). Errors:
+    /// an unknown method; [`Error::EstimatorOption`] for a bad option.
+    pub fn parse(text: &str) -> Result<Estimator> {
+        let mut list = parse_list(text)?;
+        match (list.len(), list.pop()) {
+            (1, Some(one)) => Ok(one.estimator),
+            _ => Err(Error::InvalidOption {
+                name: "method".into(),
+                reason: format!("`{text}` is not one estimator"),
+            }),
+        }
+    }
+
+    /// Runs the estimator on `problem`.
+    ///
+    /// Errors: bad options (as [`Estimator::validate`]); parameters to estimate for a method
+    /// that takes θ as given; those of the method (a grid that does not cover the data, a
+    /// non-Gaussian likelihood for the mean-optimal estimator and the closures, …). A numerical
+    /// failure is not an error: it is the estimate's status.
+    pub fn run<S: Sde + ?Sized>(
+        &self,
+        problem: &EstimationProblem<'_, S, StateMeasurement>,
+    ) -> Result<MethodRun> {
+        self.validate()?;
+        let method = self.method();
+        if !problem.estimate.is_empty() && !method.estimates_parameters() {
+            return Err(Error::InvalidOption {
+                name: "estimate".into(),
+                reason: format!("`{method}` takes the parameters as given; jme, mee and pem estimate them"),
+            });
+        }
+        let kalman =
+            |m: KalmanMethod, o: &KalmanOptions| kalman::estimate(problem, m, o).map(MethodRun::from);
+        match self {
+            Estimator::Ksp(o) => ksp_estimate(problem, o),
+            Estimator::MeanOptimal(o) => mean_optimal_estimate(problem, o),
+            Estimator::GaussianClosure(o) => closure_estimate(problem, o).map(MethodRun::from),
+            Estimator::ExpClosure(o) => closure_estimate(problem, o).map(MethodRun::from),
+            Estimator::KspClosure(o) => {
+                moment_path_estimate(problem, MomentPathKind::Ksp, o).map(MethodRun::from)
+            }
+            Estimator::DoubleExpClosure(o) => {
+                moment_path_estimate(problem, MomentPathKind::DoubleExponential, o).map(MethodRun::from)
+            }
+            Estimator::Jme(o) => map_estimate(problem, Merit::OnsagerMachlup, o),
+            Estimator::Mee(o) => map_estimate(problem, Merit::Energy, o),
+            Estimator::Ekf(o) => kalman(KalmanMethod::Ekf, &o.kalman()),
+            Estimator::Eks(o) => kalman(KalmanMethod::Eks, &o.kalman()),
+            Estimator::Ukf(o) => kalman(KalmanMethod::Ukf, o),
+            Estimator::Uks(o) => kalman(KalmanMethod::Uks, o),
+            Estimator::Pem(o) => kalman::pem(problem, o).map(MethodRun::from),
+            Estimator::Particle(o) => {
+                let mut rng = StdRng::seed_from_u64(problem.seed);
+                particle::estimate(problem, o, &mut rng).map(MethodRun::from)
+            }
+        }
+    }
+}
+
+/// The JSON form without options.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Written {
+    method: Method,
+    #[serde(default)]
+    options: Map<String, Value>,
+}
+
+impl<'de> Deserialize<'de> for Estimator {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> std::result::Result<Self, D::Error> {
+        let w = Written::deserialize(deserializer)?;
+        Estimator::from_options(w.method, &w.options).map_err(serde::de::Error::custom)
+    }
+}
+
+/// An estimator with the label of its results (a row of `compare`, a column of an
+/// experiment): by default the method's name.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Labelled {
+    /// The label.
+    pub label: String,
+    /// The estimator.
+    pub estimator: Estimator,
+}
+
+impl Labelled {
+    /// `estimator` labelled with its method's name.
+    pub fn new(estimator: Estimator) -> Labelled {
+        Labelled { label: estimator.name().to_string(), estimator }
+    }
+}
+
+#[cfg(test)]
+mod tests;

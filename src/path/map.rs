@@ -1,0 +1,127 @@
+//! The path-space MAP estimators `jme` and `mee` as estimators: the spline initial guess, the
+//! regression guess of the estimated parameters, the transcription grid and the notes on what
+//! a transcription converges to.
+
+use serde::{Deserialize, Serialize};
+
+use super::{
+    default_step, estimate_path, regression_theta_guess, spline_guess, Merit, PathOptions, Transcription,
+};
+use crate::estimate::{EstimationProblem, MethodRun};
+use crate::estimator::EstimatorOptions;
+use crate::model::observation::StateMeasurement;
+use crate::model::Sde;
+use crate::{Error, Result};
+
+/// Options of the path-space MAP estimators `jme` and `mee`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+#[non_exhaustive]
+pub struct MapOptions {
+    /// The transcription. Default `hermite-simpson`; `euler` converges to the minimum-energy
+    /// path and `trapezoidal` to the Onsager–Machlup path whatever the merit
+    /// (`001_8aefdf0570c96f51.txt` Thm 18).
+    pub transcription: Transcription,
+    /// The step of the transcription grid. Default: the shortest spacing of t0 and the
+    /// measurement times / 20.
+    pub step: Option<f64>,
+    /// Largest number of node states (nodes × states) for which the Laplace standard deviations
+    /// are computed. Default 4000; 0 switches them off.
+    pub laplace_max_states: usize,
+    /// Parameters whose given values are the initial guess of a joint estimate; the others to
+    /// estimate start from the regression guess of `000_74b95e149527c64e.txt` Sec. 4.1. Default
+    /// none (the command line fills it from `--param`).
+    pub keep_initial: Vec<String>,
+}
+
+impl Default for MapOptions {
+    fn default() -> Self {
+        MapOptions {
+            transcription: Transcription::HermiteSimpson,
+            step: None,
+            laplace_max_states: 4000,
+            keep_initial: Vec::new(),
+        }
+    }
+}
+
+impl EstimatorOptions for MapOptions {
+    /// Checks a positive finite `step`.
+    fn validate(&self) -> Result<()> {
+        match self.step {
+            Some(step) if !(step.is_finite() && step > 0.0) => Err(Error::InvalidOption {
+                name: "step".into(),
+                reason: format!("must be positive and finite, got {step}"),
+            }),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// What a transcription converges to when it is not the merit's own (`001` Thm 18).
+fn convergence_note(transcription: Transcription, merit: Merit) -> Option<&'static str> {
+    match (transcription, merit) {
+        (Transcription::Euler, Merit::OnsagerMachlup) => Some(
+            "the Euler MAP path converges to the minimum-energy path, not the Onsager-Machlup one (001 Thm 18)",
+        ),
+        (Transcription::Trapezoidal, Merit::Energy) => Some(
+            "the trapezoidal MAP path converges to the Onsager-Machlup path, not the minimum-energy one \
+             (001 Thm 18)",
+        ),
+        _ => None,
+    }
+}
+
+/// The MAP path of `merit` (`jme`: Onsager–Machlup, `mee`: energy) and the estimated parameters
+/// of `problem` (`000_74b95e149527c64e.txt (2.49)–(2.51)`, `(2.58)–(2.60)`), from the spline
+/// initial path of the data and, for the parameters to estimate, the regression guess (except
+/// those in [`MapOptions::keep_initial`]). Notes: what the transcription converges to, and a
+/// skipped Laplace sd.
+///
+/// Errors: those of [`estimate_path`] and [`regression_theta_guess`]; an unknown name in
+/// `keep_initial`.
+pub fn map_estimate<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    merit: Merit,
+    options: &MapOptions,
+) -> Result<MethodRun> {
+    options.validate()?;
+    let mut notes: Vec<String> =
+        convergence_note(options.transcription, merit).into_iter().map(String::from).collect();
+    let t0 = problem.t0;
+    let step = options.step.unwrap_or_else(|| default_step(t0, problem.data));
+    let t_end = problem.data.times.last().copied().unwrap_or(t0);
+    let nodes = ((t_end - t0) / step).round().max(1.0) as usize;
+    let times: Vec<f64> = (0..=nodes).map(|k| t0 + k as f64 * step).collect();
+    let names = problem.sde.param_names();
+    if let Some(name) = options.keep_initial.iter().find(|n| !names.contains(n)) {
+        return Err(Error::UnknownName { kind: "parameter".into(), name: name.clone(), known: names });
+    }
+    let mut theta = problem.theta.to_vec();
+    if !problem.estimate.is_empty() {
+        let g = regression_theta_guess(
+            problem.sde,
+            problem.observation,
+            problem.theta,
+            problem.theta_prior,
+            problem.estimate,
+            problem.data,
+        )?;
+        for &i in problem.estimate {
+            if !options.keep_initial.contains(&names[i]) {
+                theta[i] = g.theta[i];
+            }
+        }
+    }
+    let problem = &EstimationProblem { theta: &theta, ..*problem };
+    let guess = spline_guess(problem.sde, problem.theta, &problem.observation.states, problem.data, &times)?;
+    let mut path_options =
+        PathOptions::new(merit, options.transcription).with_step(step).with_initial_path(guess);
+    let states = nodes * problem.sde.dims().states();
+    if states > options.laplace_max_states {
+        notes
+            .push(format!("skipping the Laplace sd ({states} node states > {})", options.laplace_max_states));
+        path_options = path_options.with_laplace(false);
+    }
+    Ok(MethodRun { estimate: estimate_path(problem, path_options)?.estimate, notes })
+}
