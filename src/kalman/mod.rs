@@ -292,17 +292,7 @@ fn setup<S: Sde + ?Sized>(
     method: &str,
 ) -> Result<filter::Setup> {
     problem.validate()?;
-    filter::Setup::new(
-        problem.sde,
-        problem.observation,
-        theta,
-        problem.x0_prior,
-        problem.z0_prior,
-        problem.data,
-        options.initial_time(problem.data),
-        options.step(problem.data),
-        method,
-    )
+    filter::Setup::new(problem, theta, options.initial_time(problem.data), options.step(problem.data), method)
 }
 
 /// Runs the continuous-discrete filter `approximation` at θ = `theta` (not
