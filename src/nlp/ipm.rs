@@ -156,6 +156,15 @@ enum LineSearch {
     Failed,
 }
 
+/// The iterate's side of the filter line search's tests (eqs. (18)–(21)): θ(x_k) = ‖c(x_k)‖₁,
+/// the barrier function φ_μ(x_k) and its directional derivative ∇φ_μ(x_k)ᵀd_x along the step.
+#[derive(Debug, Clone, Copy)]
+struct LineSearchOrigin {
+    theta: f64,
+    phi: f64,
+    gd: f64,
+}
+
 struct Ipm<'a, P: ?Sized, K: ?Sized> {
     problem: &'a mut P,
     kkt: &'a mut K,
@@ -1117,6 +1126,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             return Ok(LineSearch::Failed);
         }
         let gd: f64 = gphi.iter().zip(dir.dx()).map(|(a, b)| a * b).sum();
+        let origin = LineSearchOrigin { theta, phi, gd };
         let alpha_max = self.max_step_primal(&self.x, dir.dx(), self.tau);
         // eq. (23): minimum step
         let alpha_min = GAMMA_ALPHA
@@ -1171,7 +1181,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
                     }
                 }
             }
-            let verdict = self.acceptance(theta, phi, gd, alpha, theta_t, phi_t);
+            let verdict = self.acceptance(origin, alpha, theta_t, phi_t);
             if let Some(f_type) = verdict {
                 if self.eval_derivatives(&x_trial) {
                     if !f_type {
@@ -1186,9 +1196,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             }
             // Sect. 2.4: second-order correction on the first trial
             if trials == 1 && theta_t >= theta && self.m > 0 {
-                if let Some(done) =
-                    self.second_order_correction(rx, alpha, &c_t, theta, phi, gd, alpha_max)?
-                {
+                if let Some(done) = self.second_order_correction(rx, alpha, &c_t, origin, alpha_max)? {
                     self.last_trials = trials;
                     return Ok(done);
                 }
@@ -1200,17 +1208,11 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         }
     }
 
-    /// Acceptance test of a trial point (eqs. (18)–(21)): Some(true) for an f-type
-    /// (Armijo) acceptance, Some(false) for a θ-type acceptance, None if rejected.
-    fn acceptance(
-        &self,
-        theta: f64,
-        phi: f64,
-        gd: f64,
-        alpha: f64,
-        theta_t: f64,
-        phi_t: f64,
-    ) -> Option<bool> {
+    /// Acceptance test of a trial point (eqs. (18)–(21)) at step `alpha` from `origin`:
+    /// Some(true) for an f-type (Armijo) acceptance, Some(false) for a θ-type acceptance, None if
+    /// rejected.
+    fn acceptance(&self, origin: LineSearchOrigin, alpha: f64, theta_t: f64, phi_t: f64) -> Option<bool> {
+        let LineSearchOrigin { theta, phi, gd } = origin;
         if !self.filter_acceptable(theta_t, phi_t) {
             return None;
         }
@@ -1230,17 +1232,19 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         }
     }
 
-    #[allow(clippy::too_many_arguments)]
+    /// Second-order corrections (Sect. 2.4) after the first trial step `alpha0` was rejected with
+    /// constraint values `c_trial`: each corrected step (from the primal right-hand side `rx`)
+    /// is tested for acceptance from `origin` with α = `alpha_max`. `Some(LineSearch::Accepted)`
+    /// when one is accepted, `None` otherwise.
     fn second_order_correction(
         &mut self,
         rx: &[f64],
         alpha0: f64,
         c_trial: &[f64],
-        theta: f64,
-        phi: f64,
-        gd: f64,
+        origin: LineSearchOrigin,
         alpha_max: f64,
     ) -> std::result::Result<Option<LineSearch>, Status> {
+        let LineSearchOrigin { theta, phi, .. } = origin;
         let mut c_soc: Vec<f64> = self.c.iter().zip(c_trial).map(|(c0, ct)| alpha0 * c0 + ct).collect();
         let mut theta_old = Self::theta(c_trial);
         for _ in 0..SOC_MAX {
@@ -1255,7 +1259,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             };
             let theta_s = Self::theta(&c_s);
             let phi_s = self.phi(f_s, &x_soc);
-            if let Some(f_type) = self.acceptance(theta, phi, gd, alpha_max, theta_s, phi_s) {
+            if let Some(f_type) = self.acceptance(origin, alpha_max, theta_s, phi_s) {
                 if !self.eval_derivatives(&x_soc) {
                     return Ok(None);
                 }
