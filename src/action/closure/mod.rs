@@ -22,7 +22,7 @@ pub mod om;
 pub mod sweep;
 
 pub use drift::{ClosureDrift, ExponentialDrift, FamilyMoments, GaussianDrift, Unrealizable};
-pub use sweep::ClosureAction;
+pub use sweep::{ClosureAction, SweepTolerances};
 
 use std::time::Instant;
 
@@ -607,16 +607,8 @@ fn action_of<S: Sde + ?Sized, D: ClosureDrift>(
     measured: Vec<usize>,
 ) -> Result<ClosureAction<D>> {
     let outs = output_times(&problem.data.times, options)?;
-    ClosureAction::try_new(
-        drift,
-        options.t0,
-        lambda0,
-        &problem.data.times,
-        measured,
-        &outs,
-        options.rtol,
-        options.atol,
-    )
+    let tolerances = SweepTolerances { rtol: options.rtol, atol: options.atol };
+    ClosureAction::try_new(drift, options.t0, lambda0, &problem.data.times, measured, &outs, tolerances)
 }
 
 fn gaussian_setup<'a, S: Sde + ?Sized>(
