@@ -262,6 +262,75 @@ fn invalid(name: &str, reason: String) -> Error {
     Error::InvalidOption { name: name.into(), reason }
 }
 
+/// The bounds (l, u) of the problem's `n` variables. Errors for a NaN bound, l > u, l = +∞ or
+/// u = −∞.
+fn checked_bounds<P: NlpProblem + ?Sized>(problem: &P, n: usize) -> Result<(Vec<f64>, Vec<f64>)> {
+    let mut l = vec![f64::NEG_INFINITY; n];
+    let mut u = vec![f64::INFINITY; n];
+    problem.bounds(&mut l, &mut u);
+    for i in 0..n {
+        if l[i].is_nan() || u[i].is_nan() {
+            return Err(invalid("bounds", format!("bound of variable {i} is NaN")));
+        }
+        if l[i] > u[i] {
+            return Err(invalid(
+                "bounds",
+                format!("lower bound {} > upper bound {} for variable {i}", l[i], u[i]),
+            ));
+        }
+        if l[i] == f64::INFINITY || u[i] == f64::NEG_INFINITY {
+            return Err(invalid("bounds", format!("variable {i} has an infinite bound on the wrong side")));
+        }
+    }
+    Ok((l, u))
+}
+
+/// The problem's Hessian pattern on `n` variables, each entry (row, column) turned into the
+/// lower triangle. Errors for an index out of range.
+fn checked_hessian_structure<P: NlpProblem + ?Sized>(problem: &P, n: usize) -> Result<Vec<(u32, u32)>> {
+    let mut hess_pat = problem.hessian_structure();
+    for p in hess_pat.iter_mut() {
+        if p.0 as usize >= n || p.1 as usize >= n {
+            return Err(Error::DimensionMismatch {
+                what: format!("Hessian pattern entry ({}, {}) index", p.0, p.1),
+                expected: n,
+                got: p.0.max(p.1) as usize,
+            });
+        }
+        if p.0 < p.1 {
+            *p = (p.1, p.0);
+        }
+    }
+    Ok(hess_pat)
+}
+
+/// The problem's Jacobian pattern of `m` constraints in `n` variables. Errors for a row or a
+/// column out of range.
+fn checked_jacobian_structure<P: NlpProblem + ?Sized>(
+    problem: &P,
+    n: usize,
+    m: usize,
+) -> Result<Vec<(u32, u32)>> {
+    let jac_pat = problem.jacobian_structure();
+    for &(r, c) in &jac_pat {
+        if r as usize >= m {
+            return Err(Error::DimensionMismatch {
+                what: format!("Jacobian pattern entry ({r}, {c}) row"),
+                expected: m,
+                got: r as usize,
+            });
+        }
+        if c as usize >= n {
+            return Err(Error::DimensionMismatch {
+                what: format!("Jacobian pattern entry ({r}, {c}) column"),
+                expected: n,
+                got: c as usize,
+            });
+        }
+    }
+    Ok(jac_pat)
+}
+
 impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     fn new(problem: &'a mut P, kkt: &'a mut K, opt: &'a mut NlpOptions, start: Instant) -> Result<Self> {
         let n = problem.num_variables();
@@ -276,61 +345,14 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
                 got: 0,
             });
         }
-        let mut l = vec![f64::NEG_INFINITY; n];
-        let mut u = vec![f64::INFINITY; n];
-        problem.bounds(&mut l, &mut u);
-        for i in 0..n {
-            if l[i].is_nan() || u[i].is_nan() {
-                return Err(invalid("bounds", format!("bound of variable {i} is NaN")));
-            }
-            if l[i] > u[i] {
-                return Err(invalid(
-                    "bounds",
-                    format!("lower bound {} > upper bound {} for variable {i}", l[i], u[i]),
-                ));
-            }
-            if l[i] == f64::INFINITY || u[i] == f64::NEG_INFINITY {
-                return Err(invalid(
-                    "bounds",
-                    format!("variable {i} has an infinite bound on the wrong side"),
-                ));
-            }
-        }
+        let (mut l, mut u) = checked_bounds(&*problem, n)?;
         let mut x = vec![0.0; n];
         problem.initial_point(&mut x);
         if !all_finite(&x) {
             return Err(Error::NonFinite { what: "initial point".into() });
         }
-        let mut hess_pat = problem.hessian_structure();
-        for p in hess_pat.iter_mut() {
-            if p.0 as usize >= n || p.1 as usize >= n {
-                return Err(Error::DimensionMismatch {
-                    what: format!("Hessian pattern entry ({}, {}) index", p.0, p.1),
-                    expected: n,
-                    got: p.0.max(p.1) as usize,
-                });
-            }
-            if p.0 < p.1 {
-                *p = (p.1, p.0);
-            }
-        }
-        let jac_pat = problem.jacobian_structure();
-        for &(r, c) in &jac_pat {
-            if r as usize >= m {
-                return Err(Error::DimensionMismatch {
-                    what: format!("Jacobian pattern entry ({r}, {c}) row"),
-                    expected: m,
-                    got: r as usize,
-                });
-            }
-            if c as usize >= n {
-                return Err(Error::DimensionMismatch {
-                    what: format!("Jacobian pattern entry ({r}, {c}) column"),
-                    expected: n,
-                    got: c as usize,
-                });
-            }
-        }
+        let hess_pat = checked_hessian_structure(&*problem, n)?;
+        let jac_pat = checked_jacobian_structure(&*problem, n, m)?;
         let order = problem.kkt_order();
         if let Some(order) = &order {
             super::kkt::check_order(order, n + m)?;
