@@ -467,8 +467,9 @@ fn unsupported_combinations_are_clear_errors() {
         onsager::action::closure::GaussianDrift::try_new(&DoubleWell, &[0.5]).unwrap(),
         vec![-1.0 / 0.09, -0.5 / 0.09],
     );
+    let tolerances = onsager::action::closure::SweepTolerances { rtol: 1e-6, atol: 1e-9 };
     let err =
-        onsager::action::ClosureAction::try_new(drift, 0.0, lambda0, &[2.0, 1.0], vec![0], &[], 1e-6, 1e-9)
+        onsager::action::ClosureAction::try_new(drift, 0.0, lambda0, &[2.0, 1.0], vec![0], &[], tolerances)
             .unwrap_err();
     assert!(err.to_string().contains("strictly increasing"), "{err}");
     // Two states but one domain interval.

@@ -11,6 +11,7 @@ use num_dual::Dual;
 use super::dense::{cholesky, matmul, symmetrize_in_place, transpose};
 use super::{Gaussian, UnscentedParams};
 use crate::data::Dataset;
+use crate::estimate::EstimationProblem;
 use crate::model::observation::{Noise, StateMeasurement};
 use crate::model::prior::{Prior, PriorDensity};
 use crate::model::{Param, Scalar, Sde};
@@ -71,20 +72,18 @@ fn prior_moments(prior: &Prior, name: &str) -> Result<(f64, f64)> {
 }
 
 impl Setup {
-    /// Checks the pieces and builds the node list. `t0` is the time of the initial-state prior
-    /// (≤ the first measurement time), `dt` the largest integration step.
-    #[allow(clippy::too_many_arguments)]
+    /// Checks the pieces of `problem` that the filter uses (its model, measurement model,
+    /// initial-state priors and data) with θ = `theta` and builds the node list. `t0` is the time
+    /// of the initial-state prior (≤ the first measurement time), `dt` the largest integration
+    /// step, `method` the name in error messages.
     pub fn new<S: Sde + ?Sized>(
-        sde: &S,
-        observation: &StateMeasurement,
+        problem: &EstimationProblem<'_, S, StateMeasurement>,
         theta: &[f64],
-        x0_prior: &[Prior],
-        z0_prior: &[Prior],
-        data: &Dataset,
         t0: f64,
         dt: f64,
         method: &str,
     ) -> Result<Setup> {
+        let EstimationProblem { sde, observation, x0_prior, z0_prior, data, .. } = *problem;
         let d = sde.dims();
         observation.validate(d, theta)?;
         let sigma = match observation.noise {
@@ -222,181 +221,172 @@ fn to_gaussian<D: Scalar>(m: &[D], p: &[D], n: usize) -> Gaussian {
 /// (ṁ, Ṗ, F): the moment rates and, when asked, the effective Jacobian.
 type Rates<D> = (Vec<D>, Vec<D>, Option<Vec<D>>);
 
-/// Time derivatives of the moments at (t, m, P): ṁ, Ṗ and, when asked, the effective
-/// Jacobian F of Φ̇ = F Φ.
-///
-/// - Extended (Jazwinski 1970, Sec. 9.3; Särkkä & Solin 2019, (10.80)): ṁ = a(t, m),
-///   Ṗ = F P + P Fᵀ + B Bᵀ with F = ∂a/∂s(t, m) (by a [`Dual`] pass per state).
-/// - Unscented (Särkkä 2007, (18)–(19); the continuous-time limit of the sigma-point
-///   prediction of Arasaratnam, Haykin & Hurd 2010): ṁ = Σ_i Wᵢ a(t, Xᵢ),
-///   M = Σ_i Wᵢ (Xᵢ − m)(a(t, Xᵢ) − ṁ)ᵀ, Ṗ = M + Mᵀ + B Bᵀ, with the sigma points
-///   Xᵢ = m ± √(n + λ) Lₑᵢ of P = L Lᵀ; the statistical linearisation F = Mᵀ P⁻¹ gives the
-///   cross-covariance of the state at two times used by the smoother (Särkkä 2008).
-#[allow(clippy::too_many_arguments)]
-fn rates<S: Sde + ?Sized, D: Scalar>(
-    sde: &S,
+/// The moment ODEs of one filter run: the model, how the moment equations are approximated,
+/// θ and the diffusion Q = B Bᵀ of the full state (column-major), all fixed along the run.
+struct MomentDynamics<'a, S: Sde + ?Sized, D> {
+    sde: &'a S,
     rule: Rule,
-    t: D,
-    m: &[D],
-    p: &[D],
-    theta: &[D],
-    q: &[D],
-    want_f: bool,
-) -> Option<Rates<D>> {
-    let n = m.len();
-    let zero = D::from(0.0);
-    match rule {
-        Rule::Extended => {
-            let mut a = vec![zero; n];
-            sde.state_drift(t, m, theta, &mut a);
-            // F = ∂a/∂s, column j from one Dual<D> pass seeded along s_j.
-            let mut f = vec![zero; n * n];
-            let lift = |v: &[D]| v.iter().map(|&u| Dual::from_re(u)).collect::<Vec<Dual<D>>>();
-            let (mut md, td) = (lift(m), lift(theta));
-            let mut out = vec![Dual::from_re(zero); n];
-            for j in 0..n {
-                md[j].eps = D::from(1.0);
-                sde.state_drift(Dual::from_re(t), &md, &td, &mut out);
-                md[j].eps = zero;
-                for i in 0..n {
-                    f[i + j * n] = out[i].eps;
-                }
-            }
-            let fp = matmul(&f, p, n, n, n);
-            let mut pdot = vec![zero; n * n];
-            for j in 0..n {
-                for i in 0..n {
-                    pdot[i + j * n] = fp[i + j * n] + fp[j + i * n] + q[i + j * n];
-                }
-            }
-            Some((a, pdot, want_f.then_some(f)))
-        }
-        Rule::Unscented(u) => {
-            let l = cholesky(p, n)?;
-            let (wm0, wi, scale) = u.weights(n);
-            let mut mdot = vec![zero; n];
-            let mut a0 = vec![zero; n];
-            sde.state_drift(t, m, theta, &mut a0);
-            for i in 0..n {
-                mdot[i] = a0[i] * wm0;
-            }
-            // Sigma points m ± scale L e_j. Because the deviations come in ± pairs,
-            // Σ Wᵢ (Xᵢ − m) = 0 and M = Σ Wᵢ (Xᵢ − m)(aᵢ − ṁ)ᵀ = Σ Wᵢ (Xᵢ − m) aᵢᵀ (the centre
-            // point has Xᵢ − m = 0), accumulated in the same pass as ṁ.
-            let mut mm = vec![zero; n * n];
-            let mut x = vec![zero; n];
-            let mut a = vec![zero; n];
-            for j in 0..n {
-                for sign in [1.0, -1.0] {
-                    let k = scale * sign;
+    theta: &'a [D],
+    q: &'a [D],
+}
+
+impl<S: Sde + ?Sized, D: Scalar> MomentDynamics<'_, S, D> {
+    /// Time derivatives of the moments at (t, m, P): ṁ, Ṗ and, when asked, the effective
+    /// Jacobian F of Φ̇ = F Φ.
+    ///
+    /// - Extended (Jazwinski 1970, Sec. 9.3; Särkkä & Solin 2019, (10.80)): ṁ = a(t, m),
+    ///   Ṗ = F P + P Fᵀ + B Bᵀ with F = ∂a/∂s(t, m) (by a [`Dual`] pass per state).
+    /// - Unscented (Särkkä 2007, (18)–(19); the continuous-time limit of the sigma-point
+    ///   prediction of Arasaratnam, Haykin & Hurd 2010): ṁ = Σ_i Wᵢ a(t, Xᵢ),
+    ///   M = Σ_i Wᵢ (Xᵢ − m)(a(t, Xᵢ) − ṁ)ᵀ, Ṗ = M + Mᵀ + B Bᵀ, with the sigma points
+    ///   Xᵢ = m ± √(n + λ) Lₑᵢ of P = L Lᵀ; the statistical linearisation F = Mᵀ P⁻¹ gives the
+    ///   cross-covariance of the state at two times used by the smoother (Särkkä 2008).
+    fn rates(&self, t: D, m: &[D], p: &[D], want_f: bool) -> Option<Rates<D>> {
+        let MomentDynamics { sde, rule, theta, q } = *self;
+        let n = m.len();
+        let zero = D::from(0.0);
+        match rule {
+            Rule::Extended => {
+                let mut a = vec![zero; n];
+                sde.state_drift(t, m, theta, &mut a);
+                // F = ∂a/∂s, column j from one Dual<D> pass seeded along s_j.
+                let mut f = vec![zero; n * n];
+                let lift = |v: &[D]| v.iter().map(|&u| Dual::from_re(u)).collect::<Vec<Dual<D>>>();
+                let (mut md, td) = (lift(m), lift(theta));
+                let mut out = vec![Dual::from_re(zero); n];
+                for j in 0..n {
+                    md[j].eps = D::from(1.0);
+                    sde.state_drift(Dual::from_re(t), &md, &td, &mut out);
+                    md[j].eps = zero;
                     for i in 0..n {
-                        x[i] = m[i] + l.entry(i, j) * k;
+                        f[i + j * n] = out[i].eps;
                     }
-                    sde.state_drift(t, &x, theta, &mut a);
-                    for c in 0..n {
-                        mdot[c] += a[c] * wi;
-                        let ac = a[c] * (wi * k);
-                        // (Xᵢ − m)_r = L_rj k; L is lower triangular, rows r ≥ j.
-                        for r in j..n {
-                            mm[r + c * n] += l.entry(r, j) * ac;
+                }
+                let fp = matmul(&f, p, n, n, n);
+                let mut pdot = vec![zero; n * n];
+                for j in 0..n {
+                    for i in 0..n {
+                        pdot[i + j * n] = fp[i + j * n] + fp[j + i * n] + q[i + j * n];
+                    }
+                }
+                Some((a, pdot, want_f.then_some(f)))
+            }
+            Rule::Unscented(u) => {
+                let l = cholesky(p, n)?;
+                let (wm0, wi, scale) = u.weights(n);
+                let mut mdot = vec![zero; n];
+                let mut a0 = vec![zero; n];
+                sde.state_drift(t, m, theta, &mut a0);
+                for i in 0..n {
+                    mdot[i] = a0[i] * wm0;
+                }
+                // Sigma points m ± scale L e_j. Because the deviations come in ± pairs,
+                // Σ Wᵢ (Xᵢ − m) = 0 and M = Σ Wᵢ (Xᵢ − m)(aᵢ − ṁ)ᵀ = Σ Wᵢ (Xᵢ − m) aᵢᵀ (the centre
+                // point has Xᵢ − m = 0), accumulated in the same pass as ṁ.
+                let mut mm = vec![zero; n * n];
+                let mut x = vec![zero; n];
+                let mut a = vec![zero; n];
+                for j in 0..n {
+                    for sign in [1.0, -1.0] {
+                        let k = scale * sign;
+                        for i in 0..n {
+                            x[i] = m[i] + l.entry(i, j) * k;
+                        }
+                        sde.state_drift(t, &x, theta, &mut a);
+                        for c in 0..n {
+                            mdot[c] += a[c] * wi;
+                            let ac = a[c] * (wi * k);
+                            // (Xᵢ − m)_r = L_rj k; L is lower triangular, rows r ≥ j.
+                            for r in j..n {
+                                mm[r + c * n] += l.entry(r, j) * ac;
+                            }
                         }
                     }
                 }
-            }
-            let mut pdot = vec![zero; n * n];
-            for j in 0..n {
-                for i in 0..n {
-                    pdot[i + j * n] = mm[i + j * n] + mm[j + i * n] + q[i + j * n];
+                let mut pdot = vec![zero; n * n];
+                for j in 0..n {
+                    for i in 0..n {
+                        pdot[i + j * n] = mm[i + j * n] + mm[j + i * n] + q[i + j * n];
+                    }
                 }
+                let f = if want_f {
+                    // F = Mᵀ P⁻¹ = (P⁻¹ M)ᵀ.
+                    let mut pm = mm.clone();
+                    l.solve_in_place(&mut pm);
+                    Some(transpose(&pm, n, n))
+                } else {
+                    None
+                };
+                Some((mdot, pdot, f))
             }
-            let f = if want_f {
-                // F = Mᵀ P⁻¹ = (P⁻¹ M)ᵀ.
-                let mut pm = mm.clone();
-                l.solve_in_place(&mut pm);
-                Some(transpose(&pm, n, n))
-            } else {
-                None
-            };
-            Some((mdot, pdot, f))
         }
     }
-}
 
-/// One classical Runge–Kutta step of size h for (m, P) and, when `phi` is given, Φ̇ = F Φ.
-#[allow(clippy::too_many_arguments)]
-fn rk4_step<S: Sde + ?Sized, D: Scalar>(
-    sde: &S,
-    rule: Rule,
-    t: f64,
-    h: f64,
-    m: &mut [D],
-    p: &mut [D],
-    phi: Option<&mut Vec<D>>,
-    theta: &[D],
-    q: &[D],
-) -> Option<()> {
-    let n = m.len();
-    let nn = n * n;
-    let want_f = phi.is_some();
-    let mut phi_cur: Vec<D> = if want_f {
-        let mut e = vec![D::from(0.0); nn];
-        for i in 0..n {
-            e[i + i * n] = D::from(1.0);
-        }
-        e
-    } else {
-        Vec::new()
-    };
-    let (m0, p0, phi0) = (m.to_vec(), p.to_vec(), phi_cur.clone());
-    let mut acc_m = vec![D::from(0.0); n];
-    let mut acc_p = vec![D::from(0.0); nn];
-    let mut acc_phi = vec![D::from(0.0); phi0.len()];
-    let (mut ms, mut ps) = (m0.clone(), p0.clone());
-    for (stage, (c, w)) in [(0.0, 1.0), (0.5, 2.0), (0.5, 2.0), (1.0, 1.0)].into_iter().enumerate() {
-        let ts = D::from(t + c * h);
-        let (dm, dp, f) = rates(sde, rule, ts, &ms, &ps, theta, q, want_f)?;
-        let dphi = f.map(|f| matmul(&f, &phi_cur, n, n, n));
-        for i in 0..n {
-            acc_m[i] += dm[i] * w;
-        }
-        for i in 0..nn {
-            acc_p[i] += dp[i] * w;
-        }
-        if let Some(dphi) = &dphi {
-            for i in 0..nn {
-                acc_phi[i] += dphi[i] * w;
-            }
-        }
-        if stage < 3 {
-            let next_c = if stage == 2 { 1.0 } else { 0.5 };
+    /// One classical Runge–Kutta step of size h for (m, P) and, when `phi` is given, Φ̇ = F Φ.
+    fn rk4_step(&self, t: f64, h: f64, m: &mut [D], p: &mut [D], phi: Option<&mut Vec<D>>) -> Option<()> {
+        let n = m.len();
+        let nn = n * n;
+        let want_f = phi.is_some();
+        let mut phi_cur: Vec<D> = if want_f {
+            let mut e = vec![D::from(0.0); nn];
             for i in 0..n {
-                ms[i] = m0[i] + dm[i] * (next_c * h);
+                e[i + i * n] = D::from(1.0);
+            }
+            e
+        } else {
+            Vec::new()
+        };
+        let (m0, p0, phi0) = (m.to_vec(), p.to_vec(), phi_cur.clone());
+        let mut acc_m = vec![D::from(0.0); n];
+        let mut acc_p = vec![D::from(0.0); nn];
+        let mut acc_phi = vec![D::from(0.0); phi0.len()];
+        let (mut ms, mut ps) = (m0.clone(), p0.clone());
+        for (stage, (c, w)) in [(0.0, 1.0), (0.5, 2.0), (0.5, 2.0), (1.0, 1.0)].into_iter().enumerate() {
+            let ts = D::from(t + c * h);
+            let (dm, dp, f) = self.rates(ts, &ms, &ps, want_f)?;
+            let dphi = f.map(|f| matmul(&f, &phi_cur, n, n, n));
+            for i in 0..n {
+                acc_m[i] += dm[i] * w;
             }
             for i in 0..nn {
-                ps[i] = p0[i] + dp[i] * (next_c * h);
+                acc_p[i] += dp[i] * w;
             }
-            symmetrize_in_place(&mut ps, n);
             if let Some(dphi) = &dphi {
                 for i in 0..nn {
-                    phi_cur[i] = phi0[i] + dphi[i] * (next_c * h);
+                    acc_phi[i] += dphi[i] * w;
+                }
+            }
+            if stage < 3 {
+                let next_c = if stage == 2 { 1.0 } else { 0.5 };
+                for i in 0..n {
+                    ms[i] = m0[i] + dm[i] * (next_c * h);
+                }
+                for i in 0..nn {
+                    ps[i] = p0[i] + dp[i] * (next_c * h);
+                }
+                symmetrize_in_place(&mut ps, n);
+                if let Some(dphi) = &dphi {
+                    for i in 0..nn {
+                        phi_cur[i] = phi0[i] + dphi[i] * (next_c * h);
+                    }
                 }
             }
         }
+        for i in 0..n {
+            m[i] = m0[i] + acc_m[i] * (h / 6.0);
+        }
+        for i in 0..nn {
+            p[i] = p0[i] + acc_p[i] * (h / 6.0);
+        }
+        symmetrize_in_place(p, n);
+        if let Some(phi) = phi {
+            *phi = (0..nn).map(|i| phi0[i] + acc_phi[i] * (h / 6.0)).collect();
+        }
+        if m.iter().chain(p.iter()).any(|v| !v.re().is_finite()) {
+            return None;
+        }
+        Some(())
     }
-    for i in 0..n {
-        m[i] = m0[i] + acc_m[i] * (h / 6.0);
-    }
-    for i in 0..nn {
-        p[i] = p0[i] + acc_p[i] * (h / 6.0);
-    }
-    symmetrize_in_place(p, n);
-    if let Some(phi) = phi {
-        *phi = (0..nn).map(|i| phi0[i] + acc_phi[i] * (h / 6.0)).collect();
-    }
-    if m.iter().chain(p.iter()).any(|v| !v.re().is_finite()) {
-        return None;
-    }
-    Some(())
 }
 
 /// The Kalman measurement update with the selection y = s[measured] + N(0, σ² I), skipping
@@ -469,6 +459,7 @@ pub(crate) fn run<S: Sde + ?Sized, D: Scalar>(
             q[i + j * n] = (0..noisy).map(|k| g[i + k * noisy] * g[j + k * noisy]).sum();
         }
     }
+    let dynamics = MomentDynamics { sde, rule, theta, q: &q };
     let sigma = setup.sigma.value(theta).ok_or(setup.nodes[0].t)?;
     let mut m: Vec<D> = setup.m0.iter().map(|&v| D::from(v)).collect();
     let mut p: Vec<D> = setup.p0.iter().map(|&v| D::from(v)).collect();
@@ -480,7 +471,7 @@ pub(crate) fn run<S: Sde + ?Sized, D: Scalar>(
         for s in 0..node.steps {
             let t = t_prev + s as f64 * h;
             let phi_arg = store.is_some().then_some(&mut phi);
-            rk4_step(sde, rule, t, h, &mut m, &mut p, phi_arg, theta, &q).ok_or(t)?;
+            dynamics.rk4_step(t, h, &mut m, &mut p, phi_arg).ok_or(t)?;
             if let Some(st) = store.as_deref_mut() {
                 st.phi.push(DMatrix::from_iterator(n, n, phi.iter().map(|v| v.re())));
                 if s + 1 < node.steps {

@@ -375,17 +375,7 @@ fn setup<S: Sde + ?Sized>(
     method: &str,
 ) -> Result<filter::Setup> {
     problem.validate()?;
-    filter::Setup::new(
-        problem.sde,
-        problem.observation,
-        theta,
-        problem.x0_prior,
-        problem.z0_prior,
-        problem.data,
-        problem.t0,
-        options.step(problem.t0, &problem.data.times),
-        method,
-    )
+    filter::Setup::new(problem, theta, problem.t0, options.step(problem.t0, &problem.data.times), method)
 }
 
 /// Runs the continuous-discrete filter `approximation` at θ = `theta` (not

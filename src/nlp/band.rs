@@ -41,7 +41,7 @@
 
 use onsager_closures::dot;
 
-use super::kkt::{FactorInfo, Inertia, KktSolver, KktStructure, KktValues, SlotMap};
+use super::kkt::{FactorInfo, Inertia, KktSolver, KktStructure, KktValues, Refinement, SlotMap};
 use crate::{Error, Result};
 
 /// Largest mean envelope width (stored entries per row) accepted by [`BandLdlt::analyse`] in
@@ -671,14 +671,17 @@ impl KktSolver for BandLdlt {
         for p in 0..dim {
             b[p] = rhs[self.perm[p] as usize];
         }
+        let refinement = Refinement {
+            norm_k: self.norm_k,
+            max_steps: self.max_refinement_steps,
+            regularized: self.regularized > 0,
+        };
         self.last_residual = super::kkt::refine(
             &b,
             &mut x,
             &mut r,
             &mut prev,
-            self.norm_k,
-            self.max_refinement_steps,
-            self.regularized > 0,
+            refinement,
             |x, y| self.sym_matvec(x, y),
             |x| self.solve_permuted(x),
         );

@@ -156,6 +156,15 @@ enum LineSearch {
     Failed,
 }
 
+/// The iterate's side of the filter line search's tests (eqs. (18)–(21)): θ(x_k) = ‖c(x_k)‖₁,
+/// the barrier function φ_μ(x_k) and its directional derivative ∇φ_μ(x_k)ᵀd_x along the step.
+#[derive(Debug, Clone, Copy)]
+struct LineSearchOrigin {
+    theta: f64,
+    phi: f64,
+    gd: f64,
+}
+
 struct Ipm<'a, P: ?Sized, K: ?Sized> {
     problem: &'a mut P,
     kkt: &'a mut K,
@@ -253,6 +262,75 @@ fn invalid(name: &str, reason: String) -> Error {
     Error::InvalidOption { name: name.into(), reason }
 }
 
+/// The bounds (l, u) of the problem's `n` variables. Errors for a NaN bound, l > u, l = +∞ or
+/// u = −∞.
+fn checked_bounds<P: NlpProblem + ?Sized>(problem: &P, n: usize) -> Result<(Vec<f64>, Vec<f64>)> {
+    let mut l = vec![f64::NEG_INFINITY; n];
+    let mut u = vec![f64::INFINITY; n];
+    problem.bounds(&mut l, &mut u);
+    for i in 0..n {
+        if l[i].is_nan() || u[i].is_nan() {
+            return Err(invalid("bounds", format!("bound of variable {i} is NaN")));
+        }
+        if l[i] > u[i] {
+            return Err(invalid(
+                "bounds",
+                format!("lower bound {} > upper bound {} for variable {i}", l[i], u[i]),
+            ));
+        }
+        if l[i] == f64::INFINITY || u[i] == f64::NEG_INFINITY {
+            return Err(invalid("bounds", format!("variable {i} has an infinite bound on the wrong side")));
+        }
+    }
+    Ok((l, u))
+}
+
+/// The problem's Hessian pattern on `n` variables, each entry (row, column) turned into the
+/// lower triangle. Errors for an index out of range.
+fn checked_hessian_structure<P: NlpProblem + ?Sized>(problem: &P, n: usize) -> Result<Vec<(u32, u32)>> {
+    let mut hess_pat = problem.hessian_structure();
+    for p in hess_pat.iter_mut() {
+        if p.0 as usize >= n || p.1 as usize >= n {
+            return Err(Error::DimensionMismatch {
+                what: format!("Hessian pattern entry ({}, {}) index", p.0, p.1),
+                expected: n,
+                got: p.0.max(p.1) as usize,
+            });
+        }
+        if p.0 < p.1 {
+            *p = (p.1, p.0);
+        }
+    }
+    Ok(hess_pat)
+}
+
+/// The problem's Jacobian pattern of `m` constraints in `n` variables. Errors for a row or a
+/// column out of range.
+fn checked_jacobian_structure<P: NlpProblem + ?Sized>(
+    problem: &P,
+    n: usize,
+    m: usize,
+) -> Result<Vec<(u32, u32)>> {
+    let jac_pat = problem.jacobian_structure();
+    for &(r, c) in &jac_pat {
+        if r as usize >= m {
+            return Err(Error::DimensionMismatch {
+                what: format!("Jacobian pattern entry ({r}, {c}) row"),
+                expected: m,
+                got: r as usize,
+            });
+        }
+        if c as usize >= n {
+            return Err(Error::DimensionMismatch {
+                what: format!("Jacobian pattern entry ({r}, {c}) column"),
+                expected: n,
+                got: c as usize,
+            });
+        }
+    }
+    Ok(jac_pat)
+}
+
 impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
     fn new(problem: &'a mut P, kkt: &'a mut K, opt: &'a mut NlpOptions, start: Instant) -> Result<Self> {
         let n = problem.num_variables();
@@ -267,61 +345,14 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
                 got: 0,
             });
         }
-        let mut l = vec![f64::NEG_INFINITY; n];
-        let mut u = vec![f64::INFINITY; n];
-        problem.bounds(&mut l, &mut u);
-        for i in 0..n {
-            if l[i].is_nan() || u[i].is_nan() {
-                return Err(invalid("bounds", format!("bound of variable {i} is NaN")));
-            }
-            if l[i] > u[i] {
-                return Err(invalid(
-                    "bounds",
-                    format!("lower bound {} > upper bound {} for variable {i}", l[i], u[i]),
-                ));
-            }
-            if l[i] == f64::INFINITY || u[i] == f64::NEG_INFINITY {
-                return Err(invalid(
-                    "bounds",
-                    format!("variable {i} has an infinite bound on the wrong side"),
-                ));
-            }
-        }
+        let (mut l, mut u) = checked_bounds(&*problem, n)?;
         let mut x = vec![0.0; n];
         problem.initial_point(&mut x);
         if !all_finite(&x) {
             return Err(Error::NonFinite { what: "initial point".into() });
         }
-        let mut hess_pat = problem.hessian_structure();
-        for p in hess_pat.iter_mut() {
-            if p.0 as usize >= n || p.1 as usize >= n {
-                return Err(Error::DimensionMismatch {
-                    what: format!("Hessian pattern entry ({}, {}) index", p.0, p.1),
-                    expected: n,
-                    got: p.0.max(p.1) as usize,
-                });
-            }
-            if p.0 < p.1 {
-                *p = (p.1, p.0);
-            }
-        }
-        let jac_pat = problem.jacobian_structure();
-        for &(r, c) in &jac_pat {
-            if r as usize >= m {
-                return Err(Error::DimensionMismatch {
-                    what: format!("Jacobian pattern entry ({r}, {c}) row"),
-                    expected: m,
-                    got: r as usize,
-                });
-            }
-            if c as usize >= n {
-                return Err(Error::DimensionMismatch {
-                    what: format!("Jacobian pattern entry ({r}, {c}) column"),
-                    expected: n,
-                    got: c as usize,
-                });
-            }
-        }
+        let hess_pat = checked_hessian_structure(&*problem, n)?;
+        let jac_pat = checked_jacobian_structure(&*problem, n, m)?;
         let order = problem.kkt_order();
         if let Some(order) = &order {
             super::kkt::check_order(order, n + m)?;
@@ -1117,6 +1148,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             return Ok(LineSearch::Failed);
         }
         let gd: f64 = gphi.iter().zip(dir.dx()).map(|(a, b)| a * b).sum();
+        let origin = LineSearchOrigin { theta, phi, gd };
         let alpha_max = self.max_step_primal(&self.x, dir.dx(), self.tau);
         // eq. (23): minimum step
         let alpha_min = GAMMA_ALPHA
@@ -1171,7 +1203,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
                     }
                 }
             }
-            let verdict = self.acceptance(theta, phi, gd, alpha, theta_t, phi_t);
+            let verdict = self.acceptance(origin, alpha, theta_t, phi_t);
             if let Some(f_type) = verdict {
                 if self.eval_derivatives(&x_trial) {
                     if !f_type {
@@ -1186,9 +1218,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             }
             // Sect. 2.4: second-order correction on the first trial
             if trials == 1 && theta_t >= theta && self.m > 0 {
-                if let Some(done) =
-                    self.second_order_correction(rx, alpha, &c_t, theta, phi, gd, alpha_max)?
-                {
+                if let Some(done) = self.second_order_correction(rx, alpha, &c_t, origin, alpha_max)? {
                     self.last_trials = trials;
                     return Ok(done);
                 }
@@ -1200,17 +1230,11 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         }
     }
 
-    /// Acceptance test of a trial point (eqs. (18)–(21)): Some(true) for an f-type
-    /// (Armijo) acceptance, Some(false) for a θ-type acceptance, None if rejected.
-    fn acceptance(
-        &self,
-        theta: f64,
-        phi: f64,
-        gd: f64,
-        alpha: f64,
-        theta_t: f64,
-        phi_t: f64,
-    ) -> Option<bool> {
+    /// Acceptance test of a trial point (eqs. (18)–(21)) at step `alpha` from `origin`:
+    /// Some(true) for an f-type (Armijo) acceptance, Some(false) for a θ-type acceptance, None if
+    /// rejected.
+    fn acceptance(&self, origin: LineSearchOrigin, alpha: f64, theta_t: f64, phi_t: f64) -> Option<bool> {
+        let LineSearchOrigin { theta, phi, gd } = origin;
         if !self.filter_acceptable(theta_t, phi_t) {
             return None;
         }
@@ -1230,17 +1254,19 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
         }
     }
 
-    #[allow(clippy::too_many_arguments)]
+    /// Second-order corrections (Sect. 2.4) after the first trial step `alpha0` was rejected with
+    /// constraint values `c_trial`: each corrected step (from the primal right-hand side `rx`)
+    /// is tested for acceptance from `origin` with α = `alpha_max`. `Some(LineSearch::Accepted)`
+    /// when one is accepted, `None` otherwise.
     fn second_order_correction(
         &mut self,
         rx: &[f64],
         alpha0: f64,
         c_trial: &[f64],
-        theta: f64,
-        phi: f64,
-        gd: f64,
+        origin: LineSearchOrigin,
         alpha_max: f64,
     ) -> std::result::Result<Option<LineSearch>, Status> {
+        let LineSearchOrigin { theta, phi, .. } = origin;
         let mut c_soc: Vec<f64> = self.c.iter().zip(c_trial).map(|(c0, ct)| alpha0 * c0 + ct).collect();
         let mut theta_old = Self::theta(c_trial);
         for _ in 0..SOC_MAX {
@@ -1255,7 +1281,7 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
             };
             let theta_s = Self::theta(&c_s);
             let phi_s = self.phi(f_s, &x_soc);
-            if let Some(f_type) = self.acceptance(theta, phi, gd, alpha_max, theta_s, phi_s) {
+            if let Some(f_type) = self.acceptance(origin, alpha_max, theta_s, phi_s) {
                 if !self.eval_derivatives(&x_soc) {
                     return Ok(None);
                 }

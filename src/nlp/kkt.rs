@@ -566,6 +566,17 @@ fn upper_csc(dim: usize, entries: &[(usize, usize)]) -> (Vec<usize>, Vec<usize>)
     (out_ptr, row_idx)
 }
 
+/// How [`refine`] refines the solves with one factorisation of K.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Refinement {
+    /// ‖K‖∞, in the backward error ‖r‖ / (‖b‖ + ‖K‖‖x‖).
+    pub norm_k: f64,
+    /// The most refinement steps after the first solve.
+    pub max_steps: usize,
+    /// Whether some pivots were regularised (then the relative residual must be small too).
+    pub regularized: bool,
+}
+
 /// Solves `K x = b` given a solver `solve` of the factorised `K` and the product `matvec`, with
 /// iterative refinement. Stops when the backward error ‖r‖ / (‖b‖ + ‖K‖‖x‖) is at most 1e-10
 /// (IPOPT's `residual_ratio_max`; A. Wächter and L. T. Biegler, Math. Program. 106 (2006),
@@ -573,20 +584,19 @@ fn upper_csc(dim: usize, entries: &[(usize, usize)]) -> (Vec<usize>, Vec<usize>)
 /// regularised (`regularized`), the relative residual ‖r‖ / ‖b‖ must also be at most 1e-10,
 /// since the interior-point method then accepts the factorisation only on that residual. Also
 /// stops when refinement stagnates (does not halve the backward error) or after `max_steps`
-/// refinement steps; keeps the best iterate.
+/// refinement steps; keeps the best iterate (`norm_k`, `max_steps`, `regularized`: the fields of
+/// `refinement`).
 /// Returns ‖b − K x‖∞ / ‖b‖∞. `r` and `prev` are workspaces of the same length.
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn refine(
     b: &[f64],
     x: &mut [f64],
     r: &mut [f64],
     prev: &mut [f64],
-    norm_k: f64,
-    max_steps: usize,
-    regularized: bool,
+    refinement: Refinement,
     matvec: impl Fn(&[f64], &mut [f64]),
     mut solve: impl FnMut(&mut [f64]),
 ) -> f64 {
+    let Refinement { norm_k, max_steps, regularized } = refinement;
     let dim = b.len();
     let b_norm = b.iter().fold(0.0f64, |a, &v| a.max(v.abs()));
     x.copy_from_slice(b);
@@ -791,14 +801,17 @@ impl KktSolver for FaerLdlt {
         }
         let mut ldlt_mem = MemBuffer::new(StackReq::EMPTY);
         let ldlt = simplicial::SimplicialLdltRef::new(self.simplicial(), &self.l_values);
+        let refinement = Refinement {
+            norm_k: self.norm_k,
+            max_steps: self.max_refinement_steps,
+            regularized: self.regularized,
+        };
         let residual = refine(
             &b,
             &mut x,
             &mut r,
             &mut prev,
-            self.norm_k,
-            self.max_refinement_steps,
-            self.regularized,
+            refinement,
             |x, y| self.sym_matvec(x, y),
             |x| {
                 let mat = MatMut::from_column_major_slice_mut(x, dim, 1);

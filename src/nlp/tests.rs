@@ -33,8 +33,10 @@ struct Dense {
 }
 
 impl Dense {
-    #[allow(clippy::too_many_arguments)]
-    fn free(n: usize, m: usize, x0: Vec<f64>, f: Fn0, g: Fn1, c: Fn1, j: Fn1, h: FnH) -> Self {
+    /// The problem of `m` constraints in the variables of the starting point `x0` (n = its
+    /// length), with no bounds.
+    fn free(m: usize, x0: Vec<f64>, f: Fn0, g: Fn1, c: Fn1, j: Fn1, h: FnH) -> Self {
+        let n = x0.len();
         let (lower, upper) = (vec![f64::NEG_INFINITY; n], vec![f64::INFINITY; n]);
         Self { n, m, x0, lower, upper, f, g, c, j, h, order: None }
     }
@@ -114,7 +116,6 @@ fn run(p: &mut Dense) -> NlpSolution {
 /// x₀ = (−2, 1).
 fn hs1() -> Dense {
     let mut p = Dense::free(
-        2,
         0,
         vec![-2.0, 1.0],
         |x| 100.0 * (x[1] - x[0] * x[0]).powi(2) + (1.0 - x[0]).powi(2),
@@ -161,7 +162,6 @@ fn rosenbrock_unconstrained() {
 /// with the constraint `c` and its Jacobian `j` (the tests alter them in some regions).
 fn hs6_with(x0: Vec<f64>, c: Fn1, j: Fn1) -> Dense {
     Dense::free(
-        2,
         1,
         x0,
         |x| (1.0 - x[0]).powi(2),
@@ -206,7 +206,6 @@ fn hs7() {
     // HS (1981) problem 7: min ln(1 + x₁²) − x₂ s.t. (1 + x₁²)² + x₂² − 4 = 0, x₀ = (2, 2);
     // x* = (0, √3), f* = −√3.
     let mut p = Dense::free(
-        2,
         1,
         vec![2.0, 2.0],
         |x| (1.0 + x[0] * x[0]).ln() - x[1],
@@ -239,7 +238,6 @@ fn hs39() {
     // HS (1981) problem 39: min −x₁ s.t. x₂ − x₁³ − x₃² = 0, x₁² − x₂ − x₄² = 0,
     // x₀ = (2, 2, 2, 2); x* = (1, 1, 0, 0), f* = −1.
     let mut p = Dense::free(
-        4,
         2,
         vec![2.0; 4],
         |x| -x[0],
@@ -386,7 +384,6 @@ fn nonconvex_needs_inertia_correction() {
     // at the start; closed form minimisers (±1, ±1) with f* = 0, the start lies in the basin
     // of (1, 1).
     let mut p = Dense::free(
-        2,
         0,
         vec![0.1, 0.3],
         |x| (x[0] * x[0] - 1.0).powi(2) + (x[1] - x[0]).powi(2),
@@ -420,7 +417,6 @@ fn nonconvex_needs_inertia_correction() {
 #[test]
 fn wachter_biegler_counterexample_needs_restoration() {
     let mut p = Dense::free(
-        3,
         2,
         vec![-2.0, 3.0, 1.0],
         |x| x[0],
@@ -685,7 +681,6 @@ fn infeasible_linear_constraints() {
     // x₁ + x₂ = 1 and x₁ + x₂ = 2 cannot both hold.
     let mut p = Dense::free(
         2,
-        2,
         vec![0.0, 0.0],
         |x| x[0] * x[0] + x[1] * x[1],
         |x, g| {
@@ -714,7 +709,6 @@ fn infeasible_nonlinear_constraint() {
     // x² + 1 = 0 has no real solution; ½c² is stationary at x = 0.
     let mut p = Dense::free(
         1,
-        1,
         vec![1.0],
         |x| x[0],
         |_, g| g[0] = 1.0,
@@ -732,7 +726,6 @@ fn infeasible_with_bound() {
     // x ≥ 0 and x + 1 = 0.
     let mut p = Dense::free(
         1,
-        1,
         vec![1.0],
         |x| x[0] * x[0],
         |x, g| g[0] = 2.0 * x[0],
@@ -749,7 +742,6 @@ fn infeasible_with_bound() {
 fn unbounded_linear() {
     // min −x₁ s.t. x₁ − x₂ = 0, x₂ ≥ 0.
     let mut p = Dense::free(
-        2,
         1,
         vec![0.0, 0.0],
         |x| -x[0],
@@ -768,7 +760,6 @@ fn unbounded_linear() {
 fn unbounded_nonconvex() {
     // min −x₁² + x₂² (no constraints): unbounded along x₁.
     let mut p = Dense::free(
-        2,
         0,
         vec![0.5, 0.5],
         |x| -x[0] * x[0] + x[1] * x[1],
@@ -793,7 +784,6 @@ fn nan_trial_points_are_rejected() {
     // min x − ln x written without a bound: NaN for x ≤ 0. Newton's first step from x = 3
     // goes to −3; the line search must back off. Closed form minimiser x* = 1, f* = 1.
     let mut p = Dense::free(
-        1,
         0,
         vec![3.0],
         |x| {
@@ -836,7 +826,6 @@ fn nan_gradient_at_trial_point_is_rejected() {
     // full step lands at x = 0.8, where the gradient is NaN (x < 0.85): the trial must be
     // rejected and the step shortened. Closed form minimiser x* = 1, f* = 0.
     let mut p = Dense::free(
-        1,
         0,
         vec![1.3],
         |x| (x[0] - 1.0).powi(2),
@@ -892,7 +881,6 @@ fn time_limit_is_a_status() {
 #[test]
 fn nan_at_initial_point_is_a_status() {
     let mut p = Dense::free(
-        1,
         0,
         vec![-1.0],
         |x| x[0].sqrt(),
@@ -909,7 +897,6 @@ fn nan_at_initial_point_is_a_status() {
 fn nan_everywhere_but_start_never_converges() {
     // f finite only at the starting point: every trial is rejected.
     let mut p = Dense::free(
-        1,
         0,
         vec![2.0],
         |x| if x[0] == 2.0 { 1.0 } else { f64::NAN },
@@ -926,7 +913,6 @@ fn nan_everywhere_but_start_never_converges() {
 #[test]
 fn nan_hessian_is_a_status() {
     let mut p = Dense::free(
-        1,
         0,
         vec![2.0],
         |x| x[0] * x[0],
@@ -1286,7 +1272,8 @@ fn refinement_reports_a_non_finite_residual_as_infinite() {
             y.copy_from_slice(x);
             y[1] = bad;
         };
-        let residual = super::kkt::refine(&b, &mut x, &mut r, &mut prev, 1.0, 3, false, matvec, |_| {});
+        let refinement = super::kkt::Refinement { norm_k: 1.0, max_steps: 3, regularized: false };
+        let residual = super::kkt::refine(&b, &mut x, &mut r, &mut prev, refinement, matvec, |_| {});
         assert_eq!(residual, f64::INFINITY, "product entry {bad}");
     }
 }

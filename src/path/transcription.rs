@@ -653,8 +653,8 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
                         };
                         let (jr, packed) = entry.split_at_mut(nout * npt);
                         let s = &w[q * ns..(q + 1) * ns];
-                        let seconds =
-                            self.hs_point_derivatives(t, s, theta_e, theta, slots, pl, jr, packed, &mut ph);
+                        let point = LobattoPoint { t, s, theta_e, theta };
+                        let seconds = self.hs_point_derivatives(point, slots, pl, jr, packed, &mut ph);
                         if seconds & !stored != 0 {
                             return seconds & !stored;
                         }
@@ -703,7 +703,7 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
         }
     }
 
-    /// The first and second derivatives of the outputs of a Lobatto point at time `t` with
+    /// The first and second derivatives of the outputs of a Lobatto `point` at time `t` with
     /// states `s` (the rate [f; h] and, for Onsager–Machlup, div_x f) in the point's
     /// (s, θ_d), `theta_e` the estimated θ and `theta` the full θ: the Jacobian into `jr`
     /// (outputs × npt, column-major), the packed lower triangles of the Hessians of the outputs o with
@@ -712,19 +712,16 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
     /// [`ad::hessians_into`] pass (`pl`, `ph`: scratch of npt and outputs · npt² entries).
     /// Returns the outputs (bit o) with second derivatives: those the closed form wrote, or
     /// all of them.
-    #[allow(clippy::too_many_arguments)]
     fn hs_point_derivatives(
         &self,
-        t: f64,
-        s: &[f64],
-        theta_e: &[f64],
-        theta: &[f64],
+        point: LobattoPoint<'_>,
         slots: &[usize],
         pl: &mut [f64],
         jr: &mut [f64],
         packed: &mut [f64],
         ph: &mut [f64],
     ) -> u64 {
+        let LobattoPoint { t, s, theta_e, theta } = point;
         let p = self.problem;
         let nx = p.sde.dims().noisy;
         let (npt, nout) = (self.hs_point_dim(), self.hs_point_outputs());
@@ -832,18 +829,18 @@ impl<'a, S: Sde + ?Sized, O: Observation + ?Sized> PathNlp<'a, S, O> {
     /// G(a + (σ − ½)b) is linear (G does not depend on an estimated θ for Hermite–Simpson).
     /// With `cached` (the data of [`PointCache`] at the current point) the point Hessians are
     /// combinations of the stored output Hessians (and `local`, the piece's local vector, is
-    /// not read); otherwise one second-order pass of the combination per point.
-    #[allow(clippy::too_many_arguments)]
+    /// not read); otherwise one second-order pass of the combination per point. σ_f and λ (the
+    /// piece's multipliers) are `weights`.
     fn hs_hessian_into(
         &self,
         k: usize,
         local: &[f64],
-        obj_factor: f64,
-        lambda: &[f64],
+        weights: LagrangianWeights<'_>,
         values: &mut [f64],
         theta: &mut [f64],
         cached: Option<&PointCache>,
     ) {
+        let LagrangianWeights { obj_factor, lambda } = weights;
         let d = self.problem.sde.dims();
         let ns = d.states();
         let npt = self.hs_point_dim();
@@ -1089,6 +1086,25 @@ fn log_det_implicit<S: Sde + ?Sized, D: Scalar>(
     }
     let mut b = vec![D::from(0.0); nx];
     ad::lu_solve_in_place(&mut m, &mut b).unwrap_or(D::from(f64::NAN))
+}
+
+/// A Lobatto point of a Hermite–Simpson piece where [`PathNlp::hs_point_derivatives`]
+/// differentiates the outputs: its time `t`, its states `s` (noisy then clean), the estimated
+/// θ components `theta_e` and the full θ `theta` built from them.
+#[derive(Debug, Clone, Copy)]
+struct LobattoPoint<'p> {
+    t: f64,
+    s: &'p [f64],
+    theta_e: &'p [f64],
+    theta: &'p [f64],
+}
+
+/// The weights of the Hessian of the Lagrangian σ_f · (−merit) + λᵀc of one piece: the
+/// objective factor σ_f and the piece's constraint multipliers λ.
+#[derive(Debug, Clone, Copy)]
+struct LagrangianWeights<'l> {
+    obj_factor: f64,
+    lambda: &'l [f64],
 }
 
 /// A function of one Lobatto point's (s_i, θ_d) (θ_d: the estimated θ that enter the
@@ -1443,17 +1459,18 @@ impl<S: Sde + ?Sized, O: Observation + ?Sized> NlpProblem for PathNlp<'_, S, O> 
         theta.fill(0.0);
         for (bi, b) in self.blocks.iter().enumerate() {
             let lam = &lambda[b.row0..b.row0 + b.rows];
+            let weights = LagrangianWeights { obj_factor, lambda: lam };
             let end = self.blocks.get(bi + 1).map_or(values.len() + t0, |n| n.hess0);
             let out = &mut values[b.hess0 - t0..end - t0];
             if let (Some(k), Some(_)) = (self.hs_piece(b), cached) {
                 // the cached path does not read the local vector
-                self.hs_hessian_into(k, &[], obj_factor, lam, out, theta, cached);
+                self.hs_hessian_into(k, &[], weights, out, theta, cached);
                 continue;
             }
             with_buffer(b.vars.len(), |local| {
                 self.locals_into(b, w, local);
                 match self.hs_piece(b) {
-                    Some(k) => self.hs_hessian_into(k, local, obj_factor, lam, out, theta, cached),
+                    Some(k) => self.hs_hessian_into(k, local, weights, out, theta, cached),
                     None => {
                         let nv = b.vars.len();
                         let f = LagFn { nlp: self, block: b, obj_factor, lambda: lam };

@@ -207,12 +207,9 @@ pub(crate) fn validate_line_plot(p: &LinePlot) -> Result<()> {
     Ok(())
 }
 
-/// Lay out a line plot in `area` of `scene`.
-pub(crate) fn layout_line_plot(scene: &mut Scene, area: Rect, p: &LinePlot) -> Result<()> {
-    validate_line_plot(p)?;
-    let top = draw_title(scene, &area, &p.title);
-
-    // Data ranges over finite points, bands included.
+/// The ranges (x0, x1, y0, y1) of the finite points of a line plot, bands included; `None` when
+/// it has none.
+fn data_range(p: &LinePlot) -> Option<(f64, f64, f64, f64)> {
     let (mut x0, mut x1, mut y0, mut y1) =
         (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
     for s in &p.series {
@@ -234,85 +231,37 @@ pub(crate) fn layout_line_plot(scene: &mut Scene, area: Rect, p: &LinePlot) -> R
             }
         }
     }
-    let empty = !(x0.is_finite() && y0.is_finite());
-    if empty {
-        (x0, x1, y0, y1) = (0.0, 1.0, 0.0, 1.0);
-    }
+    (x0.is_finite() && y0.is_finite()).then_some((x0, x1, y0, y1))
+}
 
-    let has_x_label = !p.x_label.trim().is_empty();
-    let bottom = area.bottom()
-        - (TICK_LEN + 6.0 + TICK_FONT + 8.0 + if has_x_label { LABEL_FONT + 10.0 } else { 0.0 });
-    let plot_h = (bottom - top).max(10.0);
-    let y_axis = Axis::new(y0, y1, false, 0.04, (plot_h / 45.0).round().max(2.0) as usize);
-    let left = area.x + left_margin(&y_axis, &p.y_label);
-    let mut right = area.right() - 18.0;
-
-    // Legend: inside the corner that hides the fewest data points, or outside on the right.
-    let entries: Vec<usize> = (0..p.series.len()).filter(|i| !p.series[*i].label.trim().is_empty()).collect();
-    let row_h = LEGEND_FONT + 7.0;
-    let label_w = entries.iter().map(|i| text_width(&p.series[*i].label, LEGEND_FONT)).fold(0.0, f64::max);
-    let (leg_w, leg_h) = (10.0 + 26.0 + 6.0 + label_w + 10.0, 8.0 + row_h * entries.len() as f64);
-    let mut plot = Rect { x: left, y: top, w: (right - left).max(10.0), h: plot_h };
-    // Time axes end at the data, except that markers at the ends get room.
-    let x_pad = if p.series.iter().any(|s| !matches!(s.style, SeriesStyle::Line)) { 0.015 } else { 0.0 };
-    let mut x_axis = Axis::new(x0, x1, false, x_pad, (plot.w / 90.0).round().max(2.0) as usize);
-    let screen_points = |plot: &Rect, x_axis: &Axis| -> Vec<(f64, f64)> {
-        let mut pts = vec![];
-        for s in &p.series {
-            let mut push = |x: f64, y: f64| {
-                if x.is_finite() && y.is_finite() {
-                    pts.push((px(plot, x_axis, x), py(plot, &y_axis, y)));
-                }
-            };
-            for i in 0..s.x.len() {
-                push(s.x[i], s.y[i]);
-                if i + 1 < s.x.len() && !matches!(s.style, SeriesStyle::Points) {
-                    push((s.x[i] + s.x[i + 1]) / 2.0, (s.y[i] + s.y[i + 1]) / 2.0);
-                }
-                if let Some((lo, hi)) = &s.band {
-                    push(s.x[i], lo[i]);
-                    push(s.x[i], hi[i]);
-                }
+/// The screen positions of a line plot's finite points, of the midpoints of its line segments
+/// and of its band ends: what a legend inside the plot would hide.
+fn screen_points(p: &LinePlot, plot: &Rect, x_axis: &Axis, y_axis: &Axis) -> Vec<(f64, f64)> {
+    let mut pts = vec![];
+    for s in &p.series {
+        let mut push = |x: f64, y: f64| {
+            if x.is_finite() && y.is_finite() {
+                pts.push((px(plot, x_axis, x), py(plot, y_axis, y)));
             }
-        }
-        pts
-    };
-    let mut legend_at = None;
-    if !entries.is_empty() && !empty {
-        let inset = 8.0;
-        let candidates = |plot: &Rect| {
-            [
-                (plot.right() - inset - leg_w, plot.y + inset),
-                (plot.x + inset, plot.y + inset),
-                (plot.right() - inset - leg_w, plot.bottom() - inset - leg_h),
-                (plot.x + inset, plot.bottom() - inset - leg_h),
-            ]
         };
-        let pts = screen_points(&plot, &x_axis);
-        let best = candidates(&plot)
-            .into_iter()
-            .map(|(lx, ly)| {
-                let r = Rect { x: lx - 4.0, y: ly - 4.0, w: leg_w + 8.0, h: leg_h + 8.0 };
-                (pts.iter().filter(|(x, y)| r.contains(*x, *y)).count(), (lx, ly))
-            })
-            .min_by_key(|(count, _)| *count);
-        if let Some((count, at)) = best {
-            let fits_outside = plot.w - leg_w - 12.0 > 0.55 * area.w;
-            if count == 0 || !fits_outside {
-                legend_at = Some(at);
-            } else {
-                right -= leg_w + 12.0;
-                plot.w = (right - left).max(10.0);
-                x_axis = Axis::new(x0, x1, false, x_pad, (plot.w / 90.0).round().max(2.0) as usize);
-                legend_at = Some((plot.right() + 12.0, plot.y));
+        for i in 0..s.x.len() {
+            push(s.x[i], s.y[i]);
+            if i + 1 < s.x.len() && !matches!(s.style, SeriesStyle::Points) {
+                push((s.x[i] + s.x[i + 1]) / 2.0, (s.y[i] + s.y[i + 1]) / 2.0);
+            }
+            if let Some((lo, hi)) = &s.band {
+                push(s.x[i], lo[i]);
+                push(s.x[i], hi[i]);
             }
         }
     }
+    pts
+}
 
-    // Grid and axes.
-    draw_y_axis(scene, &area, &plot, &y_axis, &p.y_label);
-    for (t, label) in x_axis.ticks.iter().zip(&x_axis.labels) {
-        let xx = px(&plot, &x_axis, *t);
+/// Grid lines and the x axis (ticks, labels, axis label) for plot rectangle `plot`.
+fn draw_x_axis(scene: &mut Scene, area: &Rect, plot: &Rect, x: &Axis, x_label: &str) {
+    for (t, label) in x.ticks.iter().zip(&x.labels) {
+        let xx = px(plot, x, *t);
         scene.line(vec![(xx, plot.y), (xx, plot.bottom())], Color::GRID, 1.0, None);
         scene.line(vec![(xx, plot.bottom()), (xx, plot.bottom() + TICK_LEN)], Color::AXIS, 1.0, None);
         scene.text(
@@ -324,26 +273,35 @@ pub(crate) fn layout_line_plot(scene: &mut Scene, area: Rect, p: &LinePlot) -> R
             Color::TEXT,
         );
     }
-    if has_x_label {
+    if !x_label.trim().is_empty() {
         scene.text(
             plot.x + plot.w / 2.0,
             area.bottom() - 10.0,
-            &p.x_label,
+            x_label,
             LABEL_FONT,
             Anchor::Middle,
             Color::TEXT,
         );
     }
+}
 
-    let clip = Some(scene.clip(plot));
-    // Bands first, so that every line is drawn over every band.
+/// The bands of a line plot, then its lines and markers (so that every line is drawn over every
+/// band), in `plot` with clip rectangle `clip`.
+fn draw_series(
+    scene: &mut Scene,
+    p: &LinePlot,
+    plot: &Rect,
+    x_axis: &Axis,
+    y_axis: &Axis,
+    clip: Option<usize>,
+) {
     for (k, s) in p.series.iter().enumerate() {
         let Some((lo, hi)) = &s.band else { continue };
         let (color, _) = series_look(k);
         for r in runs(s.x.len(), |i| s.x[i].is_finite() && lo[i].is_finite() && hi[i].is_finite()) {
             let mut pts: Vec<(f64, f64)> =
-                r.clone().map(|i| (px(&plot, &x_axis, s.x[i]), py(&plot, &y_axis, hi[i]))).collect();
-            pts.extend(r.rev().map(|i| (px(&plot, &x_axis, s.x[i]), py(&plot, &y_axis, lo[i]))));
+                r.clone().map(|i| (px(plot, x_axis, s.x[i]), py(plot, y_axis, hi[i]))).collect();
+            pts.extend(r.rev().map(|i| (px(plot, x_axis, s.x[i]), py(plot, y_axis, lo[i]))));
             if pts.len() >= 4 {
                 scene.prims.push(Prim::Polygon { points: pts, fill: color.with_alpha(BAND_ALPHA), clip });
             }
@@ -355,7 +313,7 @@ pub(crate) fn layout_line_plot(scene: &mut Scene, area: Rect, p: &LinePlot) -> R
         if matches!(s.style, SeriesStyle::Line | SeriesStyle::LineAndPoints) {
             for r in runs(s.x.len(), ok) {
                 let pts: Vec<(f64, f64)> =
-                    r.map(|i| (px(&plot, &x_axis, s.x[i]), py(&plot, &y_axis, s.y[i]))).collect();
+                    r.map(|i| (px(plot, x_axis, s.x[i]), py(plot, y_axis, s.y[i]))).collect();
                 if pts.len() >= 2 {
                     scene.prims.push(Prim::Polyline {
                         points: pts,
@@ -381,8 +339,8 @@ pub(crate) fn layout_line_plot(scene: &mut Scene, area: Rect, p: &LinePlot) -> R
         if matches!(s.style, SeriesStyle::Points | SeriesStyle::LineAndPoints) {
             for i in (0..s.x.len()).filter(|i| ok(*i)) {
                 scene.prims.push(Prim::Circle {
-                    cx: px(&plot, &x_axis, s.x[i]),
-                    cy: py(&plot, &y_axis, s.y[i]),
+                    cx: px(plot, x_axis, s.x[i]),
+                    cy: py(plot, y_axis, s.y[i]),
                     r: MARKER_R,
                     fill: Some(color.with_alpha(0.85)),
                     stroke: Some((Color::WHITE, 0.6)),
@@ -391,19 +349,38 @@ pub(crate) fn layout_line_plot(scene: &mut Scene, area: Rect, p: &LinePlot) -> R
             }
         }
     }
-    draw_frame(scene, &plot);
-    if empty {
-        note(scene, &plot, "no finite data");
+}
+
+/// The legend of a line plot: its rows (the series with a label, in order), the height of a row
+/// and the size of its box.
+struct Legend {
+    entries: Vec<usize>,
+    row_h: f64,
+    w: f64,
+    h: f64,
+}
+
+impl Legend {
+    fn new(p: &LinePlot) -> Legend {
+        let entries: Vec<usize> =
+            (0..p.series.len()).filter(|i| !p.series[*i].label.trim().is_empty()).collect();
+        let row_h = LEGEND_FONT + 7.0;
+        let label_w =
+            entries.iter().map(|i| text_width(&p.series[*i].label, LEGEND_FONT)).fold(0.0, f64::max);
+        let (w, h) = (10.0 + 26.0 + 6.0 + label_w + 10.0, 8.0 + row_h * entries.len() as f64);
+        Legend { entries, row_h, w, h }
     }
 
-    if let Some((lx, ly)) = legend_at {
+    /// Draws the legend of `p` with its box's top left corner at (lx, ly).
+    fn draw(&self, scene: &mut Scene, p: &LinePlot, (lx, ly): (f64, f64)) {
+        let row_h = self.row_h;
         scene.prims.push(Prim::Rect {
-            rect: Rect { x: lx, y: ly, w: leg_w, h: leg_h },
+            rect: Rect { x: lx, y: ly, w: self.w, h: self.h },
             fill: Some(Color::WHITE.with_alpha(0.88)),
             stroke: Some((Color::rgb(200, 200, 200), 1.0)),
             clip: None,
         });
-        for (row, &k) in entries.iter().enumerate() {
+        for (row, &k) in self.entries.iter().enumerate() {
             let s = &p.series[k];
             let (color, dash) = series_look(k);
             let cy = ly + 4.0 + row_h * (row as f64 + 0.5);
@@ -444,6 +421,79 @@ pub(crate) fn layout_line_plot(scene: &mut Scene, area: Rect, p: &LinePlot) -> R
                 Color::TEXT,
             );
         }
+    }
+}
+
+/// Lay out a line plot in `area` of `scene`.
+pub(crate) fn layout_line_plot(scene: &mut Scene, area: Rect, p: &LinePlot) -> Result<()> {
+    validate_line_plot(p)?;
+    let top = draw_title(scene, &area, &p.title);
+
+    // Data ranges over finite points, bands included.
+    let range = data_range(p);
+    let empty = range.is_none();
+    let (x0, x1, y0, y1) = range.unwrap_or((0.0, 1.0, 0.0, 1.0));
+
+    let has_x_label = !p.x_label.trim().is_empty();
+    let bottom = area.bottom()
+        - (TICK_LEN + 6.0 + TICK_FONT + 8.0 + if has_x_label { LABEL_FONT + 10.0 } else { 0.0 });
+    let plot_h = (bottom - top).max(10.0);
+    let y_axis = Axis::new(y0, y1, false, 0.04, (plot_h / 45.0).round().max(2.0) as usize);
+    let left = area.x + left_margin(&y_axis, &p.y_label);
+    let mut right = area.right() - 18.0;
+
+    // Legend: inside the corner that hides the fewest data points, or outside on the right.
+    let legend = Legend::new(p);
+    let (leg_w, leg_h) = (legend.w, legend.h);
+    let mut plot = Rect { x: left, y: top, w: (right - left).max(10.0), h: plot_h };
+    // Time axes end at the data, except that markers at the ends get room.
+    let x_pad = if p.series.iter().any(|s| !matches!(s.style, SeriesStyle::Line)) { 0.015 } else { 0.0 };
+    let mut x_axis = Axis::new(x0, x1, false, x_pad, (plot.w / 90.0).round().max(2.0) as usize);
+    let mut legend_at = None;
+    if !legend.entries.is_empty() && !empty {
+        let inset = 8.0;
+        let candidates = |plot: &Rect| {
+            [
+                (plot.right() - inset - leg_w, plot.y + inset),
+                (plot.x + inset, plot.y + inset),
+                (plot.right() - inset - leg_w, plot.bottom() - inset - leg_h),
+                (plot.x + inset, plot.bottom() - inset - leg_h),
+            ]
+        };
+        let pts = screen_points(p, &plot, &x_axis, &y_axis);
+        let best = candidates(&plot)
+            .into_iter()
+            .map(|(lx, ly)| {
+                let r = Rect { x: lx - 4.0, y: ly - 4.0, w: leg_w + 8.0, h: leg_h + 8.0 };
+                (pts.iter().filter(|(x, y)| r.contains(*x, *y)).count(), (lx, ly))
+            })
+            .min_by_key(|(count, _)| *count);
+        if let Some((count, at)) = best {
+            let fits_outside = plot.w - leg_w - 12.0 > 0.55 * area.w;
+            if count == 0 || !fits_outside {
+                legend_at = Some(at);
+            } else {
+                right -= leg_w + 12.0;
+                plot.w = (right - left).max(10.0);
+                x_axis = Axis::new(x0, x1, false, x_pad, (plot.w / 90.0).round().max(2.0) as usize);
+                legend_at = Some((plot.right() + 12.0, plot.y));
+            }
+        }
+    }
+
+    // Grid and axes.
+    draw_y_axis(scene, &area, &plot, &y_axis, &p.y_label);
+    draw_x_axis(scene, &area, &plot, &x_axis, &p.x_label);
+
+    let clip = Some(scene.clip(plot));
+    draw_series(scene, p, &plot, &x_axis, &y_axis, clip);
+    draw_frame(scene, &plot);
+    if empty {
+        note(scene, &plot, "no finite data");
+    }
+
+    if let Some(at) = legend_at {
+        legend.draw(scene, p, at);
     }
     Ok(())
 }

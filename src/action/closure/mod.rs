@@ -22,7 +22,7 @@ pub mod om;
 pub mod sweep;
 
 pub use drift::{ClosureDrift, ExponentialDrift, FamilyMoments, GaussianDrift, Unrealizable};
-pub use sweep::ClosureAction;
+pub use sweep::{ClosureAction, SweepTolerances};
 
 use std::fmt::Debug;
 use std::time::Instant;
@@ -488,6 +488,7 @@ pub fn closure_action<'a, S: Sde + ?Sized, F: ClosureFamily>(
     common_checks(problem, closure)?;
     let setup = closure.family.setup(problem)?;
     let outs = output_times(problem.t0, &problem.data.times, &closure.options)?;
+    let tolerances = SweepTolerances { rtol: closure.options.rtol, atol: closure.options.atol };
     ClosureAction::try_new(
         setup.drift,
         problem.t0,
@@ -495,8 +496,7 @@ pub fn closure_action<'a, S: Sde + ?Sized, F: ClosureFamily>(
         &problem.data.times,
         setup.measured,
         &outs,
-        closure.options.rtol,
-        closure.options.atol,
+        tolerances,
     )
 }
 

@@ -383,7 +383,7 @@ fn build<'a, S: Sde + ?Sized>(
     let rule = gaussian_closure_rule(problem.sde, 1, options.gaussian_points);
     let family = Gaussian::try_new(1)
         .and_then(|g| g.with_rule(rule))
-        .map_err(|e| invalid("gaussian points", e.to_string()))?;
+        .map_err(|e| invalid("gaussian_points", e.to_string()))?;
     let r_var = data.variance[0];
     // Start: the data linearly interpolated (constant outside), variance R.
     let pts: Vec<(f64, f64)> = measurements.iter().map(|&(i, r)| (grid[i], r)).collect();

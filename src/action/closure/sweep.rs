@@ -164,6 +164,16 @@ macro_rules! with_size {
     };
 }
 
+/// The Runge–Kutta tolerances of a [`ClosureAction`]'s sweeps: a step from y to y′ is accepted
+/// when its error estimate e has RMS_a(e_a / (atol + rtol·max(|y_a|, |y′_a|))) ≤ 1.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SweepTolerances {
+    /// The relative tolerance (> 0).
+    pub rtol: f64,
+    /// The absolute tolerance (> 0).
+    pub atol: f64,
+}
+
 fn check_tolerances(rtol: f64, atol: f64) -> Result<()> {
     for (name, v) in [("rtol", rtol), ("atol", atol)] {
         if !(v.is_finite() && v > 0.0) {
@@ -283,8 +293,24 @@ struct IntervalWork {
     dys: Vec<f64>,
     dks: Vec<f64>,
     stage_tangents: Vec<f64>,
+    adjoint: AdjointTangentWork,
+}
+
+/// The workspaces of [`ClosureAction::adjoint_tangent_step`]: δk̄ (6 R × R) and δȲ_i (R × R).
+#[derive(Debug, Default)]
+struct AdjointTangentWork {
     dk: Vec<f64>,
     dyb: Vec<f64>,
+}
+
+/// The interval between two consecutive events that [`ClosureAction::integrate`] integrates:
+/// from `start` to `end`, with the time of the next measurement at or after `end` when the
+/// steps resolve the adjoint before it (the history's sweeps).
+#[derive(Debug, Clone, Copy)]
+struct EventInterval {
+    start: f64,
+    end: f64,
+    next_measurement: Option<f64>,
 }
 
 /// How the forward sweep picks the multiplier of measurement k from λ(t_k−).
@@ -373,11 +399,10 @@ struct SweepFailure;
 impl<D: ClosureDrift> ClosureAction<D> {
     /// The action of `drift` from λ(t_0) = `lambda0`, measurements at `meas_times` of the
     /// moments `measured` (one index into M per measured component), history reported at
-    /// `output_times` as well. `rtol`, `atol`: the Runge–Kutta tolerances.
+    /// `output_times` as well, with the Runge–Kutta `tolerances`.
     ///
     /// Errors ([`Error::InvalidOption`]): lengths, non-finite λ_0, a measurement before t_0,
     /// non-positive tolerances.
-    #[allow(clippy::too_many_arguments)]
     pub fn try_new(
         drift: D,
         t0: f64,
@@ -385,9 +410,9 @@ impl<D: ClosureDrift> ClosureAction<D> {
         meas_times: &[f64],
         measured: Vec<usize>,
         output_times: &[f64],
-        rtol: f64,
-        atol: f64,
+        tolerances: SweepTolerances,
     ) -> Result<Self> {
+        let SweepTolerances { rtol, atol } = tolerances;
         let r = drift.n_params();
         crate::model::check_len("initial natural parameters", r, lambda0.len())?;
         if lambda0.iter().any(|v| !v.is_finite()) {
@@ -542,12 +567,13 @@ impl<D: ClosureDrift> ClosureAction<D> {
         }
     }
 
-    /// Integrates from `t` to `t_end` with error control, pushing the accepted steps (with their
-    /// stage Hessians when the family keeps them). W and ∂W/∂λ (and those Hessians) at (t, y)
-    /// are evaluated unless `work` holds them already (the seventh stage of the
-    /// last step, ending exactly at t, with no jump since: an output time between measurements).
+    /// Integrates over `interval`, from t = its `start` to t_end = its `end`, with error control,
+    /// pushing the accepted steps (with their stage Hessians when the family keeps them). W and
+    /// ∂W/∂λ (and those Hessians) at (t, y) are evaluated unless `work` holds them already (the
+    /// seventh stage of the last step, ending exactly at t, with no jump since: an output time
+    /// between measurements).
     ///
-    /// With `next_measurement` (the history's sweeps), the steps that would end within
+    /// With its `next_measurement` (the history's sweeps), the steps that would end within
     /// [`ADJOINT_WINDOW`] relaxation times 1/ρ of the next measurement are also limited to
     /// hρ ≤ z(x), ρ the spectral radius of ∂W/∂λ at the step's start, x = ρ·(the step end's
     /// distance to the measurement) and z(x) = [`mode_step`] of rtol·e^x ([`graded_mode_steps`]:
@@ -559,17 +585,15 @@ impl<D: ClosureDrift> ClosureAction<D> {
     /// relaxed and the steps are long: without the limit the history just before a measurement
     /// was off by up to 5·10⁻³ in the sd and 2.5·10⁻² in the path at the default tolerance
     /// (`docs/closures.md`, "Accuracy of the history just before a measurement").
-    #[allow(clippy::too_many_arguments)]
     fn integrate(
         &self,
-        t: f64,
-        t_end: f64,
+        interval: EventInterval,
         y: &mut [f64],
         h_guess: &mut f64,
         steps: &mut Steps,
         work: &mut RkWork,
-        next_measurement: Option<f64>,
     ) -> std::result::Result<(), SweepFailure> {
+        let EventInterval { start: t, end: t_end, next_measurement } = interval;
         let span = t_end - t;
         if span <= 0.0 {
             return Ok(());
@@ -686,15 +710,9 @@ impl<D: ClosureDrift> ClosureAction<D> {
         }
         for (e, &next_measurement) in next.iter().enumerate() {
             if e > 0 {
-                self.integrate(
-                    events.times[e - 1],
-                    events.times[e],
-                    &mut y,
-                    &mut h,
-                    &mut out.steps,
-                    &mut work,
-                    next_measurement,
-                )?;
+                let interval =
+                    EventInterval { start: events.times[e - 1], end: events.times[e], next_measurement };
+                self.integrate(interval, &mut y, &mut h, &mut out.steps, &mut work)?;
                 out.steps.start.push(out.steps.len());
             }
             out.lambda_minus.push(y.clone());
@@ -1002,7 +1020,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         q: &mut [f64],
     ) {
         let rr = r * r;
-        let IntervalWork { dys, dks, stage_tangents, dk, dyb } = work;
+        let IntervalWork { dys, dks, stage_tangents, adjoint } = work;
         // J: δy from the identity through the steps, keeping the stage tangents.
         jac.fill(0.0);
         for a in 0..r {
@@ -1015,8 +1033,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
         }
         // Q: δγ from zero back through the steps.
         q.fill(0.0);
-        dk.resize(6 * rr, 0.0);
-        dyb.resize(rr, 0.0);
+        adjoint.dk.resize(6 * rr, 0.0);
+        adjoint.dyb.resize(rr, 0.0);
         for (st, dy) in steps.interval(e).zip(stage_tangents.chunks_exact(6 * rr)).rev() {
             let block = 6 * rr * st..6 * rr * (st + 1);
             Self::adjoint_tangent_step(
@@ -1026,8 +1044,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 r,
                 q,
                 dy,
-                dk,
-                dyb,
+                adjoint,
             );
         }
     }
@@ -1093,9 +1110,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
     /// One step of the tangent of the discrete adjoint (the second-order adjoint), backwards,
     /// on R columns: with δγ (`dg`, R × R) after the step and the step's stage tangents δY_i
     /// (`dy`, 6 R × R), δk̄_i = h b_i δγ + Σ_{l>i} h a_li δȲ_l, δȲ_i = J_iᵀ δk̄_i + H_i δY_i
-    /// (J_i, H_i: `jac`, `hess`, 6 R × R blocks) and δγ += Σ_i δȲ_i in place. `dk` (6 R × R) and
-    /// `dyb` (R × R) are workspaces.
-    #[allow(clippy::too_many_arguments)]
+    /// (J_i, H_i: `jac`, `hess`, 6 R × R blocks) and δγ += Σ_i δȲ_i in place. `work` holds δk̄
+    /// (6 R × R) and δȲ_i (R × R).
     #[inline(always)]
     fn adjoint_tangent_step(
         h: f64,
@@ -1104,9 +1120,9 @@ impl<D: ClosureDrift> ClosureAction<D> {
         r: usize,
         dg: &mut [f64],
         dy: &[f64],
-        dk: &mut [f64],
-        dyb: &mut [f64],
+        work: &mut AdjointTangentWork,
     ) {
+        let (dk, dyb) = (&mut work.dk[..], &mut work.dyb[..]);
         let rr = r * r;
         for i in 0..6 {
             for q in 0..rr {
@@ -1369,7 +1385,7 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
 
 #[cfg(test)]
 mod tests {
-    use super::{ClosureAction, A, B, C, E};
+    use super::{ClosureAction, SweepTolerances, A, B, C, E};
     use crate::action::closure::drift::{ClosureDrift, FamilyMoments, GaussianDrift, Unrealizable};
     use crate::action::dual::EffectiveAction;
     use crate::model::library::DoubleWell;
@@ -1423,11 +1439,12 @@ mod tests {
         let lambda0 = vec![-1.0 / 0.09, -0.5 / 0.09];
         let times = [1.0, 2.0, 3.0];
         let outputs = [0.5, 1.0, 1.5, 2.0, 2.5, 3.0];
+        let tolerances = SweepTolerances { rtol: 1e-8, atol: 1e-10 };
         let mut kept =
-            ClosureAction::try_new(drift(), 0.0, lambda0.clone(), &times, vec![0], &outputs, 1e-8, 1e-10)
+            ClosureAction::try_new(drift(), 0.0, lambda0.clone(), &times, vec![0], &outputs, tolerances)
                 .unwrap();
         let mut evaluated =
-            ClosureAction::try_new(Evaluating(drift()), 0.0, lambda0, &times, vec![0], &outputs, 1e-8, 1e-10)
+            ClosureAction::try_new(Evaluating(drift()), 0.0, lambda0, &times, vec![0], &outputs, tolerances)
                 .unwrap();
         assert!(kept.keep_hessians && !evaluated.keep_hessians);
         for lambda in [[1.5, -2.0, 0.7], [-20.0, 25.0, 3.0]] {

@@ -1,0 +1,548 @@
+//! The exponential-family closure drift on the fixed nodes of an [`Exponential`] family
+//! ([`ExponentialDrift`]).
+
+use onsager_closures::{cholesky_into, cholesky_solve_in_place, dot, Exponential, TrialFamily};
+
+use super::{diffusion_matrix, unrealizable, ClosureDrift, FamilyMoments, Unrealizable};
+use crate::model::Sde;
+use crate::{Error, Result};
+
+/// An exponential-family closure on the fixed nodes of an [`Exponential`] family (1-D or 2-D,
+/// the family's state = the model's full state). The generator averages
+/// g_k = f(x_k)·∇M(x_k) + D:∇∇M(x_k) (`003_d2fc48a470e528fc.txt (II.3)`) are formed at the
+/// nodes, with ∇M and ∇∇M computed once; then V = Σπ_k g_k, W = C⁻¹V and
+///
+/// $$ \partial W/\partial\lambda = C^{-1}\sum_k \pi_k\,(g_k - (d_k\cdot W)\,d_k)\,d_k^\top,
+///    \qquad d_k = M(x_k) - \mu , $$
+///
+/// from ∂V/∂λ = Σπ_k g_k d_kᵀ and ∂C_ab/∂λ_j = Σπ_k d_a d_b d_j (`(II.43)`).
+///
+/// The drift keeps the work buffers of one evaluation in a `RefCell`, so it is not `Sync`:
+/// threads that evaluate closures in parallel (Monte Carlo replicates) each build their own.
+pub struct ExponentialDrift<'a, S: Sde + ?Sized> {
+    sde: &'a S,
+    theta: Vec<f64>,
+    family: Exponential,
+    diffusion: Vec<f64>,
+    /// The hot loops run over the nodes with one contiguous row per moment ("moment-major"):
+    /// M_a(x_k) at row a is the family's [`Exponential::moment_table_by_moment`], and
+    /// ∂M_a/∂x_i(x_k) at row a·dim + i.
+    jac: Vec<f64>,
+    /// D : ∇∇M_a(x_k) at row a.
+    second: Vec<f64>,
+    linear: Vec<Option<usize>>,
+    square: Vec<Option<usize>>,
+    /// The buffers of one evaluation, reused (the drift is evaluated at every Runge–Kutta stage).
+    work: std::cell::RefCell<ExpWork>,
+}
+
+impl<S: Sde + ?Sized> std::fmt::Debug for ExponentialDrift<'_, S> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ExponentialDrift").field("family", &self.family).finish()
+    }
+}
+
+impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
+    /// The closure of `sde` at θ with `family` (whose dimension must be the model's number of
+    /// states and whose moment functions must have derivatives). Errors:
+    /// [`Error::InvalidOption`] for a dimension mismatch or missing derivatives; a singular G.
+    pub fn try_new(sde: &'a S, theta: &[f64], family: Exponential) -> Result<Self> {
+        let n = sde.dims().states();
+        if family.dim() != n {
+            return Err(Error::InvalidOption {
+                name: "method".into(),
+                reason: format!(
+                    "the exponential family has dimension {} but the model has {n} states",
+                    family.dim()
+                ),
+            });
+        }
+        let diffusion = diffusion_matrix(sde, theta)?;
+        let r = family.n_moments();
+        let nodes = family.grid().len();
+        let mut jac = vec![0.0; nodes * r * n];
+        let mut second = vec![0.0; nodes * r];
+        let mut h = vec![0.0; r * n * n];
+        let grid = family.grid().clone();
+        for (k, (x, _)) in grid.iter().enumerate() {
+            family.moment_derivatives(x, &mut jac[k * r * n..(k + 1) * r * n], &mut h).map_err(|e| {
+                Error::InvalidOption { name: "method".into(), reason: format!("exponential closure: {e}") }
+            })?;
+            for a in 0..r {
+                second[k * r + a] = (0..n * n).map(|ij| diffusion[ij] * h[a * n * n + ij]).sum::<f64>();
+            }
+        }
+        // Find x_i and x_i² among the moments numerically on the nodes.
+        let table = family.moment_table();
+        let find = |g: &dyn Fn(&[f64]) -> f64| -> Option<usize> {
+            (0..r).find(|&a| {
+                grid.iter().enumerate().all(|(k, (x, _))| {
+                    let v = g(x);
+                    (table[k * r + a] - v).abs() <= 1e-12 * (1.0 + v.abs())
+                })
+            })
+        };
+        let linear = (0..n).map(|i| find(&|x: &[f64]| x[i])).collect();
+        let square = (0..n).map(|i| find(&|x: &[f64]| x[i] * x[i])).collect();
+        // Node-major → moment-major.
+        let transpose = |m: &[f64], rows: usize| -> Vec<f64> {
+            let mut out = vec![0.0; m.len()];
+            for k in 0..nodes {
+                for a in 0..rows {
+                    out[a * nodes + k] = m[k * rows + a];
+                }
+            }
+            out
+        };
+        let (jac, second) = (transpose(&jac, r * n), transpose(&second, r));
+        Ok(ExponentialDrift {
+            sde,
+            theta: theta.to_vec(),
+            family,
+            diffusion,
+            jac,
+            second,
+            linear,
+            square,
+            work: Default::default(),
+        })
+    }
+
+    /// The family.
+    pub fn family(&self) -> &Exponential {
+        &self.family
+    }
+
+    /// The diffusion D = ½GGᵀ of the full state (row-major).
+    pub fn diffusion(&self) -> &[f64] {
+        &self.diffusion
+    }
+}
+
+/// The Jacobi-scaled Cholesky factor of a moment covariance C (entries of very different
+/// sizes): C = S⁻¹LLᵀS⁻¹ with S = diag(1/√C_aa).
+#[derive(Debug, Default)]
+struct SpdFactor {
+    scale: Vec<f64>,
+    scaled: Vec<f64>,
+    l: Vec<f64>,
+}
+
+impl SpdFactor {
+    /// Factors C (row-major R × R) in place of the previous factor.
+    fn factor(&mut self, c: &[f64], r: usize) -> std::result::Result<(), Unrealizable> {
+        self.scale.clear();
+        self.scale.extend((0..r).map(|a| 1.0 / c[a * r + a].max(f64::MIN_POSITIVE).sqrt()));
+        self.scaled.clear();
+        let scale = &self.scale;
+        self.scaled.extend((0..r * r).map(|ab| c[ab] * scale[ab / r] * scale[ab % r]));
+        self.l.resize(r * r, 0.0);
+        cholesky_into(&self.scaled, r, &mut self.l)
+            .map_err(|_| Unrealizable("the moment covariance C is not positive definite".into()))
+    }
+
+    /// x = C⁻¹b in place.
+    fn solve(&self, x: &mut [f64]) {
+        for (v, s) in x.iter_mut().zip(&self.scale) {
+            *v *= s;
+        }
+        cholesky_solve_in_place(&self.l, x).expect("the factor and x have matching sizes");
+        for (v, s) in x.iter_mut().zip(&self.scale) {
+            *v *= s;
+        }
+    }
+}
+
+/// What W and ∂W/∂λ of an exponential closure are made of (see [`ExponentialDrift`]), flat:
+/// node probabilities π, centred moments d = M(x_k) − μ, πd, generator values g_k (each
+/// moment-major: one row of node values per moment; g is 0 where π is), V, the factor of C, W.
+#[derive(Debug, Default)]
+struct FirstOrder {
+    p: Vec<f64>,
+    d: Vec<f64>,
+    pd: Vec<f64>,
+    g: Vec<f64>,
+    v: Vec<f64>,
+    c: SpdFactor,
+    w: Vec<f64>,
+}
+
+/// The buffers of one evaluation of an [`ExponentialDrift`]: [`FirstOrder`] and the scratch of
+/// the log-weights, the drift at the nodes, C, and the node and moment vectors of ∂W/∂λ and
+/// ∇²(κᵀW).
+#[derive(Debug, Default)]
+struct ExpWork {
+    z: FirstOrder,
+    s: Vec<f64>,
+    fs: Vec<f64>,
+    f: Vec<f64>,
+    cov: Vec<f64>,
+    /// π on all nodes, before the restriction to the nodes with mass.
+    p_all: Vec<f64>,
+    nodes: [Vec<f64>; 5],
+    col: Vec<f64>,
+    u: Vec<f64>,
+    tm: Vec<f64>,
+    tj: Vec<f64>,
+}
+
+impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
+    /// π, d, g, V, C and W = C⁻¹V at (t, λ) into `z`, with the scratch of `work`, on the nodes
+    /// `lo..hi` from the first to the last of non-zero probability: the node vectors of `z` are
+    /// that range, compact. A concentrated density has no mass that counts on most of a wide
+    /// grid, and the family gives probability 0 to nodes below e⁻⁵⁰ of the largest
+    /// ([`onsager_closures::NEGLIGIBLE_LOG_WEIGHT`]), so W, ∂W/∂λ and ∇²(κᵀW) remain the
+    /// exact derivatives of one another.
+    fn zeroth(&self, t: f64, lambda: &[f64], work: &mut ExpWork) -> std::result::Result<(), Unrealizable> {
+        let n = self.family.dim();
+        let r = self.family.n_moments();
+        let ExpWork { z, s, fs, f, cov, p_all, .. } = work;
+        self.family.node_probabilities_into(lambda, s, p_all).map_err(unrealizable)?;
+        let all = p_all.len();
+        let lo = p_all.iter().position(|&pk| pk > 0.0).unwrap_or(0);
+        let hi = p_all.iter().rposition(|&pk| pk > 0.0).map_or(all, |k| k + 1);
+        z.p.clear();
+        z.p.extend_from_slice(&p_all[lo..hi]);
+        let p = &z.p;
+        let nodes = p.len();
+        // Row `row` of a table of rows of `all` node values, restricted to lo..hi.
+        let active = |row: usize| row * all + lo..row * all + hi;
+        // The drift at the nodes that carry mass, state-major.
+        fs.clear();
+        fs.resize(n * nodes, 0.0);
+        f.clear();
+        f.resize(n, 0.0);
+        let points = &self.family.grid().points()[lo * n..hi * n];
+        for (k, &pk) in p.iter().enumerate() {
+            if pk != 0.0 {
+                self.sde.state_drift(t, &points[k * n..(k + 1) * n], &self.theta, f);
+                for i in 0..n {
+                    fs[i * nodes + k] = f[i];
+                }
+            }
+        }
+        let table = self.family.moment_table_by_moment();
+        let massless = p.contains(&0.0);
+        let (d, pd, g, v) = (&mut z.d, &mut z.pd, &mut z.g, &mut z.v);
+        d.clear();
+        pd.clear();
+        g.clear();
+        v.clear();
+        v.resize(r, 0.0);
+        for (a, va) in v.iter_mut().enumerate() {
+            let row = a * nodes..(a + 1) * nodes;
+            let ma = &table[active(a)];
+            let mu = dot(p, ma);
+            d.extend(ma.iter().map(|&mk| mk - mu));
+            pd.extend(p.iter().zip(&d[row.clone()]).map(|(&pk, &dk)| pk * dk));
+            g.extend_from_slice(&self.second[active(a)]);
+            let ga = &mut g[row];
+            for i in 0..n {
+                let ji = &self.jac[active(a * n + i)];
+                let fi = &fs[i * nodes..(i + 1) * nodes];
+                for ((gk, &jk), &fk) in ga.iter_mut().zip(ji).zip(fi) {
+                    *gk += jk * fk;
+                }
+            }
+            if massless {
+                for (gk, &pk) in ga.iter_mut().zip(p) {
+                    if pk == 0.0 {
+                        *gk = 0.0;
+                    }
+                }
+            }
+            *va = dot(p, ga);
+        }
+        if !v.iter().all(|x| x.is_finite()) {
+            return Err(Unrealizable("the drift is not finite on the family's grid".into()));
+        }
+        cov.clear();
+        cov.resize(r * r, 0.0);
+        for a in 0..r {
+            for b in a..r {
+                let cab = dot(&pd[a * nodes..(a + 1) * nodes], &d[b * nodes..(b + 1) * nodes]);
+                cov[a * r + b] = cab;
+                cov[b * r + a] = cab;
+            }
+        }
+        z.c.factor(cov, r)?;
+        z.w.clear();
+        z.w.extend_from_slice(v);
+        z.c.solve(&mut z.w);
+        Ok(())
+    }
+
+    /// Σ_k s_k d_a(x_k) d_b(x_k) for all a, b (symmetric, row-major r × r) of a node weight s;
+    /// `sd` is scratch.
+    fn weighted_second_moments(z: &FirstOrder, s: &[f64], out: &mut [f64], sd: &mut Vec<f64>) {
+        let r = z.w.len();
+        let nodes = z.p.len();
+        sd.clear();
+        sd.resize(nodes, 0.0);
+        for a in 0..r {
+            let da = &z.d[a * nodes..(a + 1) * nodes];
+            for ((x, &sk), &dk) in sd.iter_mut().zip(s).zip(da) {
+                *x = sk * dk;
+            }
+            for b in a..r {
+                let v = dot(sd, &z.d[b * nodes..(b + 1) * nodes]);
+                out[a * r + b] = v;
+                out[b * r + a] = v;
+            }
+        }
+    }
+
+    /// Σ_a c_a m_a(x_k) at every node of moment-major rows m, into `out`.
+    fn project(rows: &[f64], c: &[f64], out: &mut Vec<f64>) {
+        let nodes = rows.len() / c.len().max(1);
+        out.clear();
+        out.resize(nodes, 0.0);
+        for (row, &ca) in rows.chunks_exact(nodes).zip(c) {
+            for (o, &mk) in out.iter_mut().zip(row) {
+                *o += ca * mk;
+            }
+        }
+    }
+
+    /// ∂W/∂λ = C⁻¹Σπ_k(g_k − (d_k·W)d_k)d_kᵀ into `jac` (row-major), of `work.z`.
+    fn jacobian_of(work: &mut ExpWork, jac: &mut [f64]) {
+        let ExpWork { z, nodes: [wd, e, ..], col, .. } = work;
+        let r = z.w.len();
+        let nodes = z.p.len();
+        Self::project(&z.d, &z.w, wd);
+        e.clear();
+        e.resize(nodes, 0.0);
+        for a in 0..r {
+            let row = a * nodes..(a + 1) * nodes;
+            for (((ek, &pk), &gk), (&pdk, &u)) in
+                e.iter_mut().zip(&z.p).zip(&z.g[row.clone()]).zip(z.pd[row].iter().zip(wd.iter()))
+            {
+                *ek = pk * gk - u * pdk;
+            }
+            for j in 0..r {
+                jac[a * r + j] = dot(e, &z.d[j * nodes..(j + 1) * nodes]);
+            }
+        }
+        col.clear();
+        col.resize(r, 0.0);
+        for j in 0..r {
+            for a in 0..r {
+                col[a] = jac[a * r + j];
+            }
+            z.c.solve(col);
+            for a in 0..r {
+                jac[a * r + j] = col[a];
+            }
+        }
+    }
+
+    /// ∇²(κᵀW) of [`ClosureDrift::w_second`] into `hess`, from the node values of `work.z` and
+    /// J = ∂W/∂λ.
+    fn hessian_of(&self, work: &mut ExpWork, kappa: &[f64], jac: &[f64], hess: &mut [f64]) {
+        let r = self.family.n_moments();
+        let ExpWork { z, nodes: [ud, wd, ug, psi, tu], u, tm, tj, f: sd, .. } = work;
+        u.clear();
+        u.extend_from_slice(kappa);
+        z.c.solve(u);
+        // hess = ⟨ψ d dᵀ⟩, tm = T, with ψ_k = π_k(uᵀg_k − (uᵀd_k)(Wᵀd_k)) and π_k uᵀd_k.
+        Self::project(&z.d, u, ud);
+        Self::project(&z.d, &z.w, wd);
+        Self::project(&z.g, u, ug);
+        psi.clear();
+        psi.extend((0..z.p.len()).map(|k| z.p[k] * (ug[k] - ud[k] * wd[k])));
+        tu.clear();
+        tu.extend(z.p.iter().zip(ud.iter()).map(|(p, u)| p * u));
+        tm.clear();
+        tm.resize(r * r, 0.0);
+        Self::weighted_second_moments(z, psi, hess, sd);
+        Self::weighted_second_moments(z, tu, tm, sd);
+        tj.clear();
+        tj.resize(r * r, 0.0);
+        for a in 0..r {
+            for j in 0..r {
+                tj[a * r + j] = (0..r).map(|b| tm[a * r + b] * jac[b * r + j]).sum();
+            }
+        }
+        for a in 0..r {
+            for j in 0..r {
+                hess[a * r + j] += -tj[a * r + j] - tj[j * r + a] + kappa[a] * z.v[j] + z.v[a] * kappa[j];
+            }
+        }
+    }
+}
+
+impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
+    fn n_params(&self) -> usize {
+        self.family.n_moments()
+    }
+
+    fn state_dim(&self) -> usize {
+        self.family.dim()
+    }
+
+    fn w(&self, t: f64, lambda: &[f64], out: &mut [f64]) -> std::result::Result<(), Unrealizable> {
+        let work = &mut *self.work.borrow_mut();
+        self.zeroth(t, lambda, work)?;
+        out.copy_from_slice(&work.z.w);
+        Ok(())
+    }
+
+    fn w_jacobian(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        let work = &mut *self.work.borrow_mut();
+        self.zeroth(t, lambda, work)?;
+        Self::jacobian_of(work, jac);
+        w.copy_from_slice(&work.z.w);
+        Ok(())
+    }
+
+    /// In closed form on the fixed nodes: with u = C⁻¹κ, d_k = M(x_k) − μ and
+    /// ψ_k = uᵀg_k − (uᵀd_k)(Wᵀd_k) (so that ∂(κᵀW)/∂λ_j = ⟨ψ d_j⟩ and ⟨ψ⟩ = 0),
+    ///
+    /// $$ \nabla^2(\kappa^\top W) = \langle \psi\, d d^\top\rangle - TJ - (TJ)^\top
+    ///    + \kappa V^\top + V \kappa^\top, \qquad T = \langle (u^\top d)\, d d^\top\rangle, $$
+    ///
+    /// J = ∂W/∂λ, from ∂⟨h⟩/∂λ_j = ⟨∂_j h⟩ + ⟨h d_j⟩ and ∂d/∂λ_j = −C_{·j}.
+    fn w_second(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        kappa: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+        hess: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        let work = &mut *self.work.borrow_mut();
+        self.zeroth(t, lambda, work)?;
+        Self::jacobian_of(work, jac);
+        self.hessian_of(work, kappa, jac, hess);
+        w.copy_from_slice(&work.z.w);
+        Ok(())
+    }
+
+    /// The Jacobian of [`ClosureDrift::w_jacobian`] is the same computation
+    /// (`jacobian_of` of the same node values): `jac` is used as given.
+    fn w_second_with_jacobian(
+        &self,
+        t: f64,
+        lambda: &[f64],
+        kappa: &[f64],
+        w: &mut [f64],
+        jac: &mut [f64],
+        hess: &mut [f64],
+    ) -> std::result::Result<(), Unrealizable> {
+        let work = &mut *self.work.borrow_mut();
+        self.zeroth(t, lambda, work)?;
+        self.hessian_of(work, kappa, jac, hess);
+        w.copy_from_slice(&work.z.w);
+        Ok(())
+    }
+
+    fn moments(&self, lambda: &[f64]) -> std::result::Result<FamilyMoments, Unrealizable> {
+        let c = self.family.cumulants(lambda).map_err(unrealizable)?;
+        Ok(FamilyMoments { log_partition: c.log_partition, mean: c.mean, covariance: c.covariance })
+    }
+
+    fn linear_index(&self, state: usize) -> Option<usize> {
+        self.linear.get(state).copied().flatten()
+    }
+
+    fn square_index(&self, state: usize) -> Option<usize> {
+        self.square.get(state).copied().flatten()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::tests::fd_jacobian;
+    use super::*;
+    use crate::model::library::DoubleWell;
+    use approx::assert_relative_eq;
+
+    /// CW = V for the double well (D = 0.5) and the quartic family, with V by the family's own
+    /// quadrature on all its nodes: V = ⟨f M' + D M''⟩ with f = 4x − 4x³, M = x^a, i.e.
+    /// V_a = ⟨a x^{a−1} f + a(a−1)/2 x^{a−2}⟩.
+    fn assert_w_is_c_inverse_v(family: &Exponential, lambda: &[f64], w: &[f64]) {
+        let rule = family.quadrature(lambda).unwrap();
+        let c = family.covariance(lambda).unwrap();
+        for a in 1..=4i32 {
+            let v = rule.integrate(|x| {
+                let x = x[0];
+                let f = 4.0 * x - 4.0 * x.powi(3);
+                a as f64 * x.powi(a - 1) * f + 0.5 * (a * (a - 1)) as f64 * x.powi((a - 2).max(0))
+            });
+            let cw: f64 = (0..4).map(|b| c[(a as usize - 1) * 4 + b] * w[b]).sum();
+            assert_relative_eq!(cw, v, epsilon = 1e-9, max_relative = 1e-9);
+        }
+    }
+
+    #[test]
+    fn exponential_drift_jacobian_matches_finite_differences_and_w_is_c_inverse_v() {
+        let family = Exponential::quartic(-3.0, 3.0).unwrap();
+        let dr = ExponentialDrift::try_new(&DoubleWell, &[0.5], family.clone()).unwrap();
+        let lambda = [0.3, 1.0, -0.2, -0.8];
+        let (mut w, mut jac) = ([0.0; 4], [0.0; 16]);
+        dr.w_jacobian(0.0, &lambda, &mut w, &mut jac).unwrap();
+        let fd = fd_jacobian(&dr, 0.0, &lambda);
+        for k in 0..16 {
+            assert_relative_eq!(jac[k], fd[k], epsilon = 1e-5, max_relative = 1e-5);
+        }
+        assert_w_is_c_inverse_v(&family, &lambda, &w);
+        assert_eq!(dr.linear_index(0), Some(0));
+        assert_eq!(dr.square_index(0), Some(1));
+    }
+
+    /// A density concentrated on a small part of a wide grid (N(1, 0.2²) on [−6, 6], 512 nodes):
+    /// the drift works on the nodes of non-zero probability only (most of the grid has
+    /// probability 0 under the e⁻⁵⁰ cut), and W = C⁻¹V still holds against the family's
+    /// own all-node quadrature, with ∂W/∂λ and ∇²(κᵀW) against finite differences.
+    #[test]
+    fn exponential_drift_on_the_nodes_with_mass_of_a_concentrated_density() {
+        let family = Exponential::quartic(-6.0, 6.0).unwrap();
+        let (m, v) = (1.0, 0.04);
+        let lambda = [m / v, -0.5 / v, 0.0, 0.0];
+        let p = family.node_probabilities(&lambda).unwrap().0;
+        let zero = p.iter().filter(|&&pk| pk == 0.0).count();
+        assert!(zero > p.len() / 2, "{zero} of {} nodes have probability 0", p.len());
+        let dr = ExponentialDrift::try_new(&DoubleWell, &[0.5], family.clone()).unwrap();
+        let (mut w, mut jac) = ([0.0; 4], [0.0; 16]);
+        dr.w_jacobian(0.0, &lambda, &mut w, &mut jac).unwrap();
+        assert_w_is_c_inverse_v(&family, &lambda, &w);
+        // ∂W/∂λ and ∇²(κᵀW) against fourth-order central differences, relative to their
+        // largest entries (the small entries are below the differences' round-off at these λ).
+        let kappa = [0.5, -0.25, 0.1, 0.8];
+        let (mut w2, mut j2, mut hess) = ([0.0; 4], [0.0; 16], [0.0; 16]);
+        dr.w_second(0.0, &lambda, &kappa, &mut w2, &mut j2, &mut hess).unwrap();
+        let at = |j: usize, dl: f64| {
+            let (mut l, mut w, mut jac) = (lambda, [0.0; 4], [0.0; 16]);
+            l[j] += dl;
+            dr.w_jacobian(0.0, &l, &mut w, &mut jac).unwrap();
+            (w, jac)
+        };
+        let (mut fd_j, mut fd_h) = ([0.0; 16], [0.0; 16]);
+        for j in 0..4 {
+            let h = 1e-4 * (1.0 + lambda[j].abs());
+            let pts = [(2.0, -1.0), (1.0, 8.0), (-1.0, -8.0), (-2.0, 1.0)].map(|(s, c)| (at(j, s * h), c));
+            for i in 0..4 {
+                fd_j[i * 4 + j] = pts.iter().map(|((w, _), c)| c * w[i]).sum::<f64>() / (12.0 * h);
+                fd_h[i * 4 + j] = pts
+                    .iter()
+                    .map(|((_, jac), c)| c * (0..4).map(|a| kappa[a] * jac[a * 4 + i]).sum::<f64>())
+                    .sum::<f64>()
+                    / (12.0 * h);
+            }
+        }
+        for (exact, fd) in [(&jac, &fd_j), (&hess, &fd_h)] {
+            let scale = exact.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for (a, b) in exact.iter().zip(fd) {
+                assert!((a - b).abs() <= 1e-6 * scale, "{a} vs {b} (largest entry {scale})");
+            }
+        }
+        assert_eq!(j2, jac);
+    }
+}
