@@ -82,5 +82,12 @@ pub enum Error {
     },
 }
 
+impl Error {
+    /// [`Error::InvalidOption`] with `name` and `reason`.
+    pub fn invalid(name: impl Into<String>, reason: impl Into<String>) -> Error {
+        Error::InvalidOption { name: name.into(), reason: reason.into() }
+    }
+}
+
 /// Shorthand for `Result<T, onsager::Error>`.
 pub type Result<T> = std::result::Result<T, Error>;

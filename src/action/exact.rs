@@ -95,6 +95,15 @@ fn positive(name: &str, v: Option<f64>) -> Result<()> {
 }
 
 impl EstimatorOptions for ExactOptions {
+    /// `ksp`: [`ksp_estimate`].
+    fn run<S: Sde + ?Sized>(
+        &self,
+        _: Method,
+        problem: &EstimationProblem<'_, S, StateMeasurement>,
+    ) -> Result<MethodRun> {
+        ksp_estimate(problem, self)
+    }
+
     /// Checks the grid, positive finite `dt` and `output_step`, finite `extra_times`.
     fn validate(&self) -> Result<()> {
         if let Some(g) = &self.grid {
@@ -141,6 +150,15 @@ impl From<&MeanOptimalOptions> for MeanOptimalOptions {
 }
 
 impl EstimatorOptions for MeanOptimalOptions {
+    /// `mean-optimal`: [`mean_optimal_estimate`].
+    fn run<S: Sde + ?Sized>(
+        &self,
+        _: Method,
+        problem: &EstimationProblem<'_, S, StateMeasurement>,
+    ) -> Result<MethodRun> {
+        mean_optimal_estimate(problem, self)
+    }
+
     /// Checks the discretisation and the dual's options.
     fn validate(&self) -> Result<()> {
         self.exact.validate()?;

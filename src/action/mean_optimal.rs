@@ -152,6 +152,9 @@ fn attempt<A: EffectiveAction + ?Sized>(
     Ok((second, Some(CoarseStage { status: first.status, iterations: first.iterations, rtol: coarse_rtol })))
 }
 
+/// A history with the standard deviations of its states and what they are.
+type HistoryWithSd = (History, Vec<Vec<f64>>, SdKind);
+
 /// The square roots of the variances, negative round-off clipped.
 fn sqrt_of(variance: &[Vec<f64>]) -> Vec<Vec<f64>> {
     variance.iter().map(|v| v.iter().map(|x| x.max(0.0).sqrt()).collect()).collect()
@@ -165,7 +168,7 @@ fn history_at<A: EffectiveAction + ?Sized>(
     data: &DualData,
     lambda: &[f64],
     dispersion: bool,
-) -> Result<Swept<(History, Vec<Vec<f64>>, SdKind)>> {
+) -> Result<Swept<HistoryWithSd>> {
     let mut kind = SdKind::DensityVariance;
     if dispersion {
         match action.history_and_hessian(lambda)? {

@@ -31,31 +31,38 @@ mod parse;
 use std::fmt;
 use std::str::FromStr;
 
-use rand::rngs::StdRng;
-use rand::SeedableRng;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Deserializer, Serialize};
 use serde_json::{Map, Value};
 
-use crate::action::closure::om::{moment_path_estimate, MomentPathKind, MomentPathOptions};
-use crate::action::closure::{closure_estimate, Closure, ExponentialFamily, GaussianFamily};
-use crate::action::exact::{ksp_estimate, mean_optimal_estimate, ExactOptions, MeanOptimalOptions};
+use crate::action::closure::om::MomentPathOptions;
+use crate::action::closure::{Closure, ExponentialFamily, GaussianFamily};
+use crate::action::exact::{ExactOptions, MeanOptimalOptions};
 use crate::estimate::{EstimationProblem, MethodRun};
-use crate::kalman::{self, ExtendedOptions, KalmanMethod, KalmanOptions, PemOptions};
+use crate::kalman::{ExtendedOptions, KalmanOptions, PemOptions};
 use crate::model::observation::StateMeasurement;
 use crate::model::Sde;
-use crate::particle::{self, ParticleOptions};
-use crate::path::{map_estimate, MapOptions, Merit};
+use crate::particle::ParticleOptions;
+use crate::path::MapOptions;
 use crate::{Error, Result};
 
 pub use parse::{options_from_pairs, parse_list, read_list};
 
 /// What every options type of an estimator provides: defaults, serde (the field names are the
-/// option names) and a check of the values that names the field and the bad value.
+/// option names), a check of the values that names the field and the bad value, and the run.
 pub trait EstimatorOptions: Serialize + DeserializeOwned + Default + Clone + fmt::Debug + PartialEq {
     /// Checks every value against its domain. Errors: [`Error::InvalidOption`] with the
     /// option's name and the value.
     fn validate(&self) -> Result<()>;
+
+    /// Runs the estimator `method` (one of those these are the options of) on `problem`.
+    ///
+    /// Errors: those of the method (bad input); a numerical failure is the estimate's status.
+    fn run<S: Sde + ?Sized>(
+        &self,
+        method: Method,
+        problem: &EstimationProblem<'_, S, StateMeasurement>,
+    ) -> Result<MethodRun>;
 }
 
 /// The estimators, one line each: variant, command-line name, options type, description. This
@@ -136,6 +143,14 @@ macro_rules! estimators {
                 let method = self.method();
                 match self {
                     $(Estimator::$variant(o) => o.validate().map_err(|e| parse::named(method, e)),)*
+                }
+            }
+
+            /// Runs the estimator's options type on `problem` (after [`Estimator::run`]'s
+            /// checks).
+            fn dispatch<S: Sde + ?Sized>(&self, problem: &EstimationProblem<'_, S, StateMeasurement>) -> Result<MethodRun> {
+                match self {
+                    $(Estimator::$variant(o) => o.run(Method::$variant, problem),)*
                 }
             }
 
@@ -268,31 +283,7 @@ impl Estimator {
                 reason: format!("`{method}` takes the parameters as given; jme, mee and pem estimate them"),
             });
         }
-        let kalman =
-            |m: KalmanMethod, o: &KalmanOptions| kalman::estimate(problem, m, o).map(MethodRun::from);
-        match self {
-            Estimator::Ksp(o) => ksp_estimate(problem, o),
-            Estimator::MeanOptimal(o) => mean_optimal_estimate(problem, o),
-            Estimator::GaussianClosure(o) => closure_estimate(problem, o).map(MethodRun::from),
-            Estimator::ExpClosure(o) => closure_estimate(problem, o).map(MethodRun::from),
-            Estimator::KspClosure(o) => {
-                moment_path_estimate(problem, MomentPathKind::Ksp, o).map(MethodRun::from)
-            }
-            Estimator::DoubleExpClosure(o) => {
-                moment_path_estimate(problem, MomentPathKind::DoubleExponential, o).map(MethodRun::from)
-            }
-            Estimator::Jme(o) => map_estimate(problem, Merit::OnsagerMachlup, o),
-            Estimator::Mee(o) => map_estimate(problem, Merit::Energy, o),
-            Estimator::Ekf(o) => kalman(KalmanMethod::Ekf, &o.kalman()),
-            Estimator::Eks(o) => kalman(KalmanMethod::Eks, &o.kalman()),
-            Estimator::Ukf(o) => kalman(KalmanMethod::Ukf, o),
-            Estimator::Uks(o) => kalman(KalmanMethod::Uks, o),
-            Estimator::Pem(o) => kalman::pem(problem, o).map(MethodRun::from),
-            Estimator::Particle(o) => {
-                let mut rng = StdRng::seed_from_u64(problem.seed);
-                particle::estimate(problem, o, &mut rng).map(MethodRun::from)
-            }
-        }
+        self.dispatch(problem)
     }
 }
 

@@ -157,7 +157,7 @@ fn split_top(text: &str) -> Result<Vec<String>> {
 /// estimators with the same label.
 pub fn parse_list(text: &str) -> Result<Vec<Labelled>> {
     // (method text, option pairs, the text of the whole item)
-    let mut items: Vec<(String, Vec<(String, String)>, String)> = Vec::new();
+    let mut items: Vec<Item> = Vec::new();
     for part in split_top(text)? {
         let p = part.trim();
         if p.is_empty() {
@@ -215,6 +215,9 @@ pub fn parse_list(text: &str) -> Result<Vec<Labelled>> {
     }
     Ok(out)
 }
+
+/// One estimator of a list as written: its method, its `NAME=VALUE` pairs and its text.
+type Item = (String, Vec<(String, String)>, String);
 
 fn pair(item: &str) -> Result<(String, String)> {
     match item.split_once('=') {

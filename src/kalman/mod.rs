@@ -57,7 +57,7 @@ use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
 use crate::data::StatePath;
-use crate::estimate::{Details, EstimationProblem, Method, PathEstimate, Status};
+use crate::estimate::{Details, EstimationProblem, Method, MethodRun, PathEstimate, Status};
 use crate::estimator::EstimatorOptions;
 use crate::model::observation::StateMeasurement;
 use crate::model::Sde;
@@ -65,7 +65,7 @@ use crate::{Error, Result};
 
 pub use pem::{pem, PemDetails, PemOptions};
 
-pub(crate) use filter::build_nodes;
+pub(crate) use filter::{build_nodes, Node};
 
 /// A Gaussian law: mean and covariance (states in the order noisy then clean).
 #[derive(Debug, Clone, PartialEq)]
@@ -157,6 +157,16 @@ fn check_dt(dt: Option<f64>) -> Result<()> {
 }
 
 impl EstimatorOptions for KalmanOptions {
+    /// `ukf` or `uks`: [`estimate`].
+    fn run<S: Sde + ?Sized>(
+        &self,
+        method: Method,
+        problem: &EstimationProblem<'_, S, StateMeasurement>,
+    ) -> Result<MethodRun> {
+        let m = if method == Method::Ukf { KalmanMethod::Ukf } else { KalmanMethod::Uks };
+        estimate(problem, m, self).map(MethodRun::from)
+    }
+
     /// Checks `dt` (positive, finite) and α (positive, finite), κ (finite); α²(n + κ) > 0 is
     /// checked against the model's dimension when the filter runs.
     fn validate(&self) -> Result<()> {
@@ -196,6 +206,16 @@ impl ExtendedOptions {
 }
 
 impl EstimatorOptions for ExtendedOptions {
+    /// `ekf` or `eks`: [`estimate`].
+    fn run<S: Sde + ?Sized>(
+        &self,
+        method: Method,
+        problem: &EstimationProblem<'_, S, StateMeasurement>,
+    ) -> Result<MethodRun> {
+        let m = if method == Method::Ekf { KalmanMethod::Ekf } else { KalmanMethod::Eks };
+        estimate(problem, m, &self.kalman()).map(MethodRun::from)
+    }
+
     /// Checks `dt` (positive, finite).
     fn validate(&self) -> Result<()> {
         check_dt(self.dt)

@@ -29,7 +29,7 @@ use super::filter::{self, Rule, Setup};
 use serde::{Deserialize, Serialize};
 
 use super::{path_of, run_details, KalmanDetails, KalmanOptions, KalmanRun, SmootherFailure};
-use crate::estimate::{Details, EstimationProblem, Method, PathEstimate, Status};
+use crate::estimate::{Details, EstimationProblem, Method, MethodRun, PathEstimate, Status};
 use crate::estimator::EstimatorOptions;
 use crate::model::observation::{Noise, StateMeasurement};
 use crate::model::prior::{Prior, PriorDensity};
@@ -79,6 +79,15 @@ impl PemOptions {
 }
 
 impl EstimatorOptions for PemOptions {
+    /// `pem`: [`pem()`].
+    fn run<S: Sde + ?Sized>(
+        &self,
+        _: Method,
+        problem: &EstimationProblem<'_, S, StateMeasurement>,
+    ) -> Result<MethodRun> {
+        pem(problem, self).map(MethodRun::from)
+    }
+
     /// Checks the UKF's options, a positive finite `gradient_tolerance` and at least one
     /// iteration.
     fn validate(&self) -> Result<()> {

@@ -45,9 +45,10 @@ use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
 use crate::data::StatePath;
-use crate::estimate::{Details, EstimationProblem, Method, PathEstimate, Status};
+use crate::estimate::{Details, EstimationProblem, Method, MethodRun, PathEstimate, Status};
 use crate::estimator::EstimatorOptions;
-use crate::kalman::build_nodes;
+use crate::kalman::{build_nodes, Node};
+use crate::model::observation::StateMeasurement;
 use crate::model::{Observation, Sde};
 use crate::{Error, Result};
 
@@ -97,6 +98,16 @@ impl ParticleOptions {
 }
 
 impl EstimatorOptions for ParticleOptions {
+    /// `particle`: [`estimate`] with its random numbers seeded by the problem's seed.
+    fn run<S: Sde + ?Sized>(
+        &self,
+        _: Method,
+        problem: &EstimationProblem<'_, S, StateMeasurement>,
+    ) -> Result<MethodRun> {
+        let mut rng = <rand::rngs::StdRng as rand::SeedableRng>::seed_from_u64(problem.seed);
+        estimate(problem, self, &mut rng).map(MethodRun::from)
+    }
+
     /// Checks N ≥ 2, M ≥ 1, the ESS threshold in [0, 1] and a positive finite `dt`.
     fn validate(&self) -> Result<()> {
         let bad = |name: &str, reason: String| Err(Error::InvalidOption { name: name.into(), reason });
@@ -255,6 +266,143 @@ struct NodeStore {
     h_next: f64,
 }
 
+/// The model of a particle run: the SDE at θ with G and G⁻¹, and the sizes.
+struct Model<'a, S: Sde + ?Sized> {
+    sde: &'a S,
+    theta: &'a [f64],
+    g: nalgebra::DMatrix<f64>,
+    g_inv: nalgebra::DMatrix<f64>,
+    n_noisy: usize,
+    dim: usize,
+}
+
+/// The filter's particles and weights between nodes.
+struct Swarm {
+    /// States (N × dim).
+    states: Vec<f64>,
+    /// Log-weights (unnormalised).
+    lw: Vec<f64>,
+    /// Normalised weights.
+    w: Vec<f64>,
+    /// Resampling indices (scratch).
+    idx: Vec<usize>,
+    /// Resampling steps so far.
+    resamplings: usize,
+}
+
+impl<S: Sde + ?Sized> Model<'_, S> {
+    /// From the node at `prev_t` (stored in `prev`) to `node`: systematic resampling when the
+    /// ESS is below `ess_threshold` · N, the mean of the first Euler step out of each particle
+    /// at the previous node (into `prev`), then Euler–Maruyama substeps. Returns the parents and
+    /// G⁻¹ times the first Euler point of each particle.
+    fn advance<R: Rng + ?Sized>(
+        &self,
+        swarm: &mut Swarm,
+        (prev, prev_t): (&mut NodeStore, f64),
+        node: &Node,
+        ess_threshold: f64,
+        rng: &mut R,
+    ) -> Result<(Vec<usize>, Vec<f64>)> {
+        let (n, dim, n_noisy) = (swarm.w.len(), self.dim, self.n_noisy);
+        let mut parent: Vec<usize> = (0..n).collect();
+        let mut first = vec![0.0; n * n_noisy];
+        let mut drift = vec![0.0; dim];
+        let mut dw = vec![0.0; n_noisy];
+        let h = (node.t - prev_t) / node.steps as f64;
+        let ess = 1.0 / swarm.w.iter().map(|v| v * v).sum::<f64>();
+        let mut new_states = vec![0.0; n * dim];
+        if ess < ess_threshold * n as f64 {
+            systematic(&swarm.w, rng, &mut swarm.idx);
+            swarm.resamplings += 1;
+            for (j, &i) in swarm.idx.iter().enumerate() {
+                parent[j] = i;
+                new_states[j * dim..(j + 1) * dim].copy_from_slice(&swarm.states[i * dim..(i + 1) * dim]);
+            }
+            swarm.lw.iter_mut().for_each(|v| *v = 0.0);
+        } else {
+            new_states.copy_from_slice(&swarm.states);
+            for (l, &wi) in swarm.lw.iter_mut().zip(&swarm.w) {
+                *l = wi.ln();
+            }
+        }
+        prev.h_next = h;
+        let mut next_mean = vec![0.0; n * n_noisy];
+        for i in 0..n {
+            let s = &prev.states[i * dim..(i + 1) * dim];
+            self.sde.state_drift(prev_t, s, self.theta, &mut drift);
+            for r in 0..n_noisy {
+                dw[r] = s[r] + drift[r] * h;
+            }
+            whiten(&self.g_inv, &dw, &mut next_mean[i * n_noisy..(i + 1) * n_noisy]);
+        }
+        prev.next_mean = next_mean;
+        for j in 0..n {
+            let s = &mut new_states[j * dim..(j + 1) * dim];
+            for step in 0..node.steps {
+                let t = prev_t + step as f64 * h;
+                self.sde.state_drift(t, s, self.theta, &mut drift);
+                for v in dw.iter_mut() {
+                    let e: f64 = StandardNormal.sample(rng);
+                    *v = e * h.sqrt();
+                }
+                for r in 0..dim {
+                    let noise =
+                        if r < n_noisy { (0..n_noisy).map(|c| self.g[(r, c)] * dw[c]).sum() } else { 0.0 };
+                    s[r] += drift[r] * h + noise;
+                }
+                if step == 0 {
+                    whiten(&self.g_inv, &s[..n_noisy], &mut first[j * n_noisy..(j + 1) * n_noisy]);
+                }
+            }
+        }
+        swarm.states = new_states;
+        if swarm.states.iter().any(|v| !v.is_finite()) {
+            return Err(Error::NonFinite { what: format!("particles at t = {}", node.t) });
+        }
+        Ok((parent, first))
+    }
+}
+
+/// `m_paths` backward paths through the stored nodes: ancestral (following the parents) or
+/// FFBSi (reweighting by the Euler transition density of each particle's first step).
+fn backward_paths<R: Rng + ?Sized>(
+    store: &[NodeStore],
+    smoother: Smoother,
+    (m_paths, dim, n_noisy): (usize, usize, usize),
+    rng: &mut R,
+) -> Vec<Vec<Vec<f64>>> {
+    let nt = store.len();
+    let mut paths = vec![vec![vec![0.0; dim]; nt]; m_paths];
+    let Some(last) = store.last() else { return paths };
+    let mut scratch = Vec::new();
+    let mut lwb = vec![0.0; last.log_weights.len()];
+    for path in paths.iter_mut() {
+        let mut j = draw_log(&last.log_weights, &mut scratch, rng).unwrap_or(0);
+        path[nt - 1].copy_from_slice(&last.states[j * dim..(j + 1) * dim]);
+        for k in (0..nt - 1).rev() {
+            let node = &store[k];
+            j = match smoother {
+                Smoother::Ancestral => store[k + 1].parent[j],
+                Smoother::Ffbsi => {
+                    let u = &store[k + 1].first[j * n_noisy..(j + 1) * n_noisy];
+                    let h = node.h_next;
+                    let half_inv_h = 0.5 / h;
+                    for ((l, &lwi), mu) in
+                        lwb.iter_mut().zip(&node.log_weights).zip(node.next_mean.chunks_exact(n_noisy))
+                    {
+                        // ln wᵢ − ½ |G⁻¹(u − μᵢ)|² / h
+                        let q: f64 = u.iter().zip(mu).map(|(a, b)| (a - b) * (a - b)).sum();
+                        *l = lwi - q * half_inv_h;
+                    }
+                    draw_log(&lwb, &mut scratch, rng).unwrap_or(store[k + 1].parent[j])
+                }
+            };
+            path[k].copy_from_slice(&node.states[j * dim..(j + 1) * dim]);
+        }
+    }
+    paths
+}
+
 /// Runs the bootstrap particle filter and the backward smoother at `problem.theta`
 /// (see the module documentation).
 ///
@@ -282,6 +430,7 @@ where
         .clone()
         .try_inverse()
         .ok_or_else(|| Error::SingularDiffusion { reason: "G(theta) is singular".into() })?;
+    let model = Model { sde, theta, g, g_inv, n_noisy, dim };
     let data = problem.data;
     let t0 = problem.t0;
     let dt = options.dt.unwrap_or_else(|| crate::kalman::default_step(t0, &data.times));
@@ -297,87 +446,30 @@ where
             states[i * dim + j] = prior.sample(rng)?;
         }
     }
-    let mut lw = vec![0.0; n];
-    let mut w = vec![1.0 / n as f64; n];
+    let mut swarm =
+        Swarm { states, lw: vec![0.0; n], w: vec![1.0 / n as f64; n], idx: vec![0usize; n], resamplings: 0 };
     let mut log_likelihood = 0.0;
     let mut ess_list = Vec::new();
-    let mut resamplings = 0;
     let mut store: Vec<NodeStore> = Vec::with_capacity(nodes.len());
     let mut failed_at = None;
-    let mut drift = vec![0.0; dim];
-    let mut dw = vec![0.0; n_noisy];
-    let mut idx = vec![0usize; n];
     for (k, node) in nodes.iter().enumerate() {
-        let mut parent: Vec<usize> = (0..n).collect();
-        let mut first = vec![0.0; n * n_noisy];
-        if k > 0 {
-            let prev_t = nodes[k - 1].t;
-            let h = (node.t - prev_t) / node.steps as f64;
-            // Resample (systematic) when the ESS is low.
-            let ess = 1.0 / w.iter().map(|v| v * v).sum::<f64>();
-            let mut new_states = vec![0.0; n * dim];
-            if ess < options.ess_threshold * n as f64 {
-                systematic(&w, rng, &mut idx);
-                resamplings += 1;
-                for (j, &i) in idx.iter().enumerate() {
-                    parent[j] = i;
-                    new_states[j * dim..(j + 1) * dim].copy_from_slice(&states[i * dim..(i + 1) * dim]);
-                }
-                lw.iter_mut().for_each(|v| *v = 0.0);
-            } else {
-                new_states.copy_from_slice(&states);
-                for (l, &wi) in lw.iter_mut().zip(&w) {
-                    *l = wi.ln();
-                }
-            }
-            // The mean of the first Euler step out of each particle at the previous node.
+        let (parent, first) = if k > 0 {
             let prev = store.last_mut().expect("a previous node");
-            prev.h_next = h;
-            let mut next_mean = vec![0.0; n * n_noisy];
-            for i in 0..n {
-                let s = &prev.states[i * dim..(i + 1) * dim];
-                sde.state_drift(prev_t, s, theta, &mut drift);
-                for r in 0..n_noisy {
-                    dw[r] = s[r] + drift[r] * h;
-                }
-                whiten(&g_inv, &dw, &mut next_mean[i * n_noisy..(i + 1) * n_noisy]);
-            }
-            prev.next_mean = next_mean;
-            // Propagate with Euler–Maruyama substeps.
-            for j in 0..n {
-                let s = &mut new_states[j * dim..(j + 1) * dim];
-                for step in 0..node.steps {
-                    let t = prev_t + step as f64 * h;
-                    sde.state_drift(t, s, theta, &mut drift);
-                    for v in dw.iter_mut() {
-                        let e: f64 = StandardNormal.sample(rng);
-                        *v = e * h.sqrt();
-                    }
-                    for r in 0..dim {
-                        let noise =
-                            if r < n_noisy { (0..n_noisy).map(|c| g[(r, c)] * dw[c]).sum() } else { 0.0 };
-                        s[r] += drift[r] * h + noise;
-                    }
-                    if step == 0 {
-                        whiten(&g_inv, &s[..n_noisy], &mut first[j * n_noisy..(j + 1) * n_noisy]);
-                    }
-                }
-            }
-            states = new_states;
-            if states.iter().any(|v| !v.is_finite()) {
-                return Err(Error::NonFinite { what: format!("particles at t = {}", node.t) });
-            }
-        }
+            model.advance(&mut swarm, (prev, nodes[k - 1].t), node, options.ess_threshold, rng)?
+        } else {
+            ((0..n).collect(), vec![0.0; n * n_noisy])
+        };
         // Measurement update.
+        let Swarm { states, lw, w, .. } = &mut swarm;
         if let Some(row) = node.row {
             let y = &data.values[row];
-            let before = onsager_closures::normalize_log_weights(&lw, &mut w).unwrap_or(f64::NAN);
+            let before = onsager_closures::normalize_log_weights(lw, w).unwrap_or(f64::NAN);
             for i in 0..n {
                 let s = &states[i * dim..(i + 1) * dim];
                 let ll = problem.observation.log_likelihood(node.t, y, &s[..n_noisy], &s[n_noisy..], theta);
                 lw[i] += if ll.is_nan() { f64::NEG_INFINITY } else { ll };
             }
-            match onsager_closures::normalize_log_weights(&lw, &mut w) {
+            match onsager_closures::normalize_log_weights(lw, w) {
                 Some(after) => log_likelihood += after - before,
                 None => {
                     failed_at = Some(node.t);
@@ -386,7 +478,7 @@ where
             }
             ess_list.push(1.0 / w.iter().map(|v| v * v).sum::<f64>());
         } else {
-            onsager_closures::normalize_log_weights(&lw, &mut w);
+            onsager_closures::normalize_log_weights(lw, w);
         }
         store.push(NodeStore {
             states: states.clone(),
@@ -397,46 +489,14 @@ where
             h_next: 0.0,
         });
     }
-
-    // Backward pass.
-    let nt = store.len();
-    let times: Vec<f64> = nodes[..nt].iter().map(|nd| nd.t).collect();
-    let mut paths = vec![vec![vec![0.0; dim]; nt]; m_paths];
-    if nt > 0 {
-        let last = &store[nt - 1];
-        let mut scratch = Vec::new();
-        let mut lwb = vec![0.0; n];
-        for path in paths.iter_mut() {
-            let mut j = draw_log(&last.log_weights, &mut scratch, rng).unwrap_or(0);
-            path[nt - 1].copy_from_slice(&last.states[j * dim..(j + 1) * dim]);
-            for k in (0..nt - 1).rev() {
-                let node = &store[k];
-                j = match smoother {
-                    Smoother::Ancestral => store[k + 1].parent[j],
-                    Smoother::Ffbsi => {
-                        let u = &store[k + 1].first[j * n_noisy..(j + 1) * n_noisy];
-                        let h = node.h_next;
-                        let half_inv_h = 0.5 / h;
-                        for ((l, &lwi), mu) in
-                            lwb.iter_mut().zip(&node.log_weights).zip(node.next_mean.chunks_exact(n_noisy))
-                        {
-                            // ln wᵢ − ½ |G⁻¹(u − μᵢ)|² / h
-                            let q: f64 = u.iter().zip(mu).map(|(a, b)| (a - b) * (a - b)).sum();
-                            *l = lwi - q * half_inv_h;
-                        }
-                        draw_log(&lwb, &mut scratch, rng).unwrap_or(store[k + 1].parent[j])
-                    }
-                };
-                path[k].copy_from_slice(&node.states[j * dim..(j + 1) * dim]);
-            }
-        }
-    }
+    let times: Vec<f64> = nodes[..store.len()].iter().map(|nd| nd.t).collect();
+    let paths = backward_paths(&store, smoother, (m_paths, dim, n_noisy), rng);
     Ok(ParticleSmoothing {
         times,
         paths,
         log_likelihood: if failed_at.is_some() { f64::NAN } else { log_likelihood },
         ess: ess_list,
-        resamplings,
+        resamplings: swarm.resamplings,
         smoother,
         status: if failed_at.is_some() { Status::NumericalFailure } else { Status::Converged },
         failed_at,

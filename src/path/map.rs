@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use super::{
     default_step, estimate_path, regression_theta_guess, spline_guess, Merit, PathOptions, Transcription,
 };
-use crate::estimate::{EstimationProblem, MethodRun};
+use crate::estimate::{EstimationProblem, Method, MethodRun};
 use crate::estimator::EstimatorOptions;
 use crate::model::observation::StateMeasurement;
 use crate::model::Sde;
@@ -46,6 +46,16 @@ impl Default for MapOptions {
 }
 
 impl EstimatorOptions for MapOptions {
+    /// `jme` (the Onsager–Machlup merit) or `mee` (the energy merit): [`map_estimate`].
+    fn run<S: Sde + ?Sized>(
+        &self,
+        method: Method,
+        problem: &EstimationProblem<'_, S, StateMeasurement>,
+    ) -> Result<MethodRun> {
+        let merit = if method == Method::Mee { Merit::Energy } else { Merit::OnsagerMachlup };
+        map_estimate(problem, merit, self)
+    }
+
     /// Checks a positive finite `step`.
     fn validate(&self) -> Result<()> {
         match self.step {

@@ -21,20 +21,21 @@ mod jet;
 pub mod om;
 pub mod sweep;
 
-pub use drift::{ClosureDrift, ExponentialDrift, FamilyMoments, GaussianDrift, Unrealizable};
+pub use drift::{
+    ClosureDrift, ExponentialDrift, ExponentialFamily, FamilyMoments, GaussianDrift, GaussianFamily,
+    Unrealizable,
+};
 pub use sweep::{ClosureAction, SweepTolerances};
 
 use std::fmt::Debug;
 use std::time::Instant;
 
-use onsager_closures::{Exponential, LegendreOptions, TrialFamily};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
-use crate::estimate::{Details, EstimationProblem, Method, PathEstimate};
+use crate::estimate::{Details, EstimationProblem, Method, MethodRun, PathEstimate};
 use crate::estimator::EstimatorOptions;
 use crate::model::observation::StateMeasurement;
-use crate::model::prior::{Prior, PriorDensity};
 use crate::model::Sde;
 use crate::{Error, Result};
 
@@ -78,134 +79,6 @@ pub struct FamilySetup<D> {
     pub lambda0: Vec<f64>,
     /// The linear moment of each measured output's state.
     pub measured: Vec<usize>,
-}
-
-/// The Gaussian family M = (x_i, x_ix_j) on all states, any dimension (`gaussian-closure`).
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-#[serde(default)]
-#[non_exhaustive]
-pub struct GaussianFamily {
-    /// Gauss–Hermite points per dimension of the averages, k^n nodes on n states; at least 1.
-    /// Default `None`: automatic ([`drift::gaussian_closure_rule`]): for a model that declares
-    /// a polynomial drift of degree d ([`Sde::drift_polynomial_degree`]) and 1–3 states,
-    /// ⌊(d + 1)/2⌋ + 1 points, which take the averages exactly (3 for the cubic double well);
-    /// otherwise 16 / 8 / 5 points per dimension for 1 / 2 / 3 states and a fifth-degree
-    /// cubature from 4 states.
-    pub gaussian_points: Option<usize>,
-}
-
-impl GaussianFamily {
-    /// Sets the Gauss–Hermite points per dimension.
-    pub fn with_gaussian_points(mut self, points_per_dim: usize) -> Self {
-        self.gaussian_points = Some(points_per_dim);
-        self
-    }
-}
-
-impl ClosureFamily for GaussianFamily {
-    type Drift<'a, S: Sde + ?Sized + 'a> = GaussianDrift<'a, S>;
-    const METHOD: Method = Method::GaussianClosure;
-
-    fn describe(&self) -> String {
-        "Gaussian".into()
-    }
-
-    fn validate(&self) -> Result<()> {
-        if self.gaussian_points == Some(0) {
-            return Err(invalid("gaussian_points", "must be at least 1, got 0"));
-        }
-        Ok(())
-    }
-
-    fn setup<'a, S: Sde + ?Sized>(
-        &self,
-        problem: &EstimationProblem<'a, S, StateMeasurement>,
-    ) -> Result<FamilySetup<GaussianDrift<'a, S>>> {
-        let (drift, lambda0) = gaussian_setup(problem, self.gaussian_points)?;
-        Ok(FamilySetup { drift, lambda0, measured: problem.observation.states.clone() })
-    }
-}
-
-/// The polynomial exponential family M = the monomials of total degree ≤ `moments` (1-D:
-/// x, …, x^moments; 2-D: x^i y^j, i + j ≤ moments) on a fixed quadrature grid (`exp-closure`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
-#[non_exhaustive]
-pub struct ExponentialFamily {
-    /// The highest total degree: 2 to 12 in 1-D, 2 to 6 in 2-D. Default 4 (the quartic family).
-    pub moments: usize,
-    /// Support of the family (its quadrature grid): one interval [a, b] per state, or empty for
-    /// the default: per state, the range of its data and of its initial prior (mean ± 5 sd),
-    /// widened by half its width plus 1 on each side. Set it for a state that is not measured
-    /// and whose range the prior does not cover.
-    pub domain: Vec<(f64, f64)>,
-    /// Panels × 8 Gauss–Legendre points per dimension of the grid. Default 12 (96 nodes in 1-D;
-    /// the double-well estimates of `benches/closure.rs` agree with 24 panels to 1e-5); in 2-D
-    /// half as many per dimension (6 × 8 = 48, 2304 nodes).
-    pub panels: usize,
-}
-
-impl Default for ExponentialFamily {
-    fn default() -> Self {
-        ExponentialFamily { moments: 4, domain: Vec::new(), panels: 12 }
-    }
-}
-
-impl ExponentialFamily {
-    /// The family of the monomials up to `degree`, on the default support.
-    pub fn of_degree(degree: usize) -> Self {
-        ExponentialFamily { moments: degree, ..Default::default() }
-    }
-
-    /// Sets the support, one interval per state.
-    pub fn with_domain(mut self, domain: &[(f64, f64)]) -> Self {
-        self.domain = domain.to_vec();
-        self
-    }
-
-    /// Sets the number of Gauss–Legendre panels per dimension.
-    pub fn with_panels(mut self, panels: usize) -> Self {
-        self.panels = panels;
-        self
-    }
-}
-
-impl ClosureFamily for ExponentialFamily {
-    type Drift<'a, S: Sde + ?Sized + 'a> = ExponentialDrift<'a, S>;
-    const METHOD: Method = Method::ExpClosure;
-
-    fn describe(&self) -> String {
-        format!("Exponential {{ degree: {} }}", self.moments)
-    }
-
-    fn validate(&self) -> Result<()> {
-        if !(2..=12).contains(&self.moments) {
-            return Err(invalid("moments", format!("must be 2 to 12 (2 to 6 in 2-D), got {}", self.moments)));
-        }
-        if self.panels == 0 {
-            return Err(invalid("panels", "must be at least 1, got 0"));
-        }
-        match self.domain.iter().find(|(a, b)| !(a.is_finite() && b.is_finite() && a < b)) {
-            Some((a, b)) => Err(invalid("domain", format!("need finite a < b, got [{a}, {b}]"))),
-            None => Ok(()),
-        }
-    }
-
-    fn setup<'a, S: Sde + ?Sized>(
-        &self,
-        problem: &EstimationProblem<'a, S, StateMeasurement>,
-    ) -> Result<FamilySetup<ExponentialDrift<'a, S>>> {
-        let (drift, lambda0) = exponential_setup(problem, self)?;
-        let measured = problem
-            .observation
-            .states
-            .iter()
-            .map(|&s| {
-                drift.linear_index(s).ok_or_else(|| invalid("moments", "the family has no linear moment"))
-            })
-            .collect::<Result<Vec<_>>>()?;
-        Ok(FamilySetup { drift, lambda0, measured })
-    }
 }
 
 /// Options of the dual closures, common to every family.
@@ -357,6 +230,15 @@ impl Closure<ExponentialFamily> {
 }
 
 impl<F: ClosureFamily> EstimatorOptions for Closure<F> {
+    /// The closure's estimator: [`closure_estimate`].
+    fn run<S: Sde + ?Sized>(
+        &self,
+        _: Method,
+        problem: &EstimationProblem<'_, S, StateMeasurement>,
+    ) -> Result<MethodRun> {
+        closure_estimate(problem, self).map(MethodRun::from)
+    }
+
     /// Checks the family's and the common options.
     fn validate(&self) -> Result<()> {
         self.family.validate()?;
@@ -366,19 +248,6 @@ impl<F: ClosureFamily> EstimatorOptions for Closure<F> {
 
 fn invalid(name: &str, reason: impl Into<String>) -> Error {
     Error::InvalidOption { name: name.into(), reason: reason.into() }
-}
-
-/// (mean, variance) of a Gaussian, unbounded prior; an error naming the state otherwise.
-fn gaussian_prior(p: &Prior, state: &str) -> Result<(f64, f64)> {
-    match p.density {
-        PriorDensity::Gaussian { mean, sd } if p.lower == f64::NEG_INFINITY && p.upper == f64::INFINITY => {
-            Ok((mean, sd * sd))
-        }
-        _ => Err(invalid(
-            "x0 prior",
-            format!("the closures need a Gaussian initial prior (untruncated) for state `{state}`"),
-        )),
-    }
 }
 
 /// The output grid t0 + kΔ up to the last measurement (and the extra times, none before t0).
@@ -404,18 +273,6 @@ fn output_times(t0: f64, data_times: &[f64], options: &ClosureOptions) -> Result
     out.extend(&options.extra_times);
     out.push(t_end);
     Ok(out)
-}
-
-/// The support of the exponential family (see [`ClosureOptions::domain`]).
-fn default_domain(values: &[f64], mean: f64, var: f64) -> (f64, f64) {
-    let sd = var.sqrt();
-    let (mut a, mut b) = (mean - 5.0 * sd, mean + 5.0 * sd);
-    for &v in values.iter().filter(|v| v.is_finite()) {
-        a = a.min(v);
-        b = b.max(v);
-    }
-    let w = b - a;
-    (a - 0.5 * w - 1.0, b + 0.5 * w + 1.0)
 }
 
 /// The dual's first stage runs its sweeps at this multiple of the relative (and absolute)
@@ -511,101 +368,6 @@ fn common_checks<S: Sde + ?Sized, F: ClosureFamily>(
         return Err(invalid("estimate", "the closures do not estimate parameters; θ is taken as given"));
     }
     Ok(())
-}
-
-fn gaussian_setup<'a, S: Sde + ?Sized>(
-    problem: &EstimationProblem<'a, S, StateMeasurement>,
-    points_per_dim: Option<usize>,
-) -> Result<(GaussianDrift<'a, S>, Vec<f64>)> {
-    let names = problem.sde.state_names();
-    let priors: Vec<&Prior> = problem.x0_prior.iter().chain(problem.z0_prior).collect();
-    let n = priors.len();
-    let mut mean = vec![0.0; n];
-    let mut cov = vec![0.0; n * n];
-    for (i, p) in priors.iter().enumerate() {
-        let (m, v) = gaussian_prior(p, &names[i])?;
-        mean[i] = m;
-        cov[i * n + i] = v;
-    }
-    let drift = GaussianDrift::try_with_points(problem.sde, problem.theta, points_per_dim)?;
-    let lambda0 = drift
-        .family()
-        .natural_from_mean_cov(&mean, &cov)
-        .map_err(|e| invalid("x0 prior", format!("Gaussian closure: {e}")))?;
-    Ok((drift, lambda0))
-}
-
-fn exponential_setup<'a, S: Sde + ?Sized>(
-    problem: &EstimationProblem<'a, S, StateMeasurement>,
-    options: &ExponentialFamily,
-) -> Result<(ExponentialDrift<'a, S>, Vec<f64>)> {
-    let degree = options.moments;
-    let n = problem.sde.dims().states();
-    if !(1..=2).contains(&n) {
-        return Err(invalid(
-            "method",
-            format!(
-                "the exponential closure handles models with one or two states (this model has {n}); use gaussian-closure"
-            ),
-        ));
-    }
-    let max_degree = if n == 1 { 12 } else { 6 };
-    if !(2..=max_degree).contains(&degree) {
-        return Err(invalid(
-            "moments",
-            format!("the exponential closure in {n}-D needs degree 2 to {max_degree}, got {degree}"),
-        ));
-    }
-    if !options.domain.is_empty() && options.domain.len() != n {
-        return Err(invalid(
-            "domain",
-            format!("one interval per state: the model has {n}, got {}", options.domain.len()),
-        ));
-    }
-    let names = problem.sde.state_names();
-    let priors: Vec<&Prior> = problem.x0_prior.iter().chain(problem.z0_prior).collect();
-    let mut moments = Vec::with_capacity(n);
-    let mut domain = Vec::with_capacity(n);
-    for i in 0..n {
-        let (m0, v0) = gaussian_prior(priors[i], &names[i])?;
-        moments.push((m0, v0));
-        let values: Vec<f64> = problem
-            .observation
-            .states
-            .iter()
-            .enumerate()
-            .filter(|&(_, &s)| s == i)
-            .flat_map(|(b, _)| problem.data.values.iter().map(move |row| row[b]))
-            .collect();
-        domain.push(options.domain.get(i).copied().unwrap_or_else(|| default_domain(&values, m0, v0)));
-    }
-    let panels = if n == 1 { options.panels } else { options.panels.div_ceil(2) };
-    let grid =
-        onsager_closures::panel_grid(&domain, panels, 8).map_err(|e| invalid("domain", e.to_string()))?;
-    let family = Exponential::polynomial(grid, onsager_closures::Reference::Lebesgue, degree as u32)
-        .map_err(|e| invalid("moments", e.to_string()))?;
-    // λ_0: the (independent) Gaussian prior is the member with m_i/v_i on x_i, −1/(2v_i) on
-    // x_i² and 0 elsewhere; polished by the Legendre inverse of its moments on the grid (moment
-    // matching, (II.39)).
-    let exponents = family.exponents().ok_or_else(|| invalid("moments", "no polynomial exponents"))?;
-    let guess: Vec<f64> = exponents
-        .iter()
-        .map(|e| {
-            let total: u32 = e.iter().sum();
-            match e.iter().position(|&p| p > 0) {
-                Some(i) if total == e[i] && e[i] == 1 => moments[i].0 / moments[i].1,
-                Some(i) if total == e[i] && e[i] == 2 => -0.5 / moments[i].1,
-                _ => 0.0,
-            }
-        })
-        .collect();
-    let mu0 = family.mean(&guess).map_err(|e| invalid("x0 prior", e.to_string()))?;
-    let lambda0 = family
-        .legendre(&mu0, &LegendreOptions::default().with_initial(guess.clone()))
-        .map(|s| s.lambda)
-        .unwrap_or(guess);
-    let drift = ExponentialDrift::try_new(problem.sde, problem.theta, family)?;
-    Ok((drift, lambda0))
 }
 
 /// The mean-optimal estimate of a Rayleigh–Ritz closure (`003_d2fc48a470e528fc.txt` Part II)

@@ -40,7 +40,7 @@ use onsager_closures::Gaussian;
 use serde::{Deserialize, Serialize};
 
 use crate::data::StatePath;
-use crate::estimate::{Details, EstimationProblem, Method, PathEstimate};
+use crate::estimate::{Details, EstimationProblem, Method, MethodRun, PathEstimate};
 use crate::estimator::EstimatorOptions;
 use crate::model::ad::{hessian_into, ScalarFn};
 use crate::model::observation::StateMeasurement;
@@ -50,7 +50,8 @@ use crate::{Error, Result};
 
 use super::super::exact::gaussian_dual_data;
 use super::drift::gaussian_closure_rule;
-use super::{gaussian_prior, invalid};
+use super::drift::gaussian_prior;
+use super::invalid;
 
 /// The moment-path closures.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -62,6 +63,15 @@ pub enum MomentPathKind {
 }
 
 impl MomentPathKind {
+    /// The kind of a moment-path method (`ksp-closure`, `double-exp-closure`).
+    pub fn of(method: Method) -> Option<MomentPathKind> {
+        match method {
+            Method::KspClosure => Some(MomentPathKind::Ksp),
+            Method::DoubleExpClosure => Some(MomentPathKind::DoubleExponential),
+            _ => None,
+        }
+    }
+
     /// The estimator's method.
     pub fn method(self) -> Method {
         match self {
@@ -121,6 +131,17 @@ impl MomentPathOptions {
 }
 
 impl EstimatorOptions for MomentPathOptions {
+    /// `ksp-closure` or `double-exp-closure`: [`moment_path_estimate`].
+    fn run<S: Sde + ?Sized>(
+        &self,
+        method: Method,
+        problem: &EstimationProblem<'_, S, StateMeasurement>,
+    ) -> Result<MethodRun> {
+        let kind = MomentPathKind::of(method)
+            .ok_or_else(|| invalid("method", format!("`{method}` is not a moment-path closure")))?;
+        moment_path_estimate(problem, kind, self).map(MethodRun::from)
+    }
+
     /// Checks a positive finite `step` and `tolerance`, at least one iteration and at least one
     /// Gauss–Hermite point.
     fn validate(&self) -> Result<()> {

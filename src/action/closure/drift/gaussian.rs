@@ -7,6 +7,13 @@ use onsager_closures::{cholesky_into, Gaussian, GaussianRule, TrialFamily};
 use super::{diffusion_matrix, hessians_by_unit_contractions, unrealizable};
 use super::{ClosureDrift, FamilyMoments, Unrealizable};
 use crate::action::closure::jet::{Jet, OneStateScalar};
+use serde::{Deserialize, Serialize};
+
+use super::gaussian_prior;
+use crate::action::closure::{ClosureFamily, FamilySetup};
+use crate::estimate::{EstimationProblem, Method};
+use crate::model::observation::StateMeasurement;
+use crate::model::prior::Prior;
 use crate::model::{Scalar, Sde};
 use crate::{Error, Result};
 
@@ -533,6 +540,74 @@ impl<S: Sde + ?Sized> ClosureDrift for GaussianDrift<'_, S> {
     fn square_index(&self, state: usize) -> Option<usize> {
         self.family.quadratic_index(state, state)
     }
+}
+
+/// The Gaussian family M = (x_i, x_ix_j) on all states, any dimension (`gaussian-closure`).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default)]
+#[non_exhaustive]
+pub struct GaussianFamily {
+    /// Gauss–Hermite points per dimension of the averages, k^n nodes on n states; at least 1.
+    /// Default `None`: automatic ([`drift::gaussian_closure_rule`]): for a model that declares
+    /// a polynomial drift of degree d ([`Sde::drift_polynomial_degree`]) and 1–3 states,
+    /// ⌊(d + 1)/2⌋ + 1 points, which take the averages exactly (3 for the cubic double well);
+    /// otherwise 16 / 8 / 5 points per dimension for 1 / 2 / 3 states and a fifth-degree
+    /// cubature from 4 states.
+    pub gaussian_points: Option<usize>,
+}
+
+impl GaussianFamily {
+    /// Sets the Gauss–Hermite points per dimension.
+    pub fn with_gaussian_points(mut self, points_per_dim: usize) -> Self {
+        self.gaussian_points = Some(points_per_dim);
+        self
+    }
+}
+
+impl ClosureFamily for GaussianFamily {
+    type Drift<'a, S: Sde + ?Sized + 'a> = GaussianDrift<'a, S>;
+    const METHOD: Method = Method::GaussianClosure;
+
+    fn describe(&self) -> String {
+        "Gaussian".into()
+    }
+
+    fn validate(&self) -> Result<()> {
+        if self.gaussian_points == Some(0) {
+            return Err(Error::invalid("gaussian_points", "must be at least 1, got 0"));
+        }
+        Ok(())
+    }
+
+    fn setup<'a, S: Sde + ?Sized>(
+        &self,
+        problem: &EstimationProblem<'a, S, StateMeasurement>,
+    ) -> Result<FamilySetup<GaussianDrift<'a, S>>> {
+        let (drift, lambda0) = gaussian_setup(problem, self.gaussian_points)?;
+        Ok(FamilySetup { drift, lambda0, measured: problem.observation.states.clone() })
+    }
+}
+
+fn gaussian_setup<'a, S: Sde + ?Sized>(
+    problem: &EstimationProblem<'a, S, StateMeasurement>,
+    points_per_dim: Option<usize>,
+) -> Result<(GaussianDrift<'a, S>, Vec<f64>)> {
+    let names = problem.sde.state_names();
+    let priors: Vec<&Prior> = problem.x0_prior.iter().chain(problem.z0_prior).collect();
+    let n = priors.len();
+    let mut mean = vec![0.0; n];
+    let mut cov = vec![0.0; n * n];
+    for (i, p) in priors.iter().enumerate() {
+        let (m, v) = gaussian_prior(p, &names[i])?;
+        mean[i] = m;
+        cov[i * n + i] = v;
+    }
+    let drift = GaussianDrift::try_with_points(problem.sde, problem.theta, points_per_dim)?;
+    let lambda0 = drift
+        .family()
+        .natural_from_mean_cov(&mean, &cov)
+        .map_err(|e| Error::invalid("x0 prior", format!("Gaussian closure: {e}")))?;
+    Ok((drift, lambda0))
 }
 
 #[cfg(test)]

@@ -18,16 +18,31 @@
 //!   ∂V/∂λ = Cov(L*M, M) and ∂C/∂λ = the third cumulant (`(II.43)`) in closed form.
 //!
 //! Each family is one file of this folder (`gaussian.rs`, `exponential.rs`) that implements
-//! [`ClosureDrift`]; this file holds the trait, the outcomes it shares and their helpers.
+//! [`ClosureDrift`] and, for its estimator, [`ClosureFamily`](super::ClosureFamily); this file
+//! holds the trait, the outcomes it shares and their helpers.
 
 mod exponential;
 mod gaussian;
 
-pub use exponential::ExponentialDrift;
-pub use gaussian::{exact_gauss_hermite_points, gaussian_closure_rule, GaussianDrift};
+pub use exponential::{ExponentialDrift, ExponentialFamily};
+pub use gaussian::{exact_gauss_hermite_points, gaussian_closure_rule, GaussianDrift, GaussianFamily};
 
+use crate::model::prior::{Prior, PriorDensity};
 use crate::model::Sde;
-use crate::Result;
+use crate::{Error, Result};
+
+/// (mean, variance) of a Gaussian, unbounded prior; an error naming the state otherwise.
+pub(crate) fn gaussian_prior(p: &Prior, state: &str) -> Result<(f64, f64)> {
+    match p.density {
+        PriorDensity::Gaussian { mean, sd } if p.lower == f64::NEG_INFINITY && p.upper == f64::INFINITY => {
+            Ok((mean, sd * sd))
+        }
+        _ => Err(Error::InvalidOption {
+            name: "x0 prior".into(),
+            reason: format!("the closures need a Gaussian initial prior (untruncated) for state `{state}`"),
+        }),
+    }
+}
 
 /// Why W could not be evaluated at λ: the density is not normalizable or its moments are not
 /// realizable (a numerical outcome of a sweep, not misuse).
