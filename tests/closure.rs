@@ -586,7 +586,7 @@ fn quartic_closure_is_closer_to_the_exact_estimate_than_the_gaussian_closure() {
     };
     let exact = mean_optimal(
         &problem,
-        &ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 600)).with_dt(0.005).with_output_step(0.1),
+        ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 600)).with_dt(0.005).with_output_step(0.1),
     )
     .unwrap();
     let options = ClosureOptions::new().with_output_step(0.1).with_dispersion(false);

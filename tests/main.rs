@@ -4,6 +4,7 @@ mod action;
 mod baselines;
 mod cli;
 mod closure;
+mod estimators;
 mod experiment;
 mod golden;
 mod path;
