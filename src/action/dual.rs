@@ -545,11 +545,9 @@ fn trust_region_step_with(
 /// The shortest fraction t of the Newton step that the line search tries (t = 1, ½, …, 2⁻¹⁰).
 /// Where K is positive definite and no such step raises Φ (Armijo) or halves the residual, F is
 /// far from its quadratic model or the evaluation's own noise is in the way (a closure's coarse
-/// sweeps), and a shorter step is no progress: with 40 halvings the line search used to accept
-/// steps of 10⁻⁸ of Newton's on Φ differences of round-off size, and the next iteration repeated
-/// it (the Gaussian closure: 240 sweeps in 12 iterations on a record of 10 measurements). It
-/// applies to every dual, the exact grid's included, whose iterations on double-well records
-/// did not need a step below 2⁻¹⁰ (docs/closures.md).
+/// sweeps), and a shorter step is no progress: a step of 10⁻⁸ of Newton's accepted on Φ
+/// differences of round-off size would be repeated by the next iteration. It applies to every
+/// dual, the exact grid's included.
 const MIN_STEP_FRACTION: f64 = 1.0 / 1024.0;
 
 /// The first trust-region radius in the scaled multipliers D R^{1/2}λ: one standardised
@@ -563,8 +561,8 @@ const INITIAL_RADIUS: f64 = 1.0;
 /// Sec. 4.5, "Scaling": D from the diagonal of the Hessian, so that the quadratic model is
 /// about equally trustworthy along every scaled direction). On long bistable records the
 /// Gaussian closure's K is strongly curved along a few multipliers (those that decide a
-/// transition) and mildly along the others, and the unscaled ball, limited by the former, made
-/// the iteration crawl (docs/closures.md, fifth session).
+/// transition) and mildly along the others, and an unscaled ball, limited by the former, makes
+/// the iteration crawl.
 fn trust_region_scaling(k: &DMatrix<f64>, sq: &[f64]) -> Vec<f64> {
     sq.iter().enumerate().map(|(i, q)| (k[(i, i)].abs() / (q * q)).max(1.0).sqrt()).collect()
 }

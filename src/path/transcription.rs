@@ -72,8 +72,7 @@ enum BlockKind {
 struct Block {
     kind: BlockKind,
     /// Where the global indices of the local variables, in local order, are in
-    /// [`PathNlp`]'s `var_index` (one array for all blocks: on Duffing with 36,000 pieces a
-    /// vector per block was 36,000 allocations and 4.6 MB).
+    /// [`PathNlp`]'s `var_index` (one array for all blocks, not one allocation per block).
     vars: std::ops::Range<usize>,
     /// First constraint row and number of rows.
     row0: usize,

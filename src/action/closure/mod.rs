@@ -278,8 +278,8 @@ fn output_times(t0: f64, data_times: &[f64], options: &ClosureOptions) -> Result
 /// The dual's first stage runs its sweeps at this multiple of the relative (and absolute)
 /// tolerance, ...
 const COARSE_FACTOR: f64 = 100.0;
-/// ... but at a relative tolerance of at most this (at 10⁻³ the double-well duals no longer
-/// converged: the step-size noise in F defeats the line search).
+/// ... but at a relative tolerance of at most this (at 10⁻³ the step-size noise in F defeats the
+/// line search on the double-well duals).
 const COARSE_RTOL: f64 = 1e-4;
 /// The dual's residual, in measurement units, may stop at this fraction of the sweeps'
 /// accuracy ([`ClosureOptions::dual_matched_to_sweeps`]).

@@ -39,7 +39,7 @@ use super::drift::{ClosureDrift, Unrealizable};
 /// Tsitouras' 5(4) pair (Ch. Tsitouras, "Runge–Kutta pairs of order 5(4) satisfying only the
 /// first column simplifying assumption", *Comput. Math. Appl.* 62 (2011) 770–775, Table 1): seven
 /// stages, first same as last, like Dormand–Prince but with smaller error coefficients (see
-/// `docs/closures.md`, "Integrator", for its steps and accuracy against Dormand–Prince here).
+/// `docs/closures.md`, "Integrator").
 /// The nodes C, the stage matrix A (its last row holds the fifth-order weights: FSAL).
 const C: [f64; 7] = [0.0, 0.161, 0.327, 0.9, 0.9800255409045097, 1.0, 1.0];
 const A: [[f64; 6]; 7] = [
@@ -582,9 +582,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
     /// step shortened to end on an event leaves the proposed step size standing for the next one.
     /// The error control sees λ only, but the adjoint γ (and the dispersion's second-order adjoint)
     /// relaxes backward from each measurement's jump at the rate of ∂W/∂λ, where λ has long
-    /// relaxed and the steps are long: without the limit the history just before a measurement
-    /// was off by up to 5·10⁻³ in the sd and 2.5·10⁻² in the path at the default tolerance
-    /// (`docs/closures.md`, "Accuracy of the history just before a measurement").
+    /// relaxed and the steps are long: the limit resolves the history just before a
+    /// measurement (`docs/closures.md`, "Accuracy of the history just before a measurement").
     fn integrate(
         &self,
         interval: EventInterval,

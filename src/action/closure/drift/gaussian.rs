@@ -503,8 +503,8 @@ impl<S: Sde + ?Sized> ClosureDrift for GaussianDrift<'_, S> {
     /// forward sweep pays that extra 0.8× and 48 more numbers per step (also the sweeps of
     /// rejected trial steps, of the filter start and of histories without the dispersion); it
     /// saves a Hessian's sweep the evaluation of every stage (1.8×). So it pays while Hessians
-    /// are asked for after more than about 0.45 of the forward sweeps: 20 of 28 on the benchmark
-    /// record of docs/closures.md (fifth session), where it saves 5 % of the instructions.
+    /// are asked for after more than about 0.45 of the forward sweeps, as in the dual's Newton
+    /// iterations (one Hessian per iteration, one or two forward sweeps).
     fn keeps_hessians(&self) -> bool {
         self.family.n_moments() == 2
     }
