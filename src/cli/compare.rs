@@ -14,6 +14,15 @@ use onsager::{Error, Result};
 
 use super::{create_parent, ModelArgs};
 
+/// The estimators of `--methods`, parsed at the door.
+#[derive(Debug, Clone)]
+pub struct EstimatorList(pub Vec<Labelled>);
+
+/// Parses `--methods` ([`parse_list`]).
+fn parse_methods(s: &str) -> std::result::Result<EstimatorList, String> {
+    parse_list(s).map(EstimatorList).map_err(|e| e.to_string())
+}
+
 /// Parses `--grid`.
 fn parse_grid(s: &str) -> std::result::Result<GridSpec, String> {
     GridSpec::parse(s).map_err(|e| e.to_string())
@@ -35,8 +44,8 @@ pub struct CompareArgs {
     /// `METHOD[:NAME=VALUE,…],METHOD…`, e.g. `exp-closure:moments=6,jme:transcription=trapezoidal,uks`
     /// (a value with commas in double quotes; `label=…` names a row). Default: ksp and
     /// mean-optimal for one or two states, the four closures for one state, jme, mee, uks.
-    #[arg(long, value_name = "LIST")]
-    pub methods: Option<String>,
+    #[arg(long, value_name = "LIST", value_parser = parse_methods)]
+    pub methods: Option<EstimatorList>,
     /// The estimators from a file instead: TOML `[[estimators]]` tables with `method`, `label`
     /// and `options = { … }` (as in experiment specs), or JSON `{"estimators": [...]}`.
     #[arg(long, value_name = "FILE", conflicts_with = "methods")]
@@ -61,7 +70,7 @@ impl CompareArgs {
         problem: &EstimationProblem<'_, impl Sde, onsager::model::observation::StateMeasurement>,
     ) -> Result<Vec<Labelled>> {
         let mut list = match (&self.methods, &self.estimators) {
-            (Some(text), _) => parse_list(text)?,
+            (Some(list), _) => list.0.clone(),
             (None, Some(file)) => read_list(file)?,
             (None, None) => default_estimators(problem),
         };
