@@ -87,6 +87,17 @@ impl Error {
     pub fn invalid(name: impl Into<String>, reason: impl Into<String>) -> Error {
         Error::InvalidOption { name: name.into(), reason: reason.into() }
     }
+
+    /// An [`Error::InvalidOption`] of a nested option group named `prefix.name`; other errors
+    /// unchanged.
+    pub fn within(self, prefix: &str) -> Error {
+        match self {
+            Error::InvalidOption { name, reason } => {
+                Error::InvalidOption { name: format!("{prefix}.{name}"), reason }
+            }
+            other => other,
+        }
+    }
 }
 
 /// Shorthand for `Result<T, onsager::Error>`.

@@ -256,7 +256,7 @@ impl DualOptions {
     pub fn validate(&self) -> Result<()> {
         if self.stall_iterations == Some(0) {
             return Err(Error::InvalidOption {
-                name: "stall iterations".into(),
+                name: "stall_iterations".into(),
                 reason: "must be at least 1 (or none)".into(),
             });
         }
@@ -269,7 +269,7 @@ impl DualOptions {
         if let Some(a) = self.acceptable_tolerance {
             if !(a.is_finite() && a >= self.tolerance) {
                 return Err(Error::InvalidOption {
-                    name: "acceptable tolerance".into(),
+                    name: "acceptable_tolerance".into(),
                     reason: format!("must be finite and at least the tolerance {}, got {a}", self.tolerance),
                 });
             }

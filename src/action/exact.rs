@@ -162,7 +162,7 @@ impl EstimatorOptions for MeanOptimalOptions {
     /// Checks the discretisation and the dual's options.
     fn validate(&self) -> Result<()> {
         self.exact.validate()?;
-        self.dual.validate()
+        self.dual.validate().map_err(|e| e.within("dual"))
     }
 }
 

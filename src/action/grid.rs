@@ -265,6 +265,23 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_grid_is_written_as_text_and_read_from_text_or_a_table() {
+        let g = GridSpec::new_2d([-1.5, -2.0], [1.5, 2.0], [30, 40]);
+        assert_eq!(g.to_string(), "lo=-1.5;-2,hi=1.5;2,cells=30;40");
+        assert_eq!(GridSpec::parse(&g.to_string()).unwrap(), g);
+        let json = serde_json::to_value(&g).unwrap();
+        assert_eq!(serde_json::from_value::<GridSpec>(json).unwrap(), g);
+        let table = serde_json::json!({"lo": [-1.5, -2.0], "hi": [1.5, 2.0], "cells": [30, 40]});
+        assert_eq!(serde_json::from_value::<GridSpec>(table).unwrap(), g);
+        let one = serde_json::json!({"lo": -1, "hi": 1, "cells": 10});
+        assert_eq!(serde_json::from_value::<GridSpec>(one).unwrap(), GridSpec::new_1d(-1.0, 1.0, 10));
+        let bad = serde_json::from_value::<GridSpec>(serde_json::json!("lo=1,hi=0,cells=10")).unwrap_err();
+        assert!(bad.to_string().contains("lo < hi"), "{bad}");
+    }
+
+    use super::*;
+
+    #[test]
     fn parse_one_and_two_axes() {
         let g = GridSpec::parse("lo=-2,hi=3,cells=50").unwrap();
         assert_eq!(g, GridSpec::new_1d(-2.0, 3.0, 50));

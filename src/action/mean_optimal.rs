@@ -290,3 +290,108 @@ impl Solution {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::DMatrix;
+
+    use super::*;
+    use crate::action::dual::ActionValue;
+
+    /// F(λ) = μλ + ½cλ² at one measurement of one state, whose sweeps can be made to fail, and
+    /// whose reported ∇²F can be overridden (a non-concave Rayleigh–Ritz F).
+    struct Scalar {
+        times: Vec<f64>,
+        mu: f64,
+        c: f64,
+        hessian: Option<f64>,
+        fail_history: bool,
+        fail_tangents: bool,
+    }
+
+    impl EffectiveAction for Scalar {
+        fn measurement_times(&self) -> &[f64] {
+            &self.times
+        }
+        fn output_dim(&self) -> usize {
+            1
+        }
+        fn evaluate(&mut self, lambda: &[f64]) -> Result<ActionValue> {
+            let l = lambda[0];
+            Ok(ActionValue { value: self.mu * l + 0.5 * self.c * l * l, z: vec![self.mu + self.c * l] })
+        }
+        fn hessian(&mut self, _: &[f64]) -> Result<Swept<DMatrix<f64>>> {
+            if self.fail_tangents {
+                return Ok(Err(SweepFailure::Unrealizable));
+            }
+            Ok(Ok(DMatrix::from_element(1, 1, self.hessian.unwrap_or(self.c))))
+        }
+        fn history(&mut self, lambda: &[f64], cross: bool) -> Result<Swept<History>> {
+            if self.fail_history {
+                return Ok(Err(SweepFailure::Unrealizable));
+            }
+            let z = self.evaluate(lambda)?.z[0];
+            let cov = DMatrix::from_element(1, 1, self.hessian.unwrap_or(self.c));
+            Ok(Ok(History {
+                times: self.times.clone(),
+                mean: vec![vec![z]],
+                variance: vec![vec![self.c]],
+                cross: cross.then(|| vec![cov]),
+            }))
+        }
+    }
+
+    fn scalar() -> Scalar {
+        Scalar { times: vec![1.0], mu: 0.5, c: 2.0, hessian: None, fail_history: false, fail_tangents: false }
+    }
+
+    fn plan() -> Plan {
+        Plan { dual: DualOptions::default(), stages: None, retry_from_zero: false, dispersion: true }
+    }
+
+    #[test]
+    fn the_solution_is_gaussian_conditioning_with_its_dispersion() {
+        // Prior N(0.5, 2), datum 1.5 with R = 0.5: posterior mean 0.5 + 2/2.5 · 1 = 1.3, variance
+        // 2 − 4/2.5 = 0.4 (the linear-Gaussian identity of (I.85)–(I.90)).
+        let data = DualData { r: vec![1.5], variance: vec![0.5], output_dim: 1 };
+        let sol = solve(&mut scalar(), &data, (vec![0.0], DualStart::Zero), &plan()).unwrap();
+        assert_eq!((sol.status, sol.sd_kind), (Status::Converged, SdKind::EnsembleDispersion));
+        assert!((sol.history.mean[0][0] - 1.3).abs() < 1e-12, "{:?}", sol.history.mean);
+        assert!((sol.sd[0][0] - 0.4f64.sqrt()).abs() < 1e-12, "{:?}", sol.sd);
+        assert!(sol.history.cross.is_none() && sol.history_failure.is_none());
+    }
+
+    #[test]
+    fn numerical_outcomes_are_statuses_and_sd_kinds_not_errors() {
+        let data = DualData { r: vec![1.5], variance: vec![0.5], output_dim: 1 };
+        let start = || (vec![0.0], DualStart::Zero);
+        // ∇²F + R not positive definite at the solution: the density's variance, flagged.
+        let mut indefinite = Scalar { hessian: Some(-1.0), ..scalar() };
+        let sol = solve(
+            &mut indefinite,
+            &data,
+            start(),
+            &Plan { dual: DualOptions::default().with_max_iterations(0), ..plan() },
+        )
+        .unwrap();
+        assert_eq!(sol.status, Status::MaxIterations);
+        assert_eq!(sol.sd_kind, SdKind::DensityVariance, "no dispersion without a solution");
+        let mut indefinite = Scalar { hessian: Some(-1.0), ..scalar() };
+        let h = history_at(&mut indefinite, &data, &[0.4], true).unwrap().unwrap();
+        assert_eq!(h.2, SdKind::Indefinite);
+        assert!((h.1[0][0] - 2f64.sqrt()).abs() < 1e-12);
+        // The dispersion's tangent sweeps fail: the density's variance, flagged.
+        let mut tangents = Scalar { fail_tangents: true, ..scalar() };
+        let h = history_at(&mut tangents, &data, &[0.4], true).unwrap().unwrap();
+        assert_eq!(h.2, SdKind::DispersionFailed);
+        // The history's sweep fails at the solution: numerical-failure, an empty path, the reason.
+        let mut history = Scalar { fail_history: true, ..scalar() };
+        let sol = solve(&mut history, &data, start(), &plan()).unwrap();
+        assert_eq!(sol.status, Status::NumericalFailure);
+        assert_eq!((sol.sd_kind, sol.history_failure), (SdKind::None, Some(SweepFailure::Unrealizable)));
+        assert!(sol.history.times.is_empty() && sol.sd.is_empty());
+        let details = serde_json::to_value(sol.details(None, None, &plan())).unwrap();
+        assert_eq!(details["history_failure"], "unrealizable");
+        assert_eq!(details["dual_start"], "zero");
+    }
+}

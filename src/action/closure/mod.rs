@@ -190,7 +190,7 @@ impl ClosureOptions {
         if let Some(&t) = self.extra_times.iter().find(|&&t| !t.is_finite()) {
             return Err(invalid("extra_times", format!("must be finite, got {t}")));
         }
-        self.dual.validate()
+        self.dual.validate().map_err(|e| e.within("dual"))
     }
 }
 
