@@ -279,8 +279,6 @@ mod tests {
         assert!(bad.to_string().contains("lo < hi"), "{bad}");
     }
 
-    use super::*;
-
     #[test]
     fn parse_one_and_two_axes() {
         let g = GridSpec::parse("lo=-2,hi=3,cells=50").unwrap();
