@@ -81,6 +81,10 @@ fn the_text_the_file_and_the_json_forms_are_the_same_estimators() {
         let back: Estimator = serde_json::from_str(&json).unwrap();
         assert_eq!(back, e.estimator, "{json}");
     }
+    // The example file of the README.
+    let example = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/estimators.toml");
+    let labels: Vec<String> = read_list(&example).unwrap().into_iter().map(|e| e.label).collect();
+    assert_eq!(labels, ["ksp", "sextic", "gaussian-closure", "jme-trapezoidal", "uks"]);
     // Two estimators of one method are labelled by their text.
     let two =
         parse_list("jme,jme:transcription=euler,ksp:grid=\"lo=-3,hi=3,cells=50\",label=coarse").unwrap();
