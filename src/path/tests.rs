@@ -519,7 +519,8 @@ fn kept_kkt_solver_reuses_its_analysis() {
 }
 
 /// A built-in model without its closed-form `drift_derivatives`: the transcription then
-/// differentiates the drifts automatically.
+/// differentiates the drifts automatically. (A wrapper for the one comparison below, not a
+/// model, so not in `test_models`.)
 struct WithoutClosedForm<'a>(&'a crate::model::library::BuiltinModel);
 
 impl crate::model::Sde for WithoutClosedForm<'_> {
