@@ -10,25 +10,21 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 
-use onsager::data::Dataset;
 use onsager::kalman::{estimate, pem, KalmanMethod, KalmanOptions, PemOptions};
-use onsager::model::library::{preset, Preset};
+use onsager::model::library::preset;
 use onsager::particle::{self, ParticleOptions};
-use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
+use onsager::test_models::PresetRecord;
 
-fn data(p: &Preset, t_end: f64) -> Dataset {
-    let mut rng = StdRng::seed_from_u64(1);
-    let x0: Vec<f64> = p.x0_prior.iter().map(|q| q.sample(&mut rng).expect("prior")).collect();
-    let z0: Vec<f64> = p.z0_prior.iter().map(|q| q.sample(&mut rng).expect("prior")).collect();
-    let path = simulate(&p.model, &p.theta, &x0, &z0, &SimulateOptions::new(0.0, t_end, p.dt), &mut rng)
-        .expect("simulation");
-    sample_measurements(&p.observation, &p.theta, &path, p.dims().noisy, p.sample_every, &mut rng)
-        .expect("measurements")
+/// The preset `name` simulated on [0, t_end] with seed 1, x0 from its prior, its own step and
+/// sampling (`test_models::PresetRecord`).
+fn record(name: &str, t_end: f64) -> PresetRecord {
+    let mut p = preset(name).expect("preset");
+    p.t_end = t_end;
+    PresetRecord::simulate(p, 1).expect("simulation")
 }
 
 fn bench(c: &mut Criterion) {
-    let p = preset("duffing").expect("preset");
-    let d = data(&p, 20.0);
+    let PresetRecord { preset: p, data: d, .. } = record("duffing", 20.0);
     let est: Vec<usize> =
         ["a", "b", "d", "sigma_y"].iter().map(|n| p.param_index(n).expect("name")).collect();
     let mut group = c.benchmark_group("baselines_duffing_t20");
@@ -52,8 +48,7 @@ fn bench(c: &mut Criterion) {
     });
     group.finish();
 
-    let ou = preset("ou").expect("preset");
-    let d = data(&ou, 10.0);
+    let PresetRecord { preset: ou, data: d, .. } = record("ou", 10.0);
     let problem = ou.problem(&d, &[]);
     let mut group = c.benchmark_group("baselines_ou_t10");
     group.sample_size(10);

@@ -6,7 +6,8 @@
 //! [−2.5, 2.5] and the default steps (`exact_mean_optimal`), and with the settings of the table
 //! of `examples/closure_double_well.rs`, whose exact estimate is the reference of the closures'
 //! RMSE: 600 cells on [−3, 3], dt = 0.005, output step 0.1 (`exact_mean_optimal_table_settings`).
-//! Default closure options (dispersion included).
+//! Default closure options (dispersion included). The record:
+//! `test_models::DoubleWellRecord::new(0, 40.0)` (x(0) = −1, seed 0, x0 ~ N(−1, 0.2²)).
 
 use std::hint::black_box;
 use std::time::Duration;
@@ -14,11 +15,10 @@ use std::time::Duration;
 use criterion::{criterion_group, criterion_main, Criterion};
 
 use onsager::action::{closure_estimate, mean_optimal, Closure, ClosureOptions, ExactOptions, GridSpec};
-
-include!("double_well_record.rs");
+use onsager::test_models::DoubleWellRecord;
 
 fn bench(c: &mut Criterion) {
-    let record = Record::new();
+    let record = DoubleWellRecord::new(0, 40.0).expect("record");
     let problem = record.problem();
     let (gaussian, quartic) =
         (Closure::gaussian(ClosureOptions::new()), Closure::exponential(4, ClosureOptions::new()));

@@ -75,41 +75,21 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use rand::SeedableRng;
 
 use onsager::estimate::EstimationProblem;
 use onsager::model::library::preset;
-use onsager::model::observation::{Noise, Param};
 use onsager::nlp::{AutoLdlt, LinearSolver, NlpOptions};
 use onsager::path::{
     estimate_path, estimate_path_with, regression_theta_guess, spline_guess, Merit, PathOptions,
     Transcription,
 };
-use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
+use onsager::test_models::{van_der_pol_student_t, PresetRecord};
 
 fn van_der_pol(c: &mut Criterion) {
-    let p = preset("van-der-pol").unwrap();
-    let mut rng = rand::rngs::StdRng::seed_from_u64(1);
-    let truth =
-        simulate(&p.model, &p.theta, &[0.0, 0.0], &[], &SimulateOptions::new(0.0, 16.0, 5e-4), &mut rng)
-            .unwrap();
-    let data = sample_measurements(&p.observation, &p.theta, &truth, 2, 0.1, &mut rng).unwrap();
-    let mut observation = p.observation.clone();
-    observation.noise = Noise::StudentT { nu: Param::Fixed(4.0), scale: Param::Fixed(0.5) };
-    let problem = EstimationProblem {
-        sde: &p.model,
-        observation: &observation,
-        theta: &p.theta,
-        theta_prior: &p.theta_prior,
-        estimate: &[],
-        x0_prior: &p.x0_prior,
-        z0_prior: &p.z0_prior,
-        data: &data,
-        t0: 0.0,
-        seed: 0,
-    };
+    let record = van_der_pol_student_t(1).unwrap();
+    let (p, problem) = (&record.preset, record.problem(&[]));
     let times: Vec<f64> = (0..=3200).map(|k| k as f64 * 0.005).collect();
-    let guess = spline_guess(&p.model, &p.theta, &observation.states, &data, &times).unwrap();
+    let guess = spline_guess(&p.model, &p.theta, &p.observation.states, &record.data, &times).unwrap();
     let mut group = c.benchmark_group("path_van_der_pol");
     group.sample_size(10).measurement_time(Duration::from_secs(60));
     for (name, solver) in
@@ -142,33 +122,17 @@ fn van_der_pol(c: &mut Criterion) {
 }
 
 fn duffing_joint_36k(c: &mut Criterion) {
-    let p = preset("duffing").unwrap();
+    let record = PresetRecord::simulate(preset("duffing").unwrap(), 1).unwrap();
+    let (p, data) = (&record.preset, &record.data);
     let estimate: Vec<usize> = ["a", "b", "d", "sigma_y"].iter().map(|n| p.param_index(n).unwrap()).collect();
-    let mut rng = rand::rngs::StdRng::seed_from_u64(1);
-    let x0 = [p.x0_prior[0].sample(&mut rng).unwrap()];
-    let z0 = [p.z0_prior[0].sample(&mut rng).unwrap()];
-    let truth =
-        simulate(&p.model, &p.theta, &x0, &z0, &SimulateOptions::new(0.0, p.t_end, p.dt), &mut rng).unwrap();
-    let data = sample_measurements(&p.observation, &p.theta, &truth, 1, p.sample_every, &mut rng).unwrap();
     let start =
-        regression_theta_guess(&p.model, &p.observation, &p.theta, &p.theta_prior, &estimate, &data).unwrap();
-    let problem = EstimationProblem {
-        sde: &p.model,
-        observation: &p.observation,
-        theta: &start.theta,
-        theta_prior: &p.theta_prior,
-        estimate: &estimate,
-        x0_prior: &p.x0_prior,
-        z0_prior: &p.z0_prior,
-        data: &data,
-        t0: 0.0,
-        seed: 0,
-    };
-    let t0 = onsager::estimate::default_initial_time(&data);
+        regression_theta_guess(&p.model, &p.observation, &p.theta, &p.theta_prior, &estimate, data).unwrap();
+    let problem = EstimationProblem { theta: &start.theta, ..record.problem(&estimate) };
+    let t0 = onsager::estimate::default_initial_time(data);
     let step = p.sample_every / 36.0;
     let nodes = ((data.times.last().unwrap() - t0) / step).round() as usize;
     let times: Vec<f64> = (0..=nodes).map(|k| t0 + k as f64 * step).collect();
-    let guess = spline_guess(&p.model, &start.theta, &p.observation.states, &data, &times).unwrap();
+    let guess = spline_guess(&p.model, &start.theta, &p.observation.states, data, &times).unwrap();
     let mut group = c.benchmark_group("path_duffing_joint_36k");
     group.sample_size(10).measurement_time(Duration::from_secs(60));
     group.bench_function("jme_hermite_simpson", |b| {

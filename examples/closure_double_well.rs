@@ -11,37 +11,20 @@
 //!
 //! Run: `cargo run --release --example closure_double_well`
 
-use rand::rngs::StdRng;
-use rand::SeedableRng;
-
 use onsager::action::{closure_estimate, mean_optimal, Closure, ClosureOptions, ExactOptions, GridSpec};
-use onsager::data::Dataset;
-use onsager::model::library::preset;
-use onsager::simulate::{sample_measurements_at, simulate, SimulateOptions};
+use onsager::test_models::{DoubleWellRecord, Start};
 
-/// The first `n` seeds whose double-well path changes wells on [0, 10], with their data.
-fn seeds_with_transitions(n: usize) -> Vec<(u64, Dataset)> {
-    let p = preset("double-well").expect("built-in");
-    let mut out = Vec::new();
-    for seed in 0.. {
-        let mut rng = StdRng::seed_from_u64(seed);
-        let x0 = p.x0_prior[0].sample(&mut rng).expect("proper prior");
-        let path =
-            simulate(&p.model, &p.theta, &[x0], &[], &SimulateOptions::new(0.0, T_END, 0.005), &mut rng)
-                .expect("valid settings");
-        let x = path.column("x").expect("state x");
-        if x.iter().any(|&v| v > 0.8) && x.iter().any(|&v| v < -0.8) {
-            let mut obs = p.observation.clone();
-            obs.noise = onsager::model::Noise::Gaussian { sigma: onsager::model::Param::Fixed(0.2) };
-            let times: Vec<f64> = (1..=T_END as usize).map(|k| k as f64).collect();
-            let data = sample_measurements_at(&obs, &p.theta, &path, 1, &times, &mut rng).expect("valid");
-            out.push((seed, data));
-            if out.len() == n {
-                break;
-            }
-        }
-    }
-    out
+/// The first `n` seeds whose double-well path changes wells on [0, 10], with their records (the
+/// `double-well` preset's problem with R = 0.04).
+fn seeds_with_transitions(n: usize) -> Vec<(u64, DoubleWellRecord)> {
+    let times: Vec<f64> = (1..=T_END as usize).map(|k| k as f64).collect();
+    (0..)
+        .map(|seed| {
+            (seed, DoubleWellRecord::simulate(seed, Start::Drawn, T_END, &times).expect("valid settings"))
+        })
+        .filter(|(_, record)| record.changes_wells())
+        .take(n)
+        .collect()
 }
 
 /// The horizon: measurements at 1, 2, …, `T_END`.
@@ -52,8 +35,6 @@ fn rmse(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
 }
 
 fn main() -> onsager::Result<()> {
-    let mut p = preset("double-well")?;
-    p.observation.noise = onsager::model::Noise::Gaussian { sigma: onsager::model::Param::Fixed(0.2) };
     let exact_options =
         ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 600)).with_dt(0.005).with_output_step(0.1);
     let options = ClosureOptions::new().with_output_step(0.1).with_dispersion(false);
@@ -63,8 +44,8 @@ fn main() -> onsager::Result<()> {
     );
     let mut wins = 0;
     let seeds = seeds_with_transitions(10);
-    for (seed, data) in &seeds {
-        let problem = p.problem(data, &[]);
+    for (seed, record) in &seeds {
+        let problem = record.problem();
         let exact = mean_optimal(&problem, &exact_options)?;
         let g = closure_estimate(&problem, &Closure::gaussian(options.clone()))?;
         let q = closure_estimate(&problem, &Closure::exponential(4, options.clone()))?;

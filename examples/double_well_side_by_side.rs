@@ -9,54 +9,25 @@
 //!
 //! Run: `cargo run --release --example double_well_side_by_side [SEED]`
 
-use rand::rngs::StdRng;
-use rand::SeedableRng;
-
 use onsager::action::{ksp_smoother, mean_optimal, ExactOptions, GridSpec};
-use onsager::estimate::EstimationProblem;
-use onsager::model::library::DoubleWell;
-use onsager::model::observation::{Noise, StateMeasurement};
-use onsager::model::prior::Prior;
-use onsager::model::Param;
-use onsager::simulate::{sample_measurements_at, simulate, SimulateOptions};
+use onsager::test_models::{DoubleWellRecord, Start};
 
 fn main() -> onsager::Result<()> {
-    let obs = StateMeasurement::new(vec![0], vec!["y".into()], Noise::Gaussian { sigma: Param::Fixed(0.2) });
     let first: u64 = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(0);
-    // The first seed (from FIRST) whose path visits both wells.
-    let (path, data) = (first..first + 100)
+    // The first seed (from FIRST) whose path visits both wells and ends away from the barrier.
+    let times: Vec<f64> = (0..=40).map(|k| k as f64).collect();
+    let record = (first..first + 100)
         .find_map(|seed| {
-            let mut rng = StdRng::seed_from_u64(seed);
-            let x0 = Prior::gaussian(-1.0, 0.2).sample(&mut rng).ok()?;
-            let path =
-                simulate(&DoubleWell, &[0.5], &[x0], &[], &SimulateOptions::new(0.0, 40.0, 0.005), &mut rng)
-                    .ok()?;
-            let x = path.column("x")?;
-            let changes =
-                x.iter().any(|&v| v > 0.8) && x.iter().any(|&v| v < -0.8) && x[x.len() - 1].abs() > 0.5;
-            if !changes {
+            let record = DoubleWellRecord::simulate(seed, Start::Drawn, 40.0, &times).ok()?;
+            let last = record.truth.values.last()?[0];
+            if !(record.changes_wells() && last.abs() > 0.5) {
                 return None;
             }
-            let times: Vec<f64> = (0..=40).map(|k| k as f64).collect();
-            let data = sample_measurements_at(&obs, &[0.5], &path, 1, &times, &mut rng).ok()?;
             println!("seed {seed}");
-            Some((path, data))
+            Some(record)
         })
         .expect("a path that changes wells");
-    let priors = [Prior::flat().with_bounds(0.0, f64::INFINITY)];
-    let x0 = [Prior::gaussian(-1.0, 0.2)];
-    let problem = EstimationProblem {
-        sde: &DoubleWell,
-        observation: &obs,
-        theta: &[0.5],
-        theta_prior: &priors,
-        estimate: &[],
-        x0_prior: &x0,
-        z0_prior: &[],
-        data: &data,
-        t0: 0.0,
-        seed: 0,
-    };
+    let (problem, path, data) = (record.problem(), &record.truth, &record.data);
     let options = ExactOptions::new(GridSpec::new_1d(-2.5, 2.5, 500)).with_dt(0.01);
     let ksp = ksp_smoother(&problem, &options)?;
     let mo = mean_optimal(&problem, &options)?;

@@ -13,13 +13,10 @@
 //!
 //! Run with `cargo run --release --example duffing_joint [SEEDS]` (default 20 seeds, 1..=SEEDS).
 
-use rand::rngs::StdRng;
-use rand::SeedableRng;
-
 use onsager::estimate::EstimationProblem;
 use onsager::model::library::preset;
 use onsager::path::{estimate_path, regression_theta_guess, spline_guess, Merit, PathOptions, Transcription};
-use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
+use onsager::test_models::PresetRecord;
 
 /// The estimated parameters, in the order printed.
 const ESTIMATED: [&str; 4] = ["a", "b", "d", "sigma_y"];
@@ -55,32 +52,17 @@ fn main() -> onsager::Result<()> {
     }
     println!(" | {:>6}", "s");
     for seed in 1..=seeds {
-        let mut rng = StdRng::seed_from_u64(seed);
-        let x0 = [p.x0_prior[0].sample(&mut rng)?];
-        let z0 = [p.z0_prior[0].sample(&mut rng)?];
-        let truth =
-            simulate(&p.model, &p.theta, &x0, &z0, &SimulateOptions::new(0.0, p.t_end, p.dt), &mut rng)?;
-        let data = sample_measurements(&p.observation, &p.theta, &truth, 1, p.sample_every, &mut rng)?;
+        let record = PresetRecord::simulate(p.clone(), seed)?;
+        let data = &record.data;
         let start =
-            regression_theta_guess(&p.model, &p.observation, &p.theta, &p.theta_prior, &estimate, &data)?;
-        let problem = EstimationProblem {
-            sde: &p.model,
-            observation: &p.observation,
-            theta: &start.theta,
-            theta_prior: &p.theta_prior,
-            estimate: &estimate,
-            x0_prior: &p.x0_prior,
-            z0_prior: &p.z0_prior,
-            data: &data,
-            t0: onsager::estimate::default_initial_time(&data),
-            seed: 0,
-        };
+            regression_theta_guess(&p.model, &p.observation, &p.theta, &p.theta_prior, &estimate, data)?;
+        let problem = EstimationProblem { theta: &start.theta, ..record.problem(&estimate) };
         let t0 = problem.t0;
-        let step = onsager::path::default_step(t0, &data);
+        let step = onsager::path::default_step(t0, data);
         let t_end = data.times.last().copied().unwrap_or(t0);
         let nodes = ((t_end - t0) / step).round() as usize;
         let times: Vec<f64> = (0..=nodes).map(|k| t0 + k as f64 * step).collect();
-        let guess = spline_guess(&p.model, &start.theta, &p.observation.states, &data, &times)?;
+        let guess = spline_guess(&p.model, &start.theta, &p.observation.states, data, &times)?;
 
         print!("{seed:>4}");
         let mut seconds = 0.0;

@@ -14,14 +14,11 @@
 //! (PIECES per measurement interval, default 36; a smaller value gives a smaller problem of the
 //! same kind, e.g. for `valgrind --tool=callgrind`).
 
-use rand::rngs::StdRng;
-use rand::SeedableRng;
-
 use onsager::estimate::EstimationProblem;
 use onsager::model::library::preset;
 use onsager::nlp::{LinearSolver, NlpOptions};
 use onsager::path::{estimate_path, regression_theta_guess, spline_guess, Merit, PathOptions, Transcription};
-use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
+use onsager::test_models::PresetRecord;
 
 /// Default pieces per measurement interval (0.1 / 36 ≈ 0.00278).
 const PIECES_PER_SAMPLE: usize = 36;
@@ -34,33 +31,18 @@ fn main() -> onsager::Result<()> {
     };
     let seed: u64 = std::env::args().nth(2).and_then(|s| s.parse().ok()).unwrap_or(1);
     let pieces: usize = std::env::args().nth(3).and_then(|s| s.parse().ok()).unwrap_or(PIECES_PER_SAMPLE);
-    let p = preset("duffing")?;
+    let record = PresetRecord::simulate(preset("duffing")?, seed)?;
+    let (p, data) = (&record.preset, &record.data);
     let estimate: Vec<usize> =
         ["a", "b", "d", "sigma_y"].iter().map(|n| p.param_index(n)).collect::<Result<_, _>>()?;
-    let mut rng = StdRng::seed_from_u64(seed);
-    let x0 = [p.x0_prior[0].sample(&mut rng)?];
-    let z0 = [p.z0_prior[0].sample(&mut rng)?];
-    let truth = simulate(&p.model, &p.theta, &x0, &z0, &SimulateOptions::new(0.0, p.t_end, p.dt), &mut rng)?;
-    let data = sample_measurements(&p.observation, &p.theta, &truth, 1, p.sample_every, &mut rng)?;
-    let start = regression_theta_guess(&p.model, &p.observation, &p.theta, &p.theta_prior, &estimate, &data)?;
-    let problem = EstimationProblem {
-        sde: &p.model,
-        observation: &p.observation,
-        theta: &start.theta,
-        theta_prior: &p.theta_prior,
-        estimate: &estimate,
-        x0_prior: &p.x0_prior,
-        z0_prior: &p.z0_prior,
-        data: &data,
-        t0: onsager::estimate::default_initial_time(&data),
-        seed: 0,
-    };
+    let start = regression_theta_guess(&p.model, &p.observation, &p.theta, &p.theta_prior, &estimate, data)?;
+    let problem = EstimationProblem { theta: &start.theta, ..record.problem(&estimate) };
     let t0 = problem.t0;
     let step = p.sample_every / pieces as f64;
     let t_end = data.times.last().copied().unwrap_or(t0);
     let nodes = ((t_end - t0) / step).round() as usize;
     let times: Vec<f64> = (0..=nodes).map(|k| t0 + k as f64 * step).collect();
-    let guess = spline_guess(&p.model, &start.theta, &p.observation.states, &data, &times)?;
+    let guess = spline_guess(&p.model, &start.theta, &p.observation.states, data, &times)?;
     let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson)
         .with_step(step)
         .with_laplace(false)

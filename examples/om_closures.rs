@@ -10,15 +10,11 @@
 //!
 //! Run: `cargo run --release --example om_closures`
 
-use rand::rngs::StdRng;
-use rand::SeedableRng;
-
 use onsager::action::closure::om::{moment_path_estimate, MomentPathKind, MomentPathOptions};
 use onsager::action::{
     closure_estimate, ksp_smoother, mean_optimal, Closure, ClosureOptions, ExactOptions, GridSpec,
 };
-use onsager::model::library::preset;
-use onsager::simulate::{sample_measurements_at, simulate, SimulateOptions};
+use onsager::test_models::{DoubleWellRecord, Start};
 
 /// RMSE of `values` at `times` against `reference` at `ref_times` (common times only).
 fn rmse(times: &[f64], values: &[Vec<f64>], ref_times: &[f64], reference: &[Vec<f64>]) -> f64 {
@@ -33,8 +29,6 @@ fn rmse(times: &[f64], values: &[Vec<f64>], ref_times: &[f64], reference: &[Vec<
 }
 
 fn main() -> onsager::Result<()> {
-    let mut p = preset("double-well")?;
-    p.observation.noise = onsager::model::Noise::Gaussian { sigma: onsager::model::Param::Fixed(0.2) };
     let exact_options =
         ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 600)).with_dt(0.005).with_output_step(0.1);
     let om = MomentPathOptions::new();
@@ -44,18 +38,14 @@ fn main() -> onsager::Result<()> {
         "seed", "dexp vs MO", "gauss vs MO", "ksp-c vs KSP", "sd vs KSP", "iters d/k"
     );
     let mut found = 0;
+    let times: Vec<f64> = (1..=10).map(|k| k as f64).collect();
     for seed in 0.. {
-        let mut rng = StdRng::seed_from_u64(seed);
-        let x0 = p.x0_prior[0].sample(&mut rng)?;
-        let path =
-            simulate(&p.model, &p.theta, &[x0], &[], &SimulateOptions::new(0.0, 10.0, 0.005), &mut rng)?;
-        let x = path.column("x").expect("state x");
-        if !(x.iter().any(|&v| v > 0.8) && x.iter().any(|&v| v < -0.8)) {
+        // The `double-well` preset's problem with R = 0.04 (x0 ~ N(−1, 0.2²) drawn from the seed).
+        let record = DoubleWellRecord::simulate(seed, Start::Drawn, 10.0, &times)?;
+        if !record.changes_wells() {
             continue;
         }
-        let times: Vec<f64> = (1..=10).map(|k| k as f64).collect();
-        let data = sample_measurements_at(&p.observation, &p.theta, &path, 1, &times, &mut rng)?;
-        let problem = p.problem(&data, &[]);
+        let problem = record.problem();
         let exact = mean_optimal(&problem, &exact_options)?;
         let ksp = ksp_smoother(&problem, &exact_options)?;
         let d = moment_path_estimate(&problem, MomentPathKind::DoubleExponential, &om)?;

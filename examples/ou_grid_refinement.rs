@@ -9,47 +9,13 @@
 //!
 //! Run: `cargo run --release --example ou_grid_refinement`
 
-use nalgebra::{DMatrix, DVector};
-use rand::rngs::StdRng;
-use rand::SeedableRng;
-
 use onsager::action::{ksp_smoother, mean_optimal, ExactOptions, GridSpec};
-use onsager::estimate::EstimationProblem;
-use onsager::kalman::linear::{kalman_rts, LinearGaussianModel};
-use onsager::model::library::Ou;
-use onsager::model::observation::{Noise, StateMeasurement};
-use onsager::model::prior::Prior;
-use onsager::model::Param;
-use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
+use onsager::test_models::OuRecord;
 
 fn main() -> onsager::Result<()> {
-    let theta = [1.0, 0.5];
-    let obs = StateMeasurement::new(vec![0], vec!["y".into()], Noise::Gaussian { sigma: Param::Fixed(0.2) });
-    let mut rng = StdRng::seed_from_u64(6);
-    let path = simulate(&Ou, &theta, &[0.3], &[], &SimulateOptions::new(0.0, 5.0, 0.01), &mut rng)?;
-    let data = sample_measurements(&obs, &theta, &path, 1, 0.5, &mut rng)?;
-    let priors = [Prior::flat(), Prior::flat().with_bounds(0.0, f64::INFINITY)];
-    let x0 = [Prior::gaussian(0.0, 0.5)];
-    let problem = EstimationProblem {
-        sde: &Ou,
-        observation: &obs,
-        theta: &theta,
-        theta_prior: &priors,
-        estimate: &[],
-        x0_prior: &x0,
-        z0_prior: &[],
-        data: &data,
-        t0: 0.0,
-        seed: 0,
-    };
-    let model = LinearGaussianModel::from_sde(
-        &Ou,
-        &theta,
-        &obs,
-        0.0,
-        DVector::from_element(1, 0.0),
-        DMatrix::from_element(1, 1, 0.25),
-    )?;
+    // The OU record of `test_models` (seed 6): x(0) = 0.3, simulated on [0, 5] with step 0.01.
+    let ou = OuRecord::new()?;
+    let problem = ou.problem();
     println!("OU θ = 1, σ = 0.5, x0 ~ N(0, 0.5²), y ~ N(x, 0.2²) every 0.5 on [0, 5]; grid [-3, 3]");
     println!("max over the output times (step 0.05) of |estimate − RTS|:");
     println!(
@@ -69,7 +35,7 @@ fn main() -> onsager::Result<()> {
             ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, cells)).with_dt(dt).with_output_step(0.05);
         let ksp = ksp_smoother(&problem, &options)?;
         let mo = mean_optimal(&problem, &options)?;
-        let kf = kalman_rts(&model, &data, &ksp.times)?;
+        let kf = ou.rts(&ksp.times)?;
         let (mut e_ksp, mut e_mo, mut e_km, mut e_sd) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
         for (i, &t) in ksp.times.iter().enumerate() {
             let j = kf.index_of(t).expect("output time in the Kalman grid");

@@ -7,44 +7,26 @@
 //! The estimates are to be compared with the PEM boxplots of `000_74b95e149527c64e.txt`
 //! Fig. 4.5 (nominal a = 1, b = −1, d = 0.2, σ_y = 0.1).
 
-use rand::rngs::StdRng;
-use rand::SeedableRng;
-
-use onsager::estimate::EstimationProblem;
 use onsager::kalman::{pem, PemOptions};
 use onsager::model::library::preset;
 use onsager::model::Sde;
-use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
+use onsager::test_models::PresetRecord;
 
 fn main() -> onsager::Result<()> {
     let args: Vec<String> = std::env::args().collect();
     let t_end: f64 = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(100.0);
     let seed: u64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(1);
 
-    let p = preset("duffing")?;
-    let mut rng = StdRng::seed_from_u64(seed);
+    let mut p = preset("duffing")?;
+    p.t_end = t_end;
     // Initial states from the prior (4.3); the order 1.5 scheme with step 0.005 (Sec. 4.1).
-    let x0 = [p.x0_prior[0].sample(&mut rng)?];
-    let z0 = [p.z0_prior[0].sample(&mut rng)?];
-    let path = simulate(&p.model, &p.theta, &x0, &z0, &SimulateOptions::new(0.0, t_end, p.dt), &mut rng)?;
-    let data = sample_measurements(&p.observation, &p.theta, &path, 1, p.sample_every, &mut rng)?;
+    let record = PresetRecord::simulate(p, seed)?;
+    let (p, path) = (&record.preset, &record.truth);
 
     let names = p.model.param_names();
     let estimate: Vec<usize> =
         ["a", "b", "d", "sigma_y"].iter().map(|n| p.param_index(n)).collect::<Result<_, _>>()?;
-    let problem = EstimationProblem {
-        sde: &p.model,
-        observation: &p.observation,
-        theta: &p.theta,
-        theta_prior: &p.theta_prior,
-        estimate: &estimate,
-        x0_prior: &p.x0_prior,
-        z0_prior: &p.z0_prior,
-        data: &data,
-        t0: 0.0,
-        seed: 0,
-    };
-    let est = pem(&problem, &PemOptions::default())?;
+    let est = pem(&record.problem(&estimate), &PemOptions::default())?;
 
     println!("PEM (UKF likelihood + priors (4.4)-(4.5)) on the Duffing oscillator, T = {t_end}, seed {seed}");
     println!(

@@ -15,14 +15,9 @@
 //! the same problem can be timed through the CLI (`onsager estimate --model van-der-pol --data
 //! PATH --method jme --likelihood student-t:nu=4,scale=0.5 --step 0.005 --report R.json`).
 
-use rand::SeedableRng;
-
-use onsager::estimate::EstimationProblem;
-use onsager::model::library::preset;
-use onsager::model::observation::{Noise, Param};
 use onsager::nlp::{AutoLdlt, BandLdlt, FaerLdlt, KktSolver, LinearSolver, NlpOptions};
 use onsager::path::{estimate_path, estimate_path_with, spline_guess, Merit, PathOptions, Transcription};
-use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
+use onsager::test_models::van_der_pol_student_t;
 
 fn main() -> onsager::Result<()> {
     let repeats: usize = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(1);
@@ -41,30 +36,15 @@ fn main() -> onsager::Result<()> {
         LinearSolver::Faer => Box::new(FaerLdlt::new()),
         _ => Box::new(AutoLdlt::new()),
     };
-    let p = preset("van-der-pol")?;
-    let mut rng = rand::rngs::StdRng::seed_from_u64(1);
-    let truth =
-        simulate(&p.model, &p.theta, &[0.0, 0.0], &[], &SimulateOptions::new(0.0, 16.0, 5e-4), &mut rng)?;
-    let data = sample_measurements(&p.observation, &p.theta, &truth, 2, 0.1, &mut rng)?;
+    // Simulated with the preset's outlier mixture from (0, 0), seed 1; estimated with Student-t.
+    let record = van_der_pol_student_t(1)?;
+    let (p, data) = (&record.preset, &record.data);
     if let Some(path) = std::env::args().find_map(|a| a.strip_prefix("--data-out=").map(String::from)) {
         data.write_csv(&path)?;
     }
-    let mut observation = p.observation.clone();
-    observation.noise = Noise::StudentT { nu: Param::Fixed(4.0), scale: Param::Fixed(0.5) };
-    let problem = EstimationProblem {
-        sde: &p.model,
-        observation: &observation,
-        theta: &p.theta,
-        theta_prior: &p.theta_prior,
-        estimate: &[],
-        x0_prior: &p.x0_prior,
-        z0_prior: &p.z0_prior,
-        data: &data,
-        t0: 0.0,
-        seed: 0,
-    };
+    let problem = record.problem(&[]);
     let times: Vec<f64> = (0..=3200).map(|k| k as f64 * 0.005).collect();
-    let guess = spline_guess(&p.model, &p.theta, &observation.states, &data, &times)?;
+    let guess = spline_guess(&p.model, &p.theta, &p.observation.states, data, &times)?;
     println!(
         "{:>3} {:>10} {:>5} {:>5} {:>5} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9}",
         "run",

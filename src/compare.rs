@@ -294,17 +294,14 @@ impl Comparison {
 mod tests {
     use super::*;
     use crate::model::library::preset;
-    use crate::simulate::{sample_measurements, simulate, SimulateOptions};
-    use rand::SeedableRng;
+    use crate::test_models::PresetRecord;
 
     #[test]
     fn compares_and_keeps_going_after_a_failure() {
-        let p = preset("double-well").unwrap();
-        let mut rng = rand::rngs::StdRng::seed_from_u64(2);
-        let truth =
-            simulate(&p.model, &p.theta, &[1.0], &[], &SimulateOptions::new(0.0, 5.0, 0.01), &mut rng)
-                .unwrap();
-        let data = sample_measurements(&p.observation, &p.theta, &truth, 1, 1.0, &mut rng).unwrap();
+        // The double-well preset from x(0) = 1 on [0, 5] (step 0.01), measured every 1.0.
+        let mut p = preset("double-well").unwrap();
+        (p.t_end, p.dt, p.sample_every) = (5.0, 0.01, 1.0);
+        let PresetRecord { preset: p, truth, data } = PresetRecord::simulate_from(p, 2, &[1.0], &[]).unwrap();
         let problem = p.problem(&data, &[]);
         let options = CompareOptions { barrier: Some(0.0) };
         let methods: Vec<Labelled> = [Method::Ksp, Method::Uks, Method::KspClosure, Method::Eks]

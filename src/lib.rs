@@ -50,6 +50,8 @@
 //! - [`compare`]: several estimators on the same data, measured against each other and the truth.
 //! - [`plot`]: SVG/PNG line plots with bands, box plots and panel grids (no system fonts).
 //! - [`metrics`]: distances between paths (ISE, RMSE, same-well fraction) for comparisons.
+//! - [`test_models`]: the shared test fixtures (models with known answers, seeded data sets) of
+//!   the tests, examples and benchmarks.
 //!
 //! Misuse is an [`Error`]; numerical outcomes are statuses in reports. Randomness is always
 //! injected (`&mut impl Rng`). Library code never prints.
@@ -73,6 +75,7 @@ pub mod plot;
 pub mod simulate;
 pub mod spline;
 pub mod status;
+pub mod test_models;
 
 pub use error::{Error, Result};
 pub use estimator::{Estimator, Method};

@@ -628,135 +628,12 @@ pub fn sample_measurements_at<O: Observation + ?Sized, R: Rng + ?Sized>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::model::library::Ou;
     use crate::model::Scalar;
+    use crate::test_models::{CubicDampedDuffing, TwoNoisyOneClean, UnforcedDuffing, UnscaledDoubleWell};
     use approx::assert_relative_eq;
     use rand::rngs::StdRng;
     use rand::SeedableRng;
-
-    /// dX = (X − X³) dt + σ dW, θ = (σ): a bistable double-well SDE with additive noise.
-    struct DoubleWell;
-    impl Sde for DoubleWell {
-        fn dims(&self) -> crate::model::Dims {
-            crate::model::Dims { noisy: 1, clean: 0, params: 1 }
-        }
-        fn noisy_names(&self) -> Vec<String> {
-            vec!["x".into()]
-        }
-        fn param_names(&self) -> Vec<String> {
-            vec!["sigma".into()]
-        }
-        fn drift<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], _th: &[D], out: &mut [D]) {
-            out[0] = x[0] - x[0].powi(3);
-        }
-        fn diffusion<D: Scalar>(&self, th: &[D], out: &mut [D]) {
-            out[0] = th[0];
-        }
-    }
-
-    /// Duffing-like: dX = (−Z³ + Z − 0.2 X) dt + σ dW, dZ = X dt, θ = (σ).
-    struct Duffing;
-    impl Sde for Duffing {
-        fn dims(&self) -> crate::model::Dims {
-            crate::model::Dims { noisy: 1, clean: 1, params: 1 }
-        }
-        fn noisy_names(&self) -> Vec<String> {
-            vec!["v".into()]
-        }
-        fn clean_names(&self) -> Vec<String> {
-            vec!["q".into()]
-        }
-        fn param_names(&self) -> Vec<String> {
-            vec!["sigma".into()]
-        }
-        fn drift<D: Scalar>(&self, _t: D, x: &[D], z: &[D], _th: &[D], out: &mut [D]) {
-            out[0] = -z[0].powi(3) + z[0] - x[0] * 0.2;
-        }
-        fn clean_drift<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], _th: &[D], out: &mut [D]) {
-            out[0] = x[0];
-        }
-        fn diffusion<D: Scalar>(&self, th: &[D], out: &mut [D]) {
-            out[0] = th[0];
-        }
-    }
-
-    /// Duffing with cubic damping: dX = (−Z³ + Z − 0.2 X − X³) dt + σ dW, dZ = X dt,
-    /// θ = (σ); its drift is nonlinear in the noisy state.
-    struct CubicDamping;
-    impl Sde for CubicDamping {
-        fn dims(&self) -> crate::model::Dims {
-            crate::model::Dims { noisy: 1, clean: 1, params: 1 }
-        }
-        fn noisy_names(&self) -> Vec<String> {
-            vec!["v".into()]
-        }
-        fn clean_names(&self) -> Vec<String> {
-            vec!["q".into()]
-        }
-        fn param_names(&self) -> Vec<String> {
-            vec!["sigma".into()]
-        }
-        fn drift<D: Scalar>(&self, _t: D, x: &[D], z: &[D], _th: &[D], out: &mut [D]) {
-            out[0] = -z[0].powi(3) + z[0] - x[0] * 0.2 - x[0].powi(3);
-        }
-        fn clean_drift<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], _th: &[D], out: &mut [D]) {
-            out[0] = x[0];
-        }
-        fn diffusion<D: Scalar>(&self, th: &[D], out: &mut [D]) {
-            out[0] = th[0];
-        }
-    }
-
-    /// Ornstein–Uhlenbeck: dX = −θ₀ X dt + θ₁ dW.
-    struct Ou;
-    impl Sde for Ou {
-        fn dims(&self) -> crate::model::Dims {
-            crate::model::Dims { noisy: 1, clean: 0, params: 2 }
-        }
-        fn noisy_names(&self) -> Vec<String> {
-            vec!["x".into()]
-        }
-        fn param_names(&self) -> Vec<String> {
-            vec!["theta".into(), "sigma".into()]
-        }
-        fn drift<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], th: &[D], out: &mut [D]) {
-            out[0] = -th[0] * x[0];
-        }
-        fn diffusion<D: Scalar>(&self, th: &[D], out: &mut [D]) {
-            out[0] = th[1];
-        }
-    }
-
-    /// A time-dependent model with two noisy states, a full G and a clean state, to check one
-    /// Itô–Taylor step against the formula assembled from Jacobians and finite differences.
-    struct Mixed;
-    impl Sde for Mixed {
-        fn dims(&self) -> crate::model::Dims {
-            crate::model::Dims { noisy: 2, clean: 1, params: 3 }
-        }
-        fn noisy_names(&self) -> Vec<String> {
-            vec!["x1".into(), "x2".into()]
-        }
-        fn clean_names(&self) -> Vec<String> {
-            vec!["z".into()]
-        }
-        fn param_names(&self) -> Vec<String> {
-            vec!["a".into(), "b".into(), "c".into()]
-        }
-        fn drift<D: Scalar>(&self, t: D, x: &[D], z: &[D], th: &[D], out: &mut [D]) {
-            out[0] = x[0].sin() * x[1] * th[0] + z[0] * t;
-            out[1] = -x[0].powi(3) + t.cos() * x[1] * z[0] + x[0] * x[1] * x[1];
-        }
-        fn clean_drift<D: Scalar>(&self, _t: D, x: &[D], z: &[D], _th: &[D], out: &mut [D]) {
-            out[0] = x[0] * x[1] - z[0] + x[1].exp();
-        }
-        fn diffusion<D: Scalar>(&self, th: &[D], out: &mut [D]) {
-            // G = [[θ₁, 0.3], [−0.2, θ₂]] column-major.
-            out[0] = th[1];
-            out[1] = D::from(-0.2);
-            out[2] = D::from(0.3);
-            out[3] = th[2];
-        }
-    }
 
     /// Gaussian measurement of every state: y = s + r ε.
     struct AllStates {
@@ -812,7 +689,7 @@ mod tests {
         // One step of (10.4.6) assembled by hand: ∂a/∂t, ∂a/∂s from Sde::drift_jacobians /
         // clean_drift_jacobians (AD), the directional second derivatives (b_j·∇)²a by central
         // differences of the Jacobian along b_j (error O(ε²) ≈ 1e-10, hence the tolerance).
-        let sde = Mixed;
+        let sde = TwoNoisyOneClean;
         let theta = [0.7, 0.5, 0.4];
         let (x, z, t, dt) = ([0.3, -0.8], [1.1], 0.6, 0.05);
         let (dw, dz) = ([0.21, -0.13], [0.004, -0.002]);
@@ -990,13 +867,13 @@ mod tests {
     #[test]
     fn strong_orders_on_double_well() {
         // Strong order 1.5 (Kloeden & Platen 1992, Sec. 10.4).
-        check_strong_orders(&DoubleWell, &[0.5], &[0.2], &[], 1.5, 11);
+        check_strong_orders(&UnscaledDoubleWell, &[0.5], &[0.2], &[], 1.5, 11);
     }
 
     #[test]
     fn strong_orders_with_a_clean_state() {
         // Strong order 1.5 (Kloeden & Platen 1992, Sec. 10.4), with a clean state.
-        check_strong_orders(&CubicDamping, &[1.0], &[0.0], &[1.0], 1.5, 12);
+        check_strong_orders(&CubicDampedDuffing, &[1.0], &[0.0], &[1.0], 1.5, 12);
     }
 
     #[test]
@@ -1005,7 +882,7 @@ mod tests {
         // (Kloeden & Platen 1992, Sec. 10.5; hierarchical set l(α) + n(α) ≤ 4) missing from
         // (10.4.6) is (L¹L¹a) I_(1,1,0). The Duffing drift is linear in the noisy state, so
         // L¹a = σ ∂a/∂v = (−0.2σ, σ) is constant, L¹L¹a = 0, and the scheme has strong order 2.
-        check_strong_orders(&Duffing, &[0.3], &[0.0], &[1.0], 2.0, 13);
+        check_strong_orders(&UnforcedDuffing, &[0.3], &[0.0], &[1.0], 2.0, 13);
     }
 
     #[test]
@@ -1046,8 +923,10 @@ mod tests {
     #[test]
     fn simulate_is_reproducible_and_on_the_stated_grid() {
         let opts = SimulateOptions::new(0.5, 1.5, 0.1);
-        let a = simulate(&Duffing, &[0.3], &[0.1], &[1.0], &opts, &mut StdRng::seed_from_u64(3)).unwrap();
-        let b = simulate(&Duffing, &[0.3], &[0.1], &[1.0], &opts, &mut StdRng::seed_from_u64(3)).unwrap();
+        let a =
+            simulate(&UnforcedDuffing, &[0.3], &[0.1], &[1.0], &opts, &mut StdRng::seed_from_u64(3)).unwrap();
+        let b =
+            simulate(&UnforcedDuffing, &[0.3], &[0.1], &[1.0], &opts, &mut StdRng::seed_from_u64(3)).unwrap();
         assert_eq!(a, b);
         assert_eq!(a.names, vec!["v", "q"]);
         assert_eq!(a.times.len(), 11);
@@ -1129,7 +1008,8 @@ mod tests {
     #[test]
     fn sample_measurements_on_the_grid() {
         let opts = SimulateOptions::new(0.0, 1.0, 0.01);
-        let path = simulate(&Duffing, &[0.3], &[0.1], &[1.0], &opts, &mut StdRng::seed_from_u64(5)).unwrap();
+        let path =
+            simulate(&UnforcedDuffing, &[0.3], &[0.1], &[1.0], &opts, &mut StdRng::seed_from_u64(5)).unwrap();
         let obs = AllStates { r: 0.1, names: vec!["yv".into(), "yq".into()] };
         let d1 = sample_measurements(&obs, &[0.3], &path, 1, 0.1, &mut StdRng::seed_from_u64(9)).unwrap();
         let d2 = sample_measurements(&obs, &[0.3], &path, 1, 0.1, &mut StdRng::seed_from_u64(9)).unwrap();

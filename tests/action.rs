@@ -13,76 +13,21 @@ use onsager::action::{
 use onsager::data::{Dataset, StatePath};
 use onsager::estimate::{EstimationProblem, Status};
 use onsager::kalman::linear::{kalman_rts, LinearGaussianModel};
-use onsager::model::library::{DoubleWell, Lorenz63, Ou, VanDerPol};
+use onsager::model::library::{DoubleWell, Lorenz63, VanDerPol};
 use onsager::model::observation::{Noise, StateMeasurement};
 use onsager::model::prior::Prior;
 use onsager::model::{Param, Sde};
-use onsager::simulate::{sample_measurements, sample_measurements_at, simulate, SimulateOptions};
+use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
+use onsager::test_models::{gaussian_measurement, DoubleWellRecord, OuRecord, Start};
 use onsager::Error;
-
-pub(crate) const OU_THETA: [f64; 2] = [1.0, 0.5];
-
-pub(crate) fn gaussian_obs(state: usize, sd: f64) -> StateMeasurement {
-    StateMeasurement::new(vec![state], vec!["y".into()], Noise::Gaussian { sigma: Param::Fixed(sd) })
-}
-
-/// OU (θ = 1, σ = 0.5), x0 ~ N(0, 0.5²), y ~ N(x, 0.2²) every 0.5 on [0, 5] (seeded).
-pub(crate) fn ou_data() -> (StateMeasurement, Dataset) {
-    let obs = gaussian_obs(0, 0.2);
-    let mut rng = StdRng::seed_from_u64(6);
-    let path =
-        simulate(&Ou, &OU_THETA, &[0.3], &[], &SimulateOptions::new(0.0, 5.0, 0.01), &mut rng).unwrap();
-    let data = sample_measurements(&obs, &OU_THETA, &path, 1, 0.5, &mut rng).unwrap();
-    (obs, data)
-}
-
-fn ou_problem<'a>(
-    obs: &'a StateMeasurement,
-    data: &'a Dataset,
-    priors: &'a [Prior],
-    x0: &'a [Prior],
-) -> EstimationProblem<'a, Ou, StateMeasurement> {
-    EstimationProblem {
-        sde: &Ou,
-        observation: obs,
-        theta: &OU_THETA,
-        theta_prior: priors,
-        estimate: &[],
-        x0_prior: x0,
-        z0_prior: &[],
-        data,
-        t0: 0.0,
-        seed: 0,
-    }
-}
-
-/// The exact Kalman/RTS smoother of the same OU problem at `times`.
-fn ou_kalman(
-    obs: &StateMeasurement,
-    data: &Dataset,
-    times: &[f64],
-) -> onsager::kalman::linear::KalmanSmoothing {
-    let model = LinearGaussianModel::from_sde(
-        &Ou,
-        &OU_THETA,
-        obs,
-        0.0,
-        DVector::from_element(1, 0.0),
-        DMatrix::from_element(1, 1, 0.25),
-    )
-    .unwrap();
-    kalman_rts(&model, data, times).unwrap()
-}
 
 #[test]
 fn ou_ksp_mean_optimal_and_kalman_agree_and_converge_under_refinement() {
     // Linear dynamics: the KSP mean, the mean-optimal z(t) and the RTS mean coincide
     // (003_d2fc48a470e528fc.txt Sec. I.3, (I.80)–(I.84) vs (I.61)–(I.62)); on the grid they differ
     // by the discretisation error, which must shrink as cells double and dt halves.
-    let (obs, data) = ou_data();
-    let priors = [Prior::flat(), Prior::flat().with_bounds(0.0, f64::INFINITY)];
-    let x0 = [Prior::gaussian(0.0, 0.5)];
-    let problem = ou_problem(&obs, &data, &priors, &x0);
+    let ou = OuRecord::new().unwrap();
+    let problem = ou.problem();
     let mut errors = Vec::new();
     for (cells, dt) in [(40, 0.05), (80, 0.025), (160, 0.0125)] {
         let options = ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, cells))
@@ -96,7 +41,7 @@ fn ou_ksp_mean_optimal_and_kalman_agree_and_converge_under_refinement() {
         // The output grid runs to the extra time 5.3, past the last datum (prediction).
         assert_eq!(ksp.times.len(), 107);
         assert!((ksp.times[106] - 5.3).abs() < 1e-12);
-        let kf = ou_kalman(&obs, &data, &ksp.times);
+        let kf = ou.rts(&ksp.times).unwrap();
         let (mut e_ksp, mut e_mo, mut e_sd) = (0.0f64, 0.0f64, 0.0f64);
         for (i, &t) in ksp.times.iter().enumerate() {
             let j = kf.index_of(t).unwrap();
@@ -122,7 +67,7 @@ fn ou_ksp_mean_optimal_and_kalman_agree_and_converge_under_refinement() {
 #[test]
 fn discrete_identities_hold() {
     // Double well, 150 cells, measurements every 1 with R = 0.04 (the data need not be real).
-    let obs = gaussian_obs(0, 0.2);
+    let obs = gaussian_measurement(0, 0.2);
     let times: Vec<f64> = (0..6).map(|k| k as f64).collect();
     let values = vec![vec![-1.0], vec![-0.9], vec![-0.2], vec![0.8], vec![1.1], vec![0.9]];
     let data = Dataset::try_new(vec!["y".into()], times, values).unwrap();
@@ -219,10 +164,8 @@ impl<S: Sde> FdHessian for ExactAction<'_, S> {
 fn dispersion_by_hessian_and_by_lagrange_multipliers_agree() {
     // Both routes compute the same C_*(t_k) (003 (I.90) vs (I.104)–(I.106)); on OU both also
     // approximate the RTS smoothed variance.
-    let (obs, data) = ou_data();
-    let priors = [Prior::flat(), Prior::flat().with_bounds(0.0, f64::INFINITY)];
-    let x0 = [Prior::gaussian(0.0, 0.5)];
-    let problem = ou_problem(&obs, &data, &priors, &x0);
+    let ou = OuRecord::new().unwrap();
+    let (problem, data) = (ou.problem(), &ou.data);
     let options = ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 120)).with_dt(0.02).with_output_step(0.1);
     let mut action = ExactAction::try_new(&problem, &options).unwrap();
     let dd = gaussian_dual_data(&problem).unwrap();
@@ -234,7 +177,7 @@ fn dispersion_by_hessian_and_by_lagrange_multipliers_agree() {
     let by_l = dispersion_by_multipliers(&mut action, &dd, &sol, &opts, None).unwrap().unwrap();
     let hist = action.history(&sol.lambda, true).unwrap().unwrap();
     let post = posterior_variance(&hist, &hess, &dd).unwrap().unwrap();
-    let kf = ou_kalman(&obs, &data, &hist.times);
+    let kf = ou.rts(&hist.times).unwrap();
     for (k, &t) in data.times.iter().enumerate() {
         assert_relative_eq!(by_h[k][(0, 0)], by_l[k][(0, 0)], max_relative = 1e-5);
         let i = hist.times.iter().position(|&s| (s - t).abs() < 1e-9).unwrap();
@@ -245,42 +188,20 @@ fn dispersion_by_hessian_and_by_lagrange_multipliers_agree() {
     }
 }
 
-/// The first seed whose double-well path (D = 0.5, x0 ~ N(−1, 0.2²)) changes wells on [0, 40].
-fn double_well_path() -> (StatePath, Dataset, StateMeasurement) {
-    let obs = gaussian_obs(0, 0.2);
-    for seed in 0..100u64 {
-        let mut rng = StdRng::seed_from_u64(seed);
-        let x0 = Prior::gaussian(-1.0, 0.2).sample(&mut rng).unwrap();
-        let path =
-            simulate(&DoubleWell, &[0.5], &[x0], &[], &SimulateOptions::new(0.0, 40.0, 0.005), &mut rng)
-                .unwrap();
-        let x = path.column("x").unwrap();
-        if x.iter().any(|&v| v > 0.8) && x.iter().any(|&v| v < -0.8) && x[x.len() - 1].abs() > 0.5 {
-            let times: Vec<f64> = (0..=40).map(|k| k as f64).collect();
-            let data = sample_measurements_at(&obs, &[0.5], &path, 1, &times, &mut rng).unwrap();
-            return (path, data, obs);
-        }
-    }
-    unreachable!("a well change within 100 seeds (Kramers rate ≈ 0.12 per unit time)")
+/// The double-well record (D = 0.5, x0 ~ N(−1, 0.2²), y ~ N(x(k), 0.2²) at k = 0, …, 40) of the
+/// first seed whose path changes wells on [0, 40] and ends away from the barrier.
+fn double_well_record() -> DoubleWellRecord {
+    let times: Vec<f64> = (0..=40).map(|k| k as f64).collect();
+    (0..100u64)
+        .map(|seed| DoubleWellRecord::simulate(seed, Start::Drawn, 40.0, &times).unwrap())
+        .find(|r| r.changes_wells() && r.truth.values.last().is_some_and(|x| x[0].abs() > 0.5))
+        .expect("a well change within 100 seeds (Kramers rate ≈ 0.12 per unit time)")
 }
 
 #[test]
 fn double_well_estimates_follow_the_true_well() {
-    let (path, data, obs) = double_well_path();
-    let priors = [Prior::flat().with_bounds(0.0, f64::INFINITY)];
-    let x0 = [Prior::gaussian(-1.0, 0.2)];
-    let problem = EstimationProblem {
-        sde: &DoubleWell,
-        observation: &obs,
-        theta: &[0.5],
-        theta_prior: &priors,
-        estimate: &[],
-        x0_prior: &x0,
-        z0_prior: &[],
-        data: &data,
-        t0: 0.0,
-        seed: 0,
-    };
+    let record = double_well_record();
+    let (problem, path) = (record.problem(), &record.truth);
     let options = ExactOptions::new(GridSpec::new_1d(-2.5, 2.5, 300)).with_dt(0.025);
     let ksp = ksp_smoother(&problem, &options).unwrap();
     let mo = mean_optimal(&problem, &options).unwrap();
@@ -314,7 +235,7 @@ fn double_well_estimates_follow_the_true_well() {
 #[test]
 fn van_der_pol_runs_on_a_200_by_200_grid() {
     // Small noise (σ = 0.1, 001 Sec. 9), u measured with N(0, 0.2²) errors every 0.1 on [0, 0.4].
-    let obs = gaussian_obs(0, 0.2);
+    let obs = gaussian_measurement(0, 0.2);
     let times: Vec<f64> = (0..5).map(|k| 0.1 * k as f64).collect();
     let values = vec![vec![0.05], vec![0.1], vec![0.12], vec![0.2], vec![0.3]];
     let data = Dataset::try_new(vec!["y".into()], times, values).unwrap();
@@ -350,13 +271,12 @@ fn van_der_pol_runs_on_a_200_by_200_grid() {
 
 #[test]
 fn bad_inputs_are_clear_errors() {
-    let obs = gaussian_obs(0, 0.2);
+    // The OU problem of the record (flat θ priors) on data of its own.
+    let ou = OuRecord::new().unwrap().with_theta_prior([Prior::flat(); 2]);
     let data = Dataset::try_new(vec!["y".into()], vec![0.0, 1.0], vec![vec![0.1], vec![3.5]]).unwrap();
-    let x0 = [Prior::gaussian(0.0, 0.5)];
-    let priors = [Prior::flat(), Prior::flat()];
     let options = ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 50));
     // A grid that does not cover the datum 3.5.
-    let err = mean_optimal(&ou_problem(&obs, &data, &priors, &x0), &options).unwrap_err();
+    let err = mean_optimal(&EstimationProblem { data: &data, ..ou.problem() }, &options).unwrap_err();
     assert!(
         matches!(err, Error::InvalidOption { .. }) && err.to_string().contains("does not cover"),
         "{err}"
@@ -365,12 +285,13 @@ fn bad_inputs_are_clear_errors() {
     let laplace =
         StateMeasurement::new(vec![0], vec!["y".into()], Noise::Laplace { scale: Param::Fixed(0.2) });
     let data2 = Dataset::try_new(vec!["y".into()], vec![0.0, 1.0], vec![vec![0.1], vec![0.5]]).unwrap();
-    let err = mean_optimal(&ou_problem(&laplace, &data2, &priors, &x0), &options).unwrap_err();
+    let on_laplace = EstimationProblem { observation: &laplace, data: &data2, ..ou.problem() };
+    let err = mean_optimal(&on_laplace, &options).unwrap_err();
     assert!(err.to_string().contains("Gaussian measurement errors"), "{err}");
     // …which the KSP smoother accepts.
-    assert!(ksp_smoother(&ou_problem(&laplace, &data2, &priors, &x0), &options).is_ok());
+    assert!(ksp_smoother(&on_laplace, &options).is_ok());
     // More than two noisy states.
-    let lorenz_obs = gaussian_obs(0, 1.0);
+    let lorenz_obs = gaussian_measurement(0, 1.0);
     let lp = [Prior::flat(); 4];
     let lx = [Prior::gaussian(1.0, 1.0); 3];
     let problem = EstimationProblem {
@@ -389,7 +310,7 @@ fn bad_inputs_are_clear_errors() {
     assert!(err.to_string().contains("one or two noisy states"), "{err}");
     // A grid with the wrong number of axes.
     let err = ksp_smoother(
-        &ou_problem(&obs, &data2, &priors, &x0),
+        &EstimationProblem { data: &data2, ..ou.problem() },
         &ExactOptions::new(GridSpec::new_2d([-1.0, -1.0], [1.0, 1.0], [5, 5])),
     )
     .unwrap_err();
@@ -401,7 +322,7 @@ fn cli_writes_the_path_and_the_report_and_rejects_bad_input() {
     use std::process::Command;
     let dir = std::env::temp_dir().join(format!("onsager-action-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let (_, data) = ou_data();
+    let data = OuRecord::new().unwrap().data;
     let data_path = dir.join("ou.csv");
     data.write_csv(&data_path).unwrap();
     let run = |method: &str, extra: &[&str]| {
@@ -536,9 +457,9 @@ fn ksp_takes_any_likelihood() {
     let laplace =
         StateMeasurement::new(vec![0], vec!["y".into()], Noise::Laplace { scale: Param::Fixed(0.3) });
     let data = Dataset::try_new(vec!["y".into()], vec![0.0, 1.0], vec![vec![0.8], vec![f64::NAN]]).unwrap();
-    let priors = [Prior::flat(), Prior::flat()];
-    let x0 = [Prior::gaussian(0.0, 0.5)];
-    let problem = ou_problem(&laplace, &data, &priors, &x0);
+    // The OU problem of the record (flat θ priors) with this likelihood and data.
+    let ou = OuRecord::new().unwrap().with_theta_prior([Prior::flat(); 2]);
+    let problem = EstimationProblem { observation: &laplace, data: &data, ..ou.problem() };
     let options = ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 300)).with_dt(0.01);
     let ksp = ksp_smoother(&problem, &options).unwrap();
     let (mut z, mut zx) = (0.0, 0.0);

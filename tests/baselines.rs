@@ -16,18 +16,15 @@ use onsager::kalman::{self, Approximation, KalmanMethod, KalmanOptions, PemOptio
 use onsager::model::library::{preset, Preset};
 use onsager::model::observation::{Noise, Param};
 use onsager::particle::{self, ParticleOptions};
-use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
+use onsager::test_models::PresetRecord;
 use onsager::Error;
 
-/// A preset's model simulated on [0, t_end] with its own step and sampling, x0 from its prior.
-fn simulated(p: &Preset, t_end: f64, seed: u64) -> Dataset {
-    let mut rng = StdRng::seed_from_u64(seed);
-    let x0: Vec<f64> = p.x0_prior.iter().map(|q| q.sample(&mut rng).unwrap()).collect();
-    let z0: Vec<f64> = p.z0_prior.iter().map(|q| q.sample(&mut rng).unwrap()).collect();
-    let path =
-        simulate(&p.model, &p.theta, &x0, &z0, &SimulateOptions::new(0.0, t_end, p.dt), &mut rng).unwrap();
-    let n = p.dims().noisy;
-    sample_measurements(&p.observation, &p.theta, &path, n, p.sample_every, &mut rng).unwrap()
+/// The preset `name` simulated on [0, t_end] with its own step and sampling, x0 from its prior
+/// (`test_models::PresetRecord`).
+fn simulated(name: &str, t_end: f64, seed: u64) -> PresetRecord {
+    let mut p = preset(name).unwrap();
+    p.t_end = t_end;
+    PresetRecord::simulate(p, seed).unwrap()
 }
 
 /// The exact Kalman filter and RTS smoother of the `ou` preset (x0 ~ N(0, 1) at t = 0).
@@ -49,8 +46,7 @@ fn kalman_methods_equal_the_exact_kalman_filter_and_rts_smoother_on_ou() {
     // Identity (linear-Gaussian): the EKF/UKF moment ODEs are exact for the OU drift, so with
     // RK4 at dt = 0.005 (error O(dt⁴) ≈ 1e-10) they equal the exact Kalman filter, and the
     // EKS/UKS the RTS smoother, of kalman::linear (Van Loan discretisation) to 1e-8.
-    let p = preset("ou").unwrap();
-    let data = simulated(&p, 5.0, 42);
+    let PresetRecord { preset: p, data, .. } = simulated("ou", 5.0, 42);
     let reference = ou_reference(&p, &data);
     let options = KalmanOptions::default().with_dt(0.005);
     for method in [KalmanMethod::Ekf, KalmanMethod::Eks, KalmanMethod::Ukf, KalmanMethod::Uks] {
@@ -87,8 +83,7 @@ fn particle_smoother_mean_is_within_four_monte_carlo_standard_errors_of_the_rts_
     // one run's mean at t_k is estimated by the spread of the R runs; the average of the R runs
     // must lie within 4 SE/√R of the exact RTS mean at every measurement time. The Euler
     // substep 0.004 keeps the Euler discretisation bias (relative O(θ dt) ≈ 0.4 %) below it.
-    let p = preset("ou").unwrap();
-    let data = simulated(&p, 2.0, 7);
+    let PresetRecord { preset: p, data, .. } = simulated("ou", 2.0, 7);
     let reference = ou_reference(&p, &data);
     let options = ParticleOptions::default().with_particles(2000).with_backward_paths(250).with_dt(0.004);
     let r = 16;
@@ -127,8 +122,7 @@ fn pem_recovers_the_duffing_parameters_on_a_short_record() {
     // 000_74b95e149527c64e.txt Sec. 4.1.1 with T = 30 (the full T = 100 run is the example
     // `pem_duffing`): θ = (a, b, d, σ_y) from the nominal start; each estimate must lie within
     // 4 of its Laplace standard deviations of the nominal value (Table 4.1).
-    let p = preset("duffing").unwrap();
-    let data = simulated(&p, 30.0, 1);
+    let PresetRecord { preset: p, data, .. } = simulated("duffing", 30.0, 1);
     let estimate: Vec<usize> = ["a", "b", "d", "sigma_y"].iter().map(|n| p.param_index(n).unwrap()).collect();
     let est = kalman::pem(&p.problem(&data, &estimate), &PemOptions::default()).unwrap();
     assert!(est.status.is_success(), "{}", est.status);
@@ -157,8 +151,7 @@ fn pem_recovers_the_duffing_parameters_on_a_short_record() {
 
 #[test]
 fn non_gaussian_likelihoods_are_rejected_by_the_kalman_methods_and_accepted_by_the_particle_smoother() {
-    let mut p = preset("ou").unwrap();
-    let data = simulated(&p, 1.0, 3);
+    let PresetRecord { preset: mut p, data, .. } = simulated("ou", 1.0, 3);
     p.observation.noise = Noise::StudentT { nu: Param::Fixed(4.0), scale: Param::Fixed(0.2) };
     let check = |r: onsager::Result<onsager::estimate::PathEstimate>| match r {
         Err(Error::InvalidOption { name, reason }) => {
@@ -190,8 +183,7 @@ fn non_gaussian_likelihoods_are_rejected_by_the_kalman_methods_and_accepted_by_t
 fn cli_eks_writes_the_library_path() {
     // The command line runs the same estimator: `onsager estimate --method eks` on a simulated
     // OU dataset writes the path of kalman::estimate at the default options.
-    let p = preset("ou").unwrap();
-    let data = simulated(&p, 1.0, 9);
+    let PresetRecord { preset: p, data, .. } = simulated("ou", 1.0, 9);
     let dir = std::env::temp_dir().join(format!("onsager-baselines-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let (data_csv, out_csv) = (dir.join("data.csv"), dir.join("eks.csv"));

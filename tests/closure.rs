@@ -1,7 +1,7 @@
 //! The Rayleigh–Ritz closure estimators (issue 7).
 
 use approx::assert_relative_eq;
-use nalgebra::{DMatrix, DVector};
+use nalgebra::DMatrix;
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 
@@ -14,12 +14,12 @@ use onsager::action::{
 use onsager::data::Dataset;
 use onsager::estimate::PathEstimate;
 use onsager::estimate::{EstimationProblem, Status};
-use onsager::kalman::linear::{kalman_rts, LinearGaussianModel};
-use onsager::model::library::{DoubleWell, Ou};
+use onsager::model::library::DoubleWell;
 use onsager::model::observation::StateMeasurement;
 use onsager::model::prior::Prior;
 use onsager::model::Sde;
 use onsager::simulate::{sample_measurements_at, simulate, SimulateOptions};
+use onsager::test_models::{gaussian_measurement, DampedRotation, DoubleWellRecord, OuRecord, Start};
 use onsager::{Error, Estimator};
 
 /// The closures of these tests, each with the options of the dual closures (the moment-path
@@ -75,28 +75,13 @@ fn exponential_closure_action<'a, S: Sde>(
     closure_action(problem, &Closure::exponential(degree, options.clone()))
 }
 
-use crate::action::{gaussian_obs, ou_data, OU_THETA};
-
 #[test]
 fn gaussian_closure_of_ou_is_the_rts_smoother() {
     // The Gaussian closure is exact for linear dynamics: its mean-optimal estimate is the RTS
     // smoothed mean (the Kalman reference, Särkkä 2013 Thm 8.2, on the exact discretisation) and
     // its dispersion the smoothed sd, to the ODE tolerance.
-    let (obs, data) = ou_data();
-    let priors = [Prior::flat(), Prior::flat()];
-    let x0 = [Prior::gaussian(0.0, 0.5)];
-    let problem = EstimationProblem {
-        sde: &Ou,
-        observation: &obs,
-        theta: &OU_THETA,
-        theta_prior: &priors,
-        estimate: &[],
-        x0_prior: &x0,
-        z0_prior: &[],
-        data: &data,
-        t0: 0.0,
-        seed: 0,
-    };
+    let ou = OuRecord::new().unwrap().with_theta_prior([Prior::flat(); 2]);
+    let (problem, data) = (ou.problem(), &ou.data);
     let options = ClosureOptions::new().with_tolerances(1e-10, 1e-12).with_output_step(0.1);
     let est = closure_estimate(&problem, &ClosureKind::Gaussian, &options).unwrap();
     assert_eq!(est.status, Status::Converged);
@@ -106,16 +91,7 @@ fn gaussian_closure_of_ou_is_the_rts_smoother() {
     let count = |key: &str| est.details[key].as_u64().unwrap();
     assert!(count("sweeps") >= 1 && count("rk_steps") >= count("sweeps") * (data.len() as u64 - 1));
     assert!(!est.details.contains_key("dual_reason"));
-    let model = LinearGaussianModel::from_sde(
-        &Ou,
-        &OU_THETA,
-        &obs,
-        0.0,
-        DVector::from_element(1, 0.0),
-        DMatrix::from_element(1, 1, 0.25),
-    )
-    .unwrap();
-    let kf = kalman_rts(&model, &data, &est.path.times).unwrap();
+    let kf = ou.rts(&est.path.times).unwrap();
     let sd = est.path.sd.as_ref().unwrap();
     let mut max_err: f64 = 0.0;
     for (i, &t) in est.path.times.iter().enumerate() {
@@ -130,7 +106,7 @@ fn gaussian_closure_of_ou_is_the_rts_smoother() {
 fn filter_start_satisfies_the_filter_condition() {
     // Each multiplier of the closure's assumed-density filter solves μ_x(t_k+) = r_k − Rλ_k with
     // the earlier multipliers fixed.
-    let case = DoubleWellCase::new(3, 6.0);
+    let case = double_well_case(3, 6.0);
     let (problem, data) = (case.problem(), &case.data);
     let dd = gaussian_dual_data(&problem).unwrap();
     let options = ClosureOptions::new();
@@ -151,7 +127,7 @@ fn filter_start_satisfies_the_filter_condition() {
 fn the_filter_start_leaves_the_evaluation_at_its_multipliers() {
     // The filter's forward sweep is the forward sweep of F at the chosen multipliers, so the
     // evaluation it caches equals a fresh one, bit for bit.
-    let case = DoubleWellCase::new(3, 6.0);
+    let case = double_well_case(3, 6.0);
     let problem = case.problem();
     let dd = gaussian_dual_data(&problem).unwrap();
     let options = ClosureOptions::new();
@@ -188,7 +164,7 @@ fn the_two_stage_dual_reaches_the_one_stage_maximiser() {
     // closure_estimate runs the dual first with coarse sweeps, then chord steps at the requested
     // tolerance; the one-stage iteration (the filter start, then `maximize_dual` with every sweep
     // at the requested tolerance) reaches the same λ* (both to the optimality residual 10⁻⁹).
-    let case = DoubleWellCase::new(5, 20.0);
+    let case = double_well_case(5, 20.0);
     let problem = case.problem();
     let dd = gaussian_dual_data(&problem).unwrap();
     let options = ClosureOptions::new().with_dispersion(false).with_dual_matched_to_sweeps(false);
@@ -228,7 +204,7 @@ fn the_dual_matched_to_the_sweeps_stops_where_the_estimate_no_longer_moves() {
     // By default the dual may stop at the residual 0.1 · (rtol · max|y| + atol) / max R: the
     // estimate then differs from the one at the dual tolerance 10⁻⁹ by about R times the
     // residual, far below the sweeps' own accuracy (rtol 10⁻⁶ here).
-    let case = DoubleWellCase::new(5, 20.0);
+    let case = double_well_case(5, 20.0);
     let problem = case.problem();
     let y_max = case.data.values.iter().flatten().fold(0.0f64, |a, v| a.max(v.abs()));
     let matched = 0.1 * (1e-6 * y_max + 1e-9) / 0.04;
@@ -261,40 +237,10 @@ fn sup_diff(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
 }
 
 /// A double-well record (D = 0.5, x(0) = −1, y ~ N(x(k), 0.2²) at k = 1, …, t_end) and the
-/// closures' problem on it (x0 ~ N(−1, 0.3²)).
-struct DoubleWellCase {
-    obs: StateMeasurement,
-    data: Dataset,
-    priors: [Prior; 1],
-    x0: [Prior; 1],
-}
-
-impl DoubleWellCase {
-    fn new(seed: u64, t_end: f64) -> Self {
-        let obs = gaussian_obs(0, 0.2);
-        let mut rng = StdRng::seed_from_u64(seed);
-        let path =
-            simulate(&DoubleWell, &[0.5], &[-1.0], &[], &SimulateOptions::new(0.0, t_end, 0.005), &mut rng)
-                .unwrap();
-        let times: Vec<f64> = (1..=t_end as usize).map(|k| k as f64).collect();
-        let data = sample_measurements_at(&obs, &[0.5], &path, 1, &times, &mut rng).unwrap();
-        DoubleWellCase { obs, data, priors: [Prior::flat()], x0: [Prior::gaussian(-1.0, 0.3)] }
-    }
-
-    fn problem(&self) -> EstimationProblem<'_, DoubleWell, StateMeasurement> {
-        EstimationProblem {
-            sde: &DoubleWell,
-            observation: &self.obs,
-            theta: &[0.5],
-            theta_prior: &self.priors,
-            estimate: &[],
-            x0_prior: &self.x0,
-            z0_prior: &[],
-            data: &self.data,
-            t0: 0.0,
-            seed: 0,
-        }
-    }
+/// closures' problem on it (a flat prior on D, x0 ~ N(−1, 0.3²)).
+fn double_well_case(seed: u64, t_end: f64) -> DoubleWellRecord {
+    let record = DoubleWellRecord::new(seed, t_end).unwrap();
+    record.with_theta_prior(Prior::flat()).with_x0_prior(Prior::gaussian(-1.0, 0.3))
 }
 
 /// ∇²F of the tangent sweeps against central differences of the adjoint gradient z(λ).
@@ -321,7 +267,7 @@ fn check_hessian<A: EffectiveAction>(action: &mut A, lambda: &[f64]) {
 /// any symmetrisation and equal to [`EffectiveAction::hessian`]'s. Gaussian and quartic closures.
 #[test]
 fn cross_covariances_are_the_derivatives_of_the_history() {
-    let case = DoubleWellCase::new(3, 4.0);
+    let case = double_well_case(3, 4.0);
     let problem = case.problem();
     let options = ClosureOptions::new().with_output_step(0.25).with_tolerances(1e-12, 1e-13);
     fn check<A: EffectiveAction>(mut action: A, lambda: &[f64]) {
@@ -358,7 +304,7 @@ fn cross_covariances_are_the_derivatives_of_the_history() {
 
 #[test]
 fn quartic_closure_gradient_is_the_adjoint_and_the_history_is_continuous() {
-    let case = DoubleWellCase::new(3, 4.0);
+    let case = double_well_case(3, 4.0);
     let (problem, data) = (case.problem(), &case.data);
     // Output times t_k ± ε, 2ε on both sides of every jump for the one-sided limits of m(t).
     let eps = 1e-5;
@@ -401,7 +347,7 @@ fn quartic_closure_gradient_is_the_adjoint_and_the_history_is_continuous() {
 
 #[test]
 fn gaussian_closure_gradient_is_the_adjoint() {
-    let case = DoubleWellCase::new(5, 3.0);
+    let case = double_well_case(5, 3.0);
     let problem = case.problem();
     let options = ClosureOptions::new().with_tolerances(1e-12, 1e-13);
     let mut action = gaussian_closure_action(&problem, &options).unwrap();
@@ -430,7 +376,7 @@ fn unsupported_combinations_are_clear_errors() {
     assert!(matches!(Estimator::parse("exp-closure:moments=1"), Err(Error::EstimatorOption { .. })));
     assert!(matches!(Estimator::parse("gaussian-closure:moments=3"), Err(Error::EstimatorOption { .. })));
     assert!(matches!(Estimator::parse("nope"), Err(Error::UnknownName { .. })));
-    let case = DoubleWellCase::new(1, 2.0);
+    let case = double_well_case(1, 2.0);
     let problem = case.problem();
     // The moment-path closures (tested in `action::closure::om`) are reached through
     // `closure_estimate`.
@@ -445,7 +391,7 @@ fn unsupported_combinations_are_clear_errors() {
     assert!(err.to_string().contains("Gaussian initial prior"), "{err}");
     // A 2-state model with the exponential closure.
     let vdp = onsager::model::library::VanDerPol;
-    let obs2 = gaussian_obs(0, 0.2);
+    let obs2 = gaussian_measurement(0, 0.2);
     let d2 = Dataset::try_new(vec!["y".into()], vec![0.5], vec![vec![0.1]]).unwrap();
     let th = vec![2.0, 0.1];
     let tp = vec![Prior::flat(); vdp.dims().params];
@@ -486,46 +432,22 @@ fn unsupported_combinations_are_clear_errors() {
     assert!(err.to_string().contains("degree 2 to 6"), "{err}");
 }
 
-/// A 2-D linear SDE dX = AX dt + G dW (A = [[−1, 0.5], [−0.5, −1]], G = 0.5 I), for the 2-D
-/// exponential closure: its quadratic family is the Gaussian family, exact for linear dynamics.
-struct Linear2;
-
-impl Sde for Linear2 {
-    fn dims(&self) -> onsager::model::Dims {
-        onsager::model::Dims { noisy: 2, clean: 0, params: 0 }
-    }
-    fn noisy_names(&self) -> Vec<String> {
-        vec!["x1".into(), "x2".into()]
-    }
-    fn param_names(&self) -> Vec<String> {
-        Vec::new()
-    }
-    fn drift<D: onsager::model::Scalar>(&self, _t: D, x: &[D], _z: &[D], _theta: &[D], out: &mut [D]) {
-        out[0] = -x[0] + x[1] * 0.5;
-        out[1] = -x[0] * 0.5 - x[1];
-    }
-    fn diffusion<D: onsager::model::Scalar>(&self, _theta: &[D], out: &mut [D]) {
-        out[0] = D::from(0.5);
-        out[1] = D::from(0.0);
-        out[2] = D::from(0.0);
-        out[3] = D::from(0.5);
-    }
-}
-
 #[test]
 fn quadratic_exponential_closure_in_2d_is_the_gaussian_closure_on_a_linear_model() {
     // The degree-2 polynomial family in 2-D is the Gaussian family (restricted to a wide grid),
     // so on a linear model its estimate is the Gaussian closure's = the RTS smoother mean
-    // (tested above in 1-D), up to the grid's quadrature and truncation error.
-    let obs = gaussian_obs(0, 0.2);
+    // (tested above in 1-D), up to the grid's quadrature and truncation error. The model:
+    // dX = AX dt + G dW, A = [[−1, 0.5], [−0.5, −1]], G = 0.5 I (`test_models::DampedRotation`).
+    let obs = gaussian_measurement(0, 0.2);
     let mut rng = StdRng::seed_from_u64(11);
     let path =
-        simulate(&Linear2, &[], &[0.5, -0.3], &[], &SimulateOptions::new(0.0, 3.0, 0.01), &mut rng).unwrap();
+        simulate(&DampedRotation, &[], &[0.5, -0.3], &[], &SimulateOptions::new(0.0, 3.0, 0.01), &mut rng)
+            .unwrap();
     let times = [0.5, 1.0, 1.5, 2.0, 2.5, 3.0];
     let data = sample_measurements_at(&obs, &[], &path, 1, &times, &mut rng).unwrap();
     let x0 = [Prior::gaussian(0.5, 0.3), Prior::gaussian(-0.3, 0.3)];
     let problem = EstimationProblem {
-        sde: &Linear2,
+        sde: &DampedRotation,
         observation: &obs,
         theta: &[],
         theta_prior: &[],
@@ -560,30 +482,12 @@ fn quartic_closure_is_closer_to_the_exact_estimate_than_the_gaussian_closure() {
     // `closure_double_well` (a path that changes wells; the example runs 10 seeds and prints the
     // table); reference: the exact grid mean-optimal estimate. Example output for this seed:
     // RMSE Gaussian 0.497, quartic 0.0044.
-    let p = onsager::model::library::preset("double-well").unwrap();
-    let obs = gaussian_obs(0, 0.2);
-    let mut rng = StdRng::seed_from_u64(3);
-    let x0v = p.x0_prior[0].sample(&mut rng).unwrap();
-    let path = simulate(&DoubleWell, &[0.5], &[x0v], &[], &SimulateOptions::new(0.0, 10.0, 0.005), &mut rng)
-        .unwrap();
-    let x = path.column("x").unwrap();
-    assert!(x.iter().any(|&v| v > 0.8) && x.iter().any(|&v| v < -0.8), "the path changes wells");
     let times: Vec<f64> = (1..=10).map(|k| k as f64).collect();
-    let data = sample_measurements_at(&obs, &[0.5], &path, 1, &times, &mut rng).unwrap();
-    let priors = [Prior::flat()];
-    let x0 = [Prior::gaussian(-1.0, 0.2)];
-    let problem = EstimationProblem {
-        sde: &DoubleWell,
-        observation: &obs,
-        theta: &[0.5],
-        theta_prior: &priors,
-        estimate: &[],
-        x0_prior: &x0,
-        z0_prior: &[],
-        data: &data,
-        t0: 0.0,
-        seed: 0,
-    };
+    let record = DoubleWellRecord::simulate(3, Start::Drawn, 10.0, &times).unwrap();
+    let x = record.truth.column("x").unwrap();
+    assert!(x.iter().any(|&v| v > 0.8) && x.iter().any(|&v| v < -0.8), "the path changes wells");
+    let record = record.with_theta_prior(Prior::flat());
+    let problem = record.problem();
     let exact = mean_optimal(
         &problem,
         ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 600)).with_dt(0.005).with_output_step(0.1),
@@ -605,7 +509,7 @@ fn quartic_closure_is_closer_to_the_exact_estimate_than_the_gaussian_closure() {
 /// moment-path (double-exponential) closure likewise.
 #[test]
 fn reduced_gauss_hermite_rule_gives_the_16_point_estimate_on_the_double_well() {
-    let case = DoubleWellCase::new(0, 12.0);
+    let case = double_well_case(0, 12.0);
     let problem = case.problem();
     for kind in [ClosureKind::Gaussian, ClosureKind::DoubleExponential] {
         let reduced = closure_estimate(&problem, &kind, &ClosureOptions::new()).unwrap();
@@ -629,7 +533,7 @@ fn reduced_gauss_hermite_rule_gives_the_16_point_estimate_on_the_double_well() {
 /// (for the dual and for the moment-path closures), not a panic.
 #[test]
 fn gaussian_points_option_is_validated() {
-    let case = DoubleWellCase::new(1, 2.0);
+    let case = double_well_case(1, 2.0);
     let problem = case.problem();
     for kind in [ClosureKind::Gaussian, ClosureKind::Ksp] {
         for bad in [0, 100_000] {
@@ -671,26 +575,9 @@ fn with_points(kind: ClosureKind, points: usize) -> Estimator {
 /// 5.8·10⁻⁶ / 1.6·10⁻⁵ and 1.6·10⁻⁶ / 9·10⁻⁷.
 #[test]
 fn the_history_just_before_a_measurement_is_resolved() {
-    let obs = gaussian_obs(0, 0.2);
-    let mut rng = StdRng::seed_from_u64(0);
-    let path = simulate(&DoubleWell, &[0.5], &[-1.0], &[], &SimulateOptions::new(0.0, 12.0, 0.005), &mut rng)
-        .unwrap();
-    let times: Vec<f64> = (1..=12).map(|k| k as f64).collect();
-    let data = sample_measurements_at(&obs, &[0.5], &path, 1, &times, &mut rng).unwrap();
-    let priors = [Prior::flat()];
-    let x0 = [Prior::gaussian(-1.0, 0.2)];
-    let problem = EstimationProblem {
-        sde: &DoubleWell,
-        observation: &obs,
-        theta: &[0.5],
-        theta_prior: &priors,
-        estimate: &[],
-        x0_prior: &x0,
-        z0_prior: &[],
-        data: &data,
-        t0: 0.0,
-        seed: 0,
-    };
+    // x(0) = −1, y at t = 1, …, 12, x0 ~ N(−1, 0.2²), a flat prior on D.
+    let record = DoubleWellRecord::new(0, 12.0).unwrap().with_theta_prior(Prior::flat());
+    let problem = record.problem();
     for kind in [ClosureKind::Gaussian, ClosureKind::Exponential { degree: 4 }] {
         let options = ClosureOptions::new().with_output_step(0.1);
         let default = closure_estimate(&problem, &kind, &options).unwrap();
@@ -708,7 +595,7 @@ fn a_coarse_stage_cut_short_is_continued_at_the_requested_tolerance() {
     // With the iteration limit below what the coarse first stage needs, it stops at the limit;
     // the second stage goes on from where it got to (not from the filter start again, which at
     // the fine tolerance would need more than the limit) and reaches the same maximiser.
-    let case = DoubleWellCase::new(5, 20.0);
+    let case = double_well_case(5, 20.0);
     let problem = case.problem();
     let options = ClosureOptions::new().with_dispersion(false);
     for (kind, limit) in [(ClosureKind::Gaussian, 2), (ClosureKind::Exponential { degree: 4 }, 4)] {

@@ -10,13 +10,14 @@ use onsager::kalman::linear::{kalman_rts, LinearGaussianModel};
 use onsager::model::library::{preset, Preset};
 use onsager::model::Prior;
 use onsager::path::{estimate_path, Merit, PathOptions, Transcription};
+use onsager::test_models::{cosine_data, van_der_pol_student_t, PresetRecord};
 use onsager::Status;
 
-/// Deterministic measurements every 0.5 on [0, 3] (any data will do for the identities below).
+/// Deterministic measurements 0.9 cos(1.3 t) + 0.1 every 0.5 on [0, 3] (any data will do for the
+/// identities below).
 fn ou_data(p: &Preset) -> Dataset {
     let times: Vec<f64> = (0..=6).map(|k| 0.5 * k as f64).collect();
-    let values = times.iter().map(|&t| vec![0.9 * (1.3 * t).cos() + 0.1]).collect();
-    Dataset::try_new(p.observation.names.clone(), times, values).unwrap()
+    cosine_data(&p.observation.names[0], &times, 0.9, 0.1).unwrap()
 }
 
 /// Sup-norm distances of a path estimate (one state) and of its Laplace sd to the RTS smoothed
@@ -228,17 +229,9 @@ fn tanh_euler_converges_to_mee_and_trapezoidal_to_om() {
 /// derivative of u) in ≤ 30 iterations (the acceptance; observed 5–13).
 #[test]
 fn van_der_pol_student_t_converges_quickly() {
-    use onsager::model::observation::{Noise, Param};
-    use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
-    use rand::SeedableRng;
-    let p = preset("van-der-pol").unwrap();
-    let mut est = p.clone();
-    est.observation.noise = Noise::StudentT { nu: Param::Fixed(4.0), scale: Param::Fixed(0.5) };
     for seed in 0..20u64 {
-        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-        let sim = SimulateOptions::new(0.0, 16.0, 5e-4);
-        let truth = simulate(&p.model, &p.theta, &[0.0, 0.0], &[], &sim, &mut rng).unwrap();
-        let data = sample_measurements(&p.observation, &p.theta, &truth, 2, 0.1, &mut rng).unwrap();
+        // simulated from (0, 0) with the preset's mixture, estimated with the Student-t likelihood
+        let PresetRecord { preset: est, data, .. } = van_der_pol_student_t(seed).unwrap();
         let prob = est.problem(&data, &[]);
         let times: Vec<f64> = (0..=3200).map(|k| k as f64 * 0.005).collect();
         let guess =

@@ -2,93 +2,21 @@
 
 use approx::assert_relative_eq;
 use nalgebra::{DMatrix, DVector};
-use rand::rngs::StdRng;
-use rand::SeedableRng;
 
 use super::linear::{kalman_rts, LinearGaussianModel};
 use super::*;
-use crate::model::observation::{Noise, StateMeasurement};
+use crate::model::observation::Noise;
 use crate::model::prior::Prior;
-use crate::model::{Dims, Param, Scalar};
-use crate::simulate::{sample_measurements, simulate, SimulateOptions};
+use crate::model::Param;
+use crate::test_models::{LinearOscillator, OscillatorRecord};
 
-/// Damped integrated noise with a clean state and a time-independent offset:
-/// dX = (−k X − c Z + u) dt + σ dW, dZ = X dt, θ = (k, c, u, σ, σ_y) — linear, so the exact
-/// Kalman filter is the reference, and it exercises the clean-state rows.
-struct Oscillator;
-
-impl Sde for Oscillator {
-    fn dims(&self) -> Dims {
-        Dims { noisy: 1, clean: 1, params: 5 }
-    }
-    fn noisy_names(&self) -> Vec<String> {
-        vec!["v".into()]
-    }
-    fn clean_names(&self) -> Vec<String> {
-        vec!["q".into()]
-    }
-    fn param_names(&self) -> Vec<String> {
-        ["k", "c", "u", "sigma", "sigma_y"].iter().map(|s| s.to_string()).collect()
-    }
-    fn drift<D: Scalar>(&self, _t: D, x: &[D], z: &[D], th: &[D], out: &mut [D]) {
-        out[0] = -th[0] * x[0] - th[1] * z[0] + th[2];
-    }
-    fn clean_drift<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], _th: &[D], out: &mut [D]) {
-        out[0] = x[0];
-    }
-    fn diffusion<D: Scalar>(&self, th: &[D], out: &mut [D]) {
-        out[0] = th[3];
-    }
-}
-
-struct Case {
-    theta: Vec<f64>,
-    theta_prior: Vec<Prior>,
-    x0: Vec<Prior>,
-    z0: Vec<Prior>,
-    obs: StateMeasurement,
-    data: crate::data::Dataset,
-}
-
-fn oscillator_case() -> Case {
-    let theta = vec![0.7, 1.5, 0.3, 0.4, 0.15];
-    let obs = StateMeasurement::new(vec![1], vec!["y".into()], Noise::Gaussian { sigma: Param::Theta(4) });
-    let mut rng = StdRng::seed_from_u64(11);
-    let path =
-        simulate(&Oscillator, &theta, &[0.2], &[-0.5], &SimulateOptions::new(0.0, 4.0, 0.01), &mut rng)
-            .unwrap();
-    let mut data = sample_measurements(&obs, &theta, &path, 1, 0.2, &mut rng).unwrap();
-    // A missing measurement exercises the skipped update.
-    data.values[7][0] = f64::NAN;
-    Case {
-        theta,
-        theta_prior: vec![Prior::flat(); 5],
-        x0: vec![Prior::gaussian(0.1, 0.5)],
-        z0: vec![Prior::gaussian(-0.3, 0.6)],
-        obs,
-        data,
-    }
-}
-
-fn problem(case: &Case) -> EstimationProblem<'_, Oscillator, StateMeasurement> {
-    EstimationProblem {
-        sde: &Oscillator,
-        observation: &case.obs,
-        theta: &case.theta,
-        theta_prior: &case.theta_prior,
-        estimate: &[],
-        x0_prior: &case.x0,
-        z0_prior: &case.z0,
-        data: &case.data,
-        t0: 0.0,
-        seed: 0,
-    }
-}
-
-fn reference(case: &Case) -> crate::kalman::linear::KalmanSmoothing {
+/// The exact Kalman filter and RTS smoother of the record of the linear oscillator with a clean
+/// state (`test_models::OscillatorRecord`, whose clean state exercises the z rows).
+fn reference(case: &OscillatorRecord) -> crate::kalman::linear::KalmanSmoothing {
     let m0 = DVector::from_vec(vec![0.1, -0.3]);
     let p0 = DMatrix::from_diagonal(&DVector::from_vec(vec![0.25, 0.36]));
-    let model = LinearGaussianModel::from_sde(&Oscillator, &case.theta, &case.obs, 0.0, m0, p0).unwrap();
+    let model = LinearGaussianModel::from_sde(&LinearOscillator, &case.theta, &case.observation, 0.0, m0, p0)
+        .unwrap();
     kalman_rts(&model, &case.data, &[]).unwrap()
 }
 
@@ -96,11 +24,11 @@ fn reference(case: &Case) -> crate::kalman::linear::KalmanSmoothing {
 fn extended_and_unscented_match_the_exact_kalman_filter_and_smoother_with_clean_states() {
     // Identity: on a linear SDE the moment ODEs are exact, so with RK4 at dt = 0.005 the
     // EKF/UKF and EKS/UKS equal the exact Kalman filter and RTS smoother up to O(dt⁴).
-    let case = oscillator_case();
+    let case = OscillatorRecord::new().unwrap();
     let reference = reference(&case);
     let opts = KalmanOptions::default().with_dt(0.005);
     for approx in [Approximation::Extended, Approximation::Unscented(UnscentedParams::default())] {
-        let run = filter(&problem(&case), &case.theta, approx, &opts).unwrap();
+        let run = filter(&case.problem(), &case.theta, approx, &opts).unwrap();
         assert_eq!(run.status, Status::Converged);
         assert_relative_eq!(run.log_likelihood, reference.log_likelihood, epsilon = 1e-8);
         let smooth = run.smooth().unwrap();
@@ -131,31 +59,31 @@ fn extended_and_unscented_match_the_exact_kalman_filter_and_smoother_with_clean_
 #[test]
 fn unscented_kappa_does_not_change_a_linear_problem() {
     // Identity: sigma-point moments of a linear drift are exact for every valid (alpha, kappa).
-    let case = oscillator_case();
+    let case = OscillatorRecord::new().unwrap();
     let a = filter(
-        &problem(&case),
+        &case.problem(),
         &case.theta,
         Approximation::Unscented(UnscentedParams::default()),
         &KalmanOptions::default(),
     )
     .unwrap();
     let params = UnscentedParams { alpha: 0.5, kappa: 1.0 };
-    let b = filter(&problem(&case), &case.theta, Approximation::Unscented(params), &KalmanOptions::default())
+    let b = filter(&case.problem(), &case.theta, Approximation::Unscented(params), &KalmanOptions::default())
         .unwrap();
     let last = a.filtered.len() - 1;
     assert_relative_eq!(a.filtered[last].mean[1], b.filtered[last].mean[1], epsilon = 1e-12);
     assert_relative_eq!(a.log_likelihood, b.log_likelihood, epsilon = 1e-10);
     let bad = UnscentedParams { alpha: 1.0, kappa: -2.0 };
-    assert!(filter(&problem(&case), &case.theta, Approximation::Unscented(bad), &KalmanOptions::default())
+    assert!(filter(&case.problem(), &case.theta, Approximation::Unscented(bad), &KalmanOptions::default())
         .is_err());
 }
 
 #[test]
 fn non_gaussian_likelihood_and_prior_are_errors() {
-    let mut case = oscillator_case();
-    case.obs.noise = Noise::StudentT { nu: Param::Fixed(4.0), scale: Param::Fixed(0.1) };
+    let mut case = OscillatorRecord::new().unwrap();
+    case.observation.noise = Noise::StudentT { nu: Param::Fixed(4.0), scale: Param::Fixed(0.1) };
     for method in [KalmanMethod::Ekf, KalmanMethod::Uks] {
-        match estimate(&problem(&case), method, &KalmanOptions::default()) {
+        match estimate(&case.problem(), method, &KalmanOptions::default()) {
             Err(Error::InvalidOption { name, reason }) => {
                 assert_eq!(name, "likelihood");
                 assert!(reason.contains("Gaussian") && reason.contains("student-t"), "{reason}");
@@ -163,18 +91,18 @@ fn non_gaussian_likelihood_and_prior_are_errors() {
             other => panic!("expected an error, got {other:?}"),
         }
     }
-    let mut case = oscillator_case();
-    case.x0 = vec![Prior::flat()];
+    let mut case = OscillatorRecord::new().unwrap();
+    case.x0_prior = vec![Prior::flat()];
     assert!(matches!(
-        estimate(&problem(&case), KalmanMethod::Eks, &KalmanOptions::default()),
+        estimate(&case.problem(), KalmanMethod::Eks, &KalmanOptions::default()),
         Err(Error::InvalidOption { name, .. }) if name == "x0-prior"
     ));
 }
 
 #[test]
 fn estimate_reports_the_path_on_the_grid_with_sd() {
-    let case = oscillator_case();
-    let est = estimate(&problem(&case), KalmanMethod::Uks, &KalmanOptions::default().with_dt(0.05)).unwrap();
+    let case = OscillatorRecord::new().unwrap();
+    let est = estimate(&case.problem(), KalmanMethod::Uks, &KalmanOptions::default().with_dt(0.05)).unwrap();
     assert_eq!(est.method, crate::Method::Uks);
     assert_eq!(est.status, Status::Converged);
     // t0 = 0 is the first measurement time; 20 intervals of 0.2 with 4 steps each.
@@ -184,11 +112,11 @@ fn estimate_reports_the_path_on_the_grid_with_sd() {
     let sd = est.path.sd.as_ref().unwrap();
     assert!(sd.iter().flatten().all(|v| *v > 0.0));
     // Estimating parameters is the PEM's job.
-    let mut p = problem(&case);
+    let mut p = case.problem();
     p.estimate = &[0];
     assert!(estimate(&p, KalmanMethod::Ekf, &KalmanOptions::default()).is_err());
     // The initial time must not follow the first measurement.
-    let late = EstimationProblem { t0: 0.5, ..problem(&case) };
+    let late = EstimationProblem { t0: 0.5, ..case.problem() };
     assert!(estimate(&late, KalmanMethod::Ekf, &KalmanOptions::default()).is_err());
 }
 
@@ -205,9 +133,9 @@ fn default_step_is_a_tenth_of_the_median_interval_capped() {
 fn pem_recovers_a_linear_model_within_its_laplace_sd() {
     // The maximiser on simulated data: the estimate of (k, sigma_y) lies within 3 Laplace sd of
     // the truth (a loose, two-sided check of the Laplace approximation).
-    let case = oscillator_case();
+    let case = OscillatorRecord::new().unwrap();
     let priors = [Prior::flat(), Prior::flat(), Prior::flat(), Prior::flat(), Prior::gamma(1.1, 10.0)];
-    let mut p = problem(&case);
+    let mut p = case.problem();
     p.theta_prior = &priors;
     p.estimate = &[0, 4];
     let est = pem(&p, &PemOptions::default()).unwrap();
@@ -223,11 +151,11 @@ fn pem_gradient_matches_central_differences() {
     // AD through the UKF against central differences (step 1e-5, truncation O(h²) ≈ 1e-10
     // relative) of the same objective, at a point away from the optimum, in the optimisation
     // coordinates (log sigma_y for the gamma prior).
-    let case = oscillator_case();
+    let case = OscillatorRecord::new().unwrap();
     let priors =
         [Prior::gaussian(0.0, 10.0), Prior::flat(), Prior::flat(), Prior::flat(), Prior::gamma(1.1, 10.0)];
     let theta = vec![0.9, 1.5, 0.3, 0.4, 0.2];
-    let mut p = problem(&case);
+    let mut p = case.problem();
     p.theta = &theta;
     p.theta_prior = &priors;
     p.estimate = &[0, 4, 1];
@@ -248,13 +176,15 @@ fn pem_gradient_matches_central_differences() {
 fn an_initial_time_before_the_first_measurement_is_a_prediction_only_node() {
     // Identity: with the prior at t0 = −0.5 the grid starts with a node without measurement;
     // the filter and smoother still equal the exact ones started at −0.5.
-    let case = oscillator_case();
+    let case = OscillatorRecord::new().unwrap();
     let m0 = DVector::from_vec(vec![0.1, -0.3]);
     let p0 = DMatrix::from_diagonal(&DVector::from_vec(vec![0.25, 0.36]));
-    let model = LinearGaussianModel::from_sde(&Oscillator, &case.theta, &case.obs, -0.5, m0, p0).unwrap();
+    let model =
+        LinearGaussianModel::from_sde(&LinearOscillator, &case.theta, &case.observation, -0.5, m0, p0)
+            .unwrap();
     let reference = kalman_rts(&model, &case.data, &[]).unwrap();
     let opts = KalmanOptions::default().with_dt(0.005);
-    let early = EstimationProblem { t0: -0.5, ..problem(&case) };
+    let early = EstimationProblem { t0: -0.5, ..case.problem() };
     let run = filter(&early, &case.theta, Approximation::Extended, &opts).unwrap();
     assert_relative_eq!(run.times[0], -0.5);
     assert!(!run.measured[0]);

@@ -34,56 +34,33 @@ fn options_are_validated() {
     assert!(bad.validate().is_err());
 }
 
-/// dX = (−k X − c Z) dt + σ dW, dZ = X dt, θ = (k, c, σ, σ_y): linear with a clean state.
-struct Oscillator;
-
-impl Sde for Oscillator {
-    fn dims(&self) -> crate::model::Dims {
-        crate::model::Dims { noisy: 1, clean: 1, params: 4 }
-    }
-    fn noisy_names(&self) -> Vec<String> {
-        vec!["v".into()]
-    }
-    fn clean_names(&self) -> Vec<String> {
-        vec!["q".into()]
-    }
-    fn param_names(&self) -> Vec<String> {
-        ["k", "c", "sigma", "sigma_y"].iter().map(|s| s.to_string()).collect()
-    }
-    fn drift<D: crate::model::Scalar>(&self, _t: D, x: &[D], z: &[D], th: &[D], out: &mut [D]) {
-        out[0] = -th[0] * x[0] - th[1] * z[0];
-    }
-    fn clean_drift<D: crate::model::Scalar>(&self, _t: D, x: &[D], _z: &[D], _th: &[D], out: &mut [D]) {
-        out[0] = x[0];
-    }
-    fn diffusion<D: crate::model::Scalar>(&self, th: &[D], out: &mut [D]) {
-        out[0] = th[2];
-    }
-}
-
 #[test]
 fn ancestral_smoother_with_a_clean_state_agrees_with_rts_within_monte_carlo_error() {
     // Models with clean states use the ancestral paths. Monte Carlo test: R = 8 runs with
     // N = 1000 on a short record (T = 1, 6 measurements of q); the average of the runs' means
     // of both states lies within 4 SE/√R of the exact RTS mean (kalman::linear), the SE from
-    // the spread of the runs.
+    // the spread of the runs. The model: the linear oscillator of `test_models` without forcing,
+    // dV = (−kV − cQ) dt + σ dW, dQ = V dt.
     use crate::kalman::linear::{kalman_rts, LinearGaussianModel};
     use crate::model::observation::{Noise, StateMeasurement};
     use crate::model::prior::Prior;
     use crate::model::Param;
+    use crate::test_models::LinearOscillator;
     use nalgebra::{DMatrix, DVector};
 
-    let theta = [0.5, 2.0, 0.5, 0.1];
-    let obs = StateMeasurement::new(vec![1], vec!["y".into()], Noise::Gaussian { sigma: Param::Theta(3) });
+    // θ = (k, c, u, σ, σ_y).
+    let theta = [0.5, 2.0, 0.0, 0.5, 0.1];
+    let sigma = Param::Theta(LinearOscillator::SIGMA_Y);
+    let obs = StateMeasurement::new(vec![1], vec!["y".into()], Noise::Gaussian { sigma });
     let data = crate::data::Dataset::try_new(
         vec!["y".into()],
         vec![0.0, 0.2, 0.4, 0.6, 0.8, 1.0],
         vec![vec![0.3], vec![0.25], vec![0.05], vec![-0.1], vec![-0.3], vec![-0.35]],
     )
     .unwrap();
-    let (x0, z0, flat) = ([Prior::gaussian(0.0, 0.5)], [Prior::gaussian(0.0, 0.5)], [Prior::flat(); 4]);
+    let (x0, z0, flat) = ([Prior::gaussian(0.0, 0.5)], [Prior::gaussian(0.0, 0.5)], [Prior::flat(); 5]);
     let problem = EstimationProblem {
-        sde: &Oscillator,
+        sde: &LinearOscillator,
         observation: &obs,
         theta: &theta,
         theta_prior: &flat,
@@ -95,7 +72,8 @@ fn ancestral_smoother_with_a_clean_state_agrees_with_rts_within_monte_carlo_erro
         seed: 0,
     };
     let p0 = DMatrix::from_diagonal(&DVector::from_vec(vec![0.25, 0.25]));
-    let model = LinearGaussianModel::from_sde(&Oscillator, &theta, &obs, 0.0, DVector::zeros(2), p0).unwrap();
+    let model =
+        LinearGaussianModel::from_sde(&LinearOscillator, &theta, &obs, 0.0, DVector::zeros(2), p0).unwrap();
     let reference = kalman_rts(&model, &data, &[]).unwrap();
     let options = ParticleOptions::default().with_particles(1000).with_backward_paths(500).with_dt(0.005);
     let r = 8;

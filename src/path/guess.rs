@@ -389,7 +389,8 @@ mod tests {
         assert!(g.theta.iter().all(|v| v.is_finite()));
     }
 
-    /// dX = −e^k X dt + dW, X measured: not affine in k.
+    /// dX = −e^k X dt + dW, X measured: not affine in k. (Kept here rather than in
+    /// `test_models`: it exists only to reach the fallback below.)
     struct ExpDecay;
 
     impl Sde for ExpDecay {

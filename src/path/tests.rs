@@ -5,11 +5,10 @@ use crate::model::library::{preset, Preset};
 use crate::model::observation::StateMeasurement;
 use crate::nlp::{NlpOptions, NlpProblem};
 
-/// A few deterministic measurements of output 0 (no randomness needed: the derivative and
-/// quadrature identities hold for any data).
+/// A few deterministic measurements 0.8 cos(1.3 t) of the preset's one output (no randomness
+/// needed: the derivative and quadrature identities hold for any data).
 fn data_for(p: &Preset, times: &[f64]) -> Dataset {
-    let values = times.iter().map(|&t| vec![0.8 * (1.3 * t).cos()]).collect();
-    Dataset::try_new(p.observation.names.clone(), times.to_vec(), values).unwrap()
+    crate::test_models::cosine_data(&p.observation.names[0], times, 0.8, 0.0).unwrap()
 }
 
 /// Dense central finite differences of the NLP's gradient, constraint Jacobian and Hessian of
@@ -520,7 +519,8 @@ fn kept_kkt_solver_reuses_its_analysis() {
 }
 
 /// A built-in model without its closed-form `drift_derivatives`: the transcription then
-/// differentiates the drifts automatically.
+/// differentiates the drifts automatically. (A wrapper for the one comparison below, not a
+/// model, so not in `test_models`.)
 struct WithoutClosedForm<'a>(&'a crate::model::library::BuiltinModel);
 
 impl crate::model::Sde for WithoutClosedForm<'_> {

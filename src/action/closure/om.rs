@@ -513,22 +513,19 @@ mod tests {
     use crate::model::observation::Noise;
     use crate::model::prior::Prior;
     use crate::model::Param;
+    use crate::test_models::{cosine_data, gaussian_measurement};
     use nalgebra::{DMatrix, DVector};
 
     const OU_THETA: [f64; 2] = [1.0, 0.5];
 
-    fn obs(sd: f64) -> StateMeasurement {
-        StateMeasurement::new(vec![0], vec!["y".into()], Noise::Gaussian { sigma: Param::Fixed(sd) })
-    }
-
+    /// Deterministic OU data 0.6 cos(1.3 t) + 0.1 every 0.5 on [0.5, 5].
     fn ou_dataset() -> Dataset {
         let times: Vec<f64> = (1..=10).map(|k| 0.5 * k as f64).collect();
-        let values = times.iter().map(|&t| vec![0.6 * (1.3 * t).cos() + 0.1]).collect();
-        Dataset::try_new(vec!["y".into()], times, values).unwrap()
+        cosine_data("y", &times, 0.6, 0.1).unwrap()
     }
 
     fn rts_distance(kind: MomentPathKind, step: f64) -> (f64, f64) {
-        let ob = obs(0.2);
+        let ob = gaussian_measurement(0, 0.2);
         let data = ou_dataset();
         let priors = [Prior::flat(), Prior::flat()];
         let x0 = [Prior::gaussian(0.0, 0.5)];
@@ -609,7 +606,7 @@ mod tests {
     fn gradient_and_hessian_match_finite_differences() {
         // Central differences of the objective (gradient) and of the gradient (Hessian), on the
         // double well (cubic drift) at a perturbed start point.
-        let (ob, data) = (obs(0.2), well_data());
+        let (ob, data) = (gaussian_measurement(0, 0.2), well_data());
         let (priors, x0) = ([Prior::flat()], [Prior::gaussian(-1.0, 0.3)]);
         let problem = well_problem(&ob, &data, &priors, &x0);
         for kind in [MomentPathKind::DoubleExponential, MomentPathKind::Ksp] {
@@ -659,7 +656,7 @@ mod tests {
         use crate::action::{ksp_smoother, mean_optimal, ExactOptions, GridSpec};
         // R = 0.04, measurements every 1.0 crossing the wells; references: the exact
         // mean-optimal estimate (dual of the exact grid) and the exact KSP smoother.
-        let (ob, data) = (obs(0.2), well_data());
+        let (ob, data) = (gaussian_measurement(0, 0.2), well_data());
         let (priors, x0) = ([Prior::flat()], [Prior::gaussian(-1.0, 0.3)]);
         let problem = well_problem(&ob, &data, &priors, &x0);
         let exact_opts =
@@ -695,7 +692,7 @@ mod tests {
 
     #[test]
     fn bad_input_is_a_clear_error() {
-        let (ob, data) = (obs(0.2), well_data());
+        let (ob, data) = (gaussian_measurement(0, 0.2), well_data());
         let priors = [Prior::flat()];
         let x0 = [Prior::gaussian(-1.0, 0.3)];
         let flat = [Prior::flat()];

@@ -789,7 +789,8 @@ mod tests {
         check(&GaussianDrift::try_new(&Tanh, &Tanh::NOMINAL).unwrap());
     }
 
-    /// f(x) = ∛x, whose f′ and f″ are infinite at x = 0.
+    /// f(x) = ∛x, whose f′ and f″ are infinite at x = 0. (Kept here rather than in `test_models`:
+    /// it exists only to reach the error below.)
     struct CubeRoot;
 
     impl Sde for CubeRoot {
@@ -893,7 +894,8 @@ mod tests {
         assert_eq!(exact_gauss_hermite_points(3), 3);
         assert_eq!(exact_gauss_hermite_points(4), 3);
         assert_eq!(exact_gauss_hermite_points(7), 5);
-        // A declared degree of 9 in 3-D needs 6 points: not fewer than the general rule's 5.
+        // A declared degree of 9 in 3-D needs 6 points: not fewer than the general rule's 5 (a
+        // declaration only this check needs, so the model stays here).
         struct Nonic;
         impl Sde for Nonic {
             fn dims(&self) -> crate::model::Dims {

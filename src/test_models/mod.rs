@@ -1,0 +1,43 @@
+//! Shared test fixtures: the models and data sets the tests, examples and benchmarks use, so that
+//! each is written once, with its equations and its known answers beside it (diffsol's
+//! `ode_solver::test_models` is the model).
+//!
+//! Models (each a unit struct implementing [`Sde`](crate::model::Sde) with the required methods
+//! only, so every derivative of it comes by automatic differentiation); where a test needs a
+//! built-in model of [`model::library`](crate::model::library) it uses that one:
+//!
+//! | fixture | equations | known answers |
+//! |---|---|---|
+//! | [`LinearOscillator`] | dV = (−kV − cQ + u) dt + σ dW, dQ = V dt | exact Kalman/RTS (linear, with a clean state) |
+//! | [`UnscaledDoubleWell`] | dX = (X − X³) dt + σ dW | strong orders 1 (Euler–Maruyama) and 1.5 (Itô–Taylor) |
+//! | [`UnforcedDuffing`] | dV = (−Q³ + Q − 0.2V) dt + σ dW, dQ = V dt | Itô–Taylor strong order 2 (drift linear in V) |
+//! | [`CubicDampedDuffing`] | dV = (−Q³ + Q − 0.2V − V³) dt + σ dW, dQ = V dt | strong orders 1 and 1.5, with a clean state |
+//! | [`TwoNoisyOneClean`] | two noisy states, a clean one, t-dependent, full G | one Itô–Taylor step = its formula from Jacobians |
+//! | [`DampedRotation`] | dX = AX dt + 0.5 dW, A = [[−1, 0.5], [−0.5, −1]] | Gaussian smoothing laws; stationary Σ = 0.125 I |
+//!
+//! Data sets (each owning what an [`EstimationProblem`](crate::estimate::EstimationProblem)
+//! borrows, with a `problem()` method):
+//!
+//! | fixture | what | reference |
+//! |---|---|---|
+//! | [`OscillatorRecord`] | [`LinearOscillator`] on [0, 4], q measured every 0.2, one datum missing | exact Kalman/RTS |
+//! | [`OuRecord`] | [`Ou`](crate::model::library::Ou) (θ = 1, σ = 0.5) on [0, 5], y ~ N(x, 0.2²) every 0.5 | [`OuRecord::rts`] |
+//! | [`DoubleWellRecord`] | [`DoubleWell`](crate::model::library::DoubleWell) (D = 0.5), y ~ N(x, 0.2²) at given times | the exact grid estimators |
+//! | [`PresetRecord`] | any preset simulated and measured with its own settings | per model |
+//! | [`van_der_pol_student_t`] | the Van der Pol problem of `001_8aefdf0570c96f51.txt` Sec. 9 | convergence of the MAP paths |
+//! | [`cosine_data`] | y(t) = a cos(1.3 t) + b, deterministic | identities that hold for any data |
+//!
+//! Every simulated record draws all its random numbers from one seeded `StdRng`, so its numbers
+//! are fixed for a given version of `rand`.
+
+mod models;
+mod records;
+
+pub use models::{
+    CubicDampedDuffing, DampedRotation, LinearOscillator, TwoNoisyOneClean, UnforcedDuffing,
+    UnscaledDoubleWell,
+};
+pub use records::{
+    cosine_data, gaussian_measurement, van_der_pol_student_t, DoubleWellRecord, OscillatorRecord, OuRecord,
+    PresetRecord, Start,
+};
