@@ -13,12 +13,6 @@
 //! problem with faer, measured with `/usr/bin/time -v` on the release test binary running only
 //! `nlp::tests::large_banded_double_well` (the same problem; the test binary running a trivial
 //! test peaks at 3.4 MB). The KKT matrix has 300 001 stored entries and its factor 350 000.
-//!
-//! Measured on the development machine (2 shared cores, load average about 5 from other jobs)
-//! on 2026-11-21: 47 ms per iteration (criterion's estimate, 95 % interval 44–49 ms); 1.02 s
-//! per solve with the band solver and 1.04 s with faer in the same run (20 iterations, 23 extra
-//! inertia-correction factorisations with either): on this problem the choice of KKT solver
-//! makes no measurable difference.
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
