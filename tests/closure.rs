@@ -113,8 +113,12 @@ fn filter_start_satisfies_the_filter_condition() {
     let mut gaussian = gaussian_closure_action(&problem, &options).unwrap();
     let mut quartic = exponential_closure_action(&problem, 4, &options).unwrap();
     let starts = [gaussian.filter_start(&dd).unwrap(), quartic.filter_start(&dd).unwrap()];
-    let paths = [gaussian.moment_paths(&starts[0]).unwrap(), quartic.moment_paths(&starts[1]).unwrap()];
-    for (lambda, (times, _, mu)) in starts.iter().zip(&paths) {
+    let paths = [
+        gaussian.moment_paths(&starts[0]).unwrap().unwrap(),
+        quartic.moment_paths(&starts[1]).unwrap().unwrap(),
+    ];
+    for (lambda, onsager::action::closure::sweep::MomentPaths { times, mu, .. }) in starts.iter().zip(&paths)
+    {
         for (k, &t) in data.times.iter().enumerate() {
             let e = times.iter().position(|&s| s == t).unwrap();
             // To the ODE tolerance (moment_paths integrates with the output times as events too).
@@ -331,7 +335,8 @@ fn quartic_closure_gradient_is_the_adjoint_and_the_history_is_continuous() {
     check_hessian(&mut action, &lambda);
     // (II.44): m(t) is continuous across the jumps while μ(t) jumps; one-sided limits by linear
     // extrapolation from t_k ± ε, t_k ± 2ε (error O(ε² m'') ≈ 1e-10), to the 1e-8.
-    let (times, m, mu) = action.moment_paths(&lambda).unwrap();
+    let onsager::action::closure::sweep::MomentPaths { times, m, mu } =
+        action.moment_paths(&lambda).unwrap().unwrap();
     let at = |t: f64| times.iter().position(|&s| (s - t).abs() < 1e-12).unwrap();
     for &tk in &data.times[..data.times.len() - 1] {
         for a in 0..4 {

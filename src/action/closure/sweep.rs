@@ -396,6 +396,17 @@ impl Events {
 #[derive(Debug, Clone)]
 struct SweepFailure;
 
+/// The moment paths of [`ClosureAction::moment_paths`] at the output times.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MomentPaths {
+    /// The output times.
+    pub times: Vec<f64>,
+    /// m(t) = μ(λ(t)) + γ(t), every moment at every output time (`(II.48)`).
+    pub m: Vec<Vec<f64>>,
+    /// μ(λ(t)) on the forward sweep alone.
+    pub mu: Vec<Vec<f64>>,
+}
+
 impl<D: ClosureDrift> ClosureAction<D> {
     /// The action of `drift` from λ(t_0) = `lambda0`, measurements at `meas_times` of the
     /// moments `measured` (one index into M per measured component), history reported at
@@ -1230,21 +1241,15 @@ impl<D: ClosureDrift> ClosureAction<D> {
     }
 
     /// The history m(t) = μ(λ(t)) + γ(t) of all moments at the output times, with μ(t)
-    /// separately (`003_d2fc48a470e528fc.txt (II.48)`): (times, m, μ). Errors when the sweep
-    /// fails at λ.
-    #[allow(clippy::type_complexity)]
-    pub fn moment_paths(&mut self, lambda: &[f64]) -> Result<(Vec<f64>, Vec<Vec<f64>>, Vec<Vec<f64>>)> {
+    /// separately (`003_d2fc48a470e528fc.txt (II.48)`), or why the sweep has none at λ.
+    /// Errors: misuse (λ of the wrong length or not finite).
+    pub fn moment_paths(&mut self, lambda: &[f64]) -> Result<Swept<MomentPaths>> {
         self.check(lambda)?;
         let events = self.out_events.clone();
-        let (fw, g, _) = self.value(&events, lambda, false).map_err(|_| self.failed())?;
-        Ok((events.times, Self::moments_at_events(&fw, &g), fw.mu))
-    }
-
-    fn failed(&self) -> Error {
-        Error::InvalidOption {
-            name: "closure".into(),
-            reason: "the closure sweep left the family's moment space (unrealizable moments)".into(),
-        }
+        let Ok((fw, g, _)) = self.value(&events, lambda, false) else {
+            return Ok(Err(Failure::Unrealizable));
+        };
+        Ok(Ok(MomentPaths { m: Self::moments_at_events(&fw, &g), mu: fw.mu, times: events.times }))
     }
 
     /// The linear moment of every state (index into M).
