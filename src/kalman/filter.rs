@@ -71,6 +71,31 @@ fn prior_moments(prior: &Prior, name: &str) -> Result<(f64, f64)> {
     }
 }
 
+/// The measurement standard deviation σ of `observation`, checked against the model `sde` and
+/// θ = `theta`: the Kalman-type methods assume Gaussian measurement errors y = s[i] + N(0, σ²).
+///
+/// Errors: those of [`StateMeasurement::validate`]; [`Error::InvalidOption`] (name
+/// `likelihood`, naming `method`) for any other measurement-error law.
+pub(crate) fn gaussian_sigma<S: Sde + ?Sized>(
+    sde: &S,
+    observation: &StateMeasurement,
+    theta: &[f64],
+    method: &str,
+) -> Result<Param> {
+    observation.validate(sde.dims(), theta)?;
+    match observation.noise {
+        Noise::Gaussian { sigma } => Ok(sigma),
+        ref other => Err(Error::InvalidOption {
+            name: "likelihood".into(),
+            reason: format!(
+                "`{method}` assumes Gaussian measurement errors and got `{}`; use `gaussian:sigma=...` \
+                 or a method that takes any likelihood (particle, the MAP path, KSP)",
+                other.describe(&sde.param_names())
+            ),
+        }),
+    }
+}
+
 impl Setup {
     /// Checks the pieces of `problem` that the filter uses (its model, measurement model,
     /// initial-state priors and data) with θ = `theta` and builds the node list. `t0` is the time
@@ -85,20 +110,7 @@ impl Setup {
     ) -> Result<Setup> {
         let EstimationProblem { sde, observation, x0_prior, z0_prior, data, .. } = *problem;
         let d = sde.dims();
-        observation.validate(d, theta)?;
-        let sigma = match observation.noise {
-            Noise::Gaussian { sigma } => sigma,
-            ref other => {
-                return Err(Error::InvalidOption {
-                    name: "likelihood".into(),
-                    reason: format!(
-                    "`{method}` assumes Gaussian measurement errors and got `{}`; use `gaussian:sigma=...` \
-                         or a method that takes any likelihood (particle, the MAP path, KSP)",
-                    other.describe(&sde.param_names())
-                ),
-                })
-            }
-        };
+        let sigma = gaussian_sigma(sde, observation, theta, method)?;
         sde.diffusion_matrix(theta)?;
         let names = sde.state_names();
         let mut m0 = Vec::with_capacity(d.states());
