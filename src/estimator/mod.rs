@@ -39,7 +39,7 @@ use crate::action::closure::om::MomentPathOptions;
 use crate::action::closure::{Closure, ExponentialFamily, GaussianFamily};
 use crate::action::exact::{ExactOptions, MeanOptimalOptions};
 use crate::estimate::{EstimationProblem, MethodRun};
-use crate::kalman::{ExtendedOptions, KalmanOptions, PemOptions};
+use crate::kalman::{EnksOptions, ExtendedOptions, KalmanOptions, PemOptions};
 use crate::model::observation::StateMeasurement;
 use crate::model::Sde;
 use crate::particle::ParticleOptions;
@@ -212,6 +212,10 @@ estimators! {
     /// Bootstrap particle filter with a backward-simulation smoother.
     Particle, "particle", ParticleOptions,
         "bootstrap particle filter with a backward-simulation smoother";
+    /// Ensemble Kalman smoother: stochastic EnKF with perturbed observations and the smoother
+    /// of Evensen & van Leeuwen (2000) ([`crate::kalman::enks()`]).
+    Enks, "enks", EnksOptions,
+        "ensemble Kalman smoother (stochastic EnKF with perturbed observations, Evensen & van Leeuwen 2000)";
 }
 
 impl Method {

@@ -161,8 +161,9 @@ impl Setup {
     }
 }
 
-/// The most memory the stored moments of one filter run may take, in bytes.
-const MAX_STORED_BYTES: f64 = 4e9;
+/// The most memory the stored moments of one filter run (or the stored ensembles of one
+/// ensemble smoother run) may take, in bytes.
+pub(crate) const MAX_STORED_BYTES: f64 = 4e9;
 
 /// Nodes at `t0` and at every measurement time, with ⌈Δt / dt⌉ equal steps between
 /// consecutive nodes. Errors when `t0` is after the first measurement or the times are not

@@ -2,6 +2,9 @@
 //! (EKF, UKF), their Rauch–Tung–Striebel smoothers (EKS, UKS), and the prediction error method
 //! (PEM) — the estimators `002_3b89776223eca539.txt` Sec. 4 and `000_74b95e149527c64e.txt`
 //! Sec. 4.1 compare the MAP path with.
+//! The ensemble Kalman filter and smoother (EnKF/EnKS, [`enks()`]) share their assumptions on
+//! the measurements (Gaussian errors) and their integration step; they are documented in their
+//! own module.
 //!
 //! # Model and approximations
 //!
@@ -44,6 +47,7 @@
 //! S. B. Jørgensen, "Parameter estimation in stochastic grey-box models", Automatica 40, 2004.
 
 mod dense;
+mod enks;
 mod filter;
 pub mod linear;
 pub mod pem;
@@ -63,6 +67,7 @@ use crate::model::observation::StateMeasurement;
 use crate::model::Sde;
 use crate::{Error, Result};
 
+pub use enks::{enks, ensemble_smoother, EnksDetails, EnksOptions, EnksSmoothing};
 pub use pem::{pem, PemDetails, PemOptions};
 
 pub(crate) use filter::{build_nodes, Node};
