@@ -1,10 +1,12 @@
 //! Several estimators on the same model and data, side by side: the library side of
 //! `onsager compare`.
 //!
-//! [`compare`] runs each method through [`crate::methods::run`] (so on equal terms with the CLI
-//! and the experiments), keeps going when one fails (its row carries the error), and measures
-//! each estimate against the truth (when known), the exact KSP smoothed mean and the exact
-//! mean-optimal estimate (when they are among the methods), with [`crate::metrics`].
+//! [`compare()`] runs each labelled [`Estimator`](crate::estimator::Estimator) through
+//! [`Estimator::run`](crate::estimator::Estimator::run) (so on equal terms with the CLI and the
+//! experiments), keeps going when one fails (its row carries the error), and measures each
+//! estimate against the truth (when known), the exact KSP smoothed mean and the exact
+//! mean-optimal estimate (when they are among the estimators) by the one rule of
+//! [`crate::metrics::measure`].
 
 use serde::Serialize;
 

@@ -40,7 +40,8 @@
 //!   estimator through its concave dual, and the ensemble dispersion; [`closures`] holds the
 //!   trial densities of the Rayleigh–Ritz closures.
 //! - [`kalman`] and [`particle`]: the baselines (EKF/EKS, UKF/UKS, the prediction error method,
-//!   a bootstrap particle filter with a backward-simulation smoother), and the exact
+//!   the ensemble Kalman smoother, a bootstrap particle filter with a backward-simulation
+//!   smoother), and the exact
 //!   Kalman/RTS reference for linear models ([`kalman::linear`]).
 //!
 //! - [`estimator`]: every estimator as a value — a [`estimator::Method`] with its typed options,

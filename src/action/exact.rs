@@ -576,15 +576,14 @@ pub fn gaussian_dual_data<S: Sde + ?Sized>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
 ) -> Result<DualData> {
     let obs = problem.observation;
-    let sd = obs.noise.gaussian_sd(problem.theta).ok_or_else(|| {
-        invalid(
-            "likelihood",
-            format!(
-                "the mean-optimal estimator needs Gaussian measurement errors (003 I.52), not `{}`; use --method ksp for other likelihoods",
-                obs.noise.family()
-            ),
-        )
-    })?;
+    let sigma = obs.noise.gaussian_sigma(
+        &problem.sde.param_names(),
+        "the mean-optimal estimator (003 I.52)",
+        "use --method ksp for other likelihoods",
+    )?;
+    let sd = sigma
+        .value(problem.theta)
+        .ok_or_else(|| invalid("likelihood", "the measurement sd refers to a parameter out of range"))?;
     if !(sd.is_finite() && sd > 0.0) {
         return Err(invalid("likelihood", format!("the Gaussian sd must be positive and finite, got {sd}")));
     }

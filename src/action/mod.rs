@@ -14,7 +14,7 @@
 //! - [`dispersion`]: the ensemble dispersion from ((∇²F)⁻¹ + R⁻¹)⁻¹ (`(I.85)–(I.90)`) and by the
 //!   Lagrange-multiplier finite difference (`(I.99)–(I.106)`).
 //!
-//! - [`mean_optimal`]: the mean-optimal estimator of any [`dual::EffectiveAction`] — start,
+//! - [`mean_optimal`](mod@mean_optimal): the mean-optimal estimator of any [`dual::EffectiveAction`] — start,
 //!   dual (in two stages for adaptive sweeps), history and dispersion — written once for the
 //!   exact grid and every closure.
 //! - [`closure`]: the Rayleigh–Ritz closures (Gaussian, exponential family) with their jump

@@ -4,8 +4,8 @@
 //! An [`Experiment`] (a TOML document; [`ExperimentSpec`] per scenario) names a built-in model with parameter overrides, how the true path is
 //! simulated (scheme, step, horizon, initial law), how it is measured (times, the likelihood
 //! that generates the data and the one the estimators use), the estimators (any
-//! [`Method`](crate::methods::Method) with its [`MethodOptions`](crate::methods::MethodOptions),
-//! run through [`methods::run`](crate::methods::run)), the metrics, the grid of scenarios, the
+//! [`Estimator`](crate::estimator::Estimator): a method with its options, run through
+//! [`Estimator::run`](crate::estimator::Estimator::run)), the metrics, the grid of scenarios, the
 //! number of replicates and the seed. [`run`] simulates every (scenario, replicate) with a seed
 //! derived from (seed, scenario, replicate) ([`replicate_seed`]), so the results do not depend
 //! on the number of threads, and appends one row per estimator to `results.csv` as soon as it
@@ -22,7 +22,7 @@
 //! `000_74b95e149527c64e.txt (4.1)`, the RMSE to the truth over the estimate's times, the RMSE
 //! to another estimator of the same replicate, and the fraction of time on the true well's side.
 //!
-//! The built-in experiments ([`builtin`], [`BUILTIN`]) reproduce the papers' Monte Carlo
+//! The built-in experiments ([`builtin()`], [`BUILTIN`]) reproduce the papers' Monte Carlo
 //! studies; each has a quick version for tests.
 
 pub mod builtin;

@@ -12,7 +12,7 @@ use super::dense::{cholesky, matmul, symmetrize_in_place, transpose};
 use super::{Gaussian, UnscentedParams};
 use crate::data::Dataset;
 use crate::estimate::EstimationProblem;
-use crate::model::observation::{Noise, StateMeasurement};
+use crate::model::observation::StateMeasurement;
 use crate::model::prior::{Prior, PriorDensity};
 use crate::model::{Param, Scalar, Sde};
 use crate::{Error, Result};
@@ -83,17 +83,11 @@ pub(crate) fn gaussian_sigma<S: Sde + ?Sized>(
     method: &str,
 ) -> Result<Param> {
     observation.validate(sde.dims(), theta)?;
-    match observation.noise {
-        Noise::Gaussian { sigma } => Ok(sigma),
-        ref other => Err(Error::InvalidOption {
-            name: "likelihood".into(),
-            reason: format!(
-                "`{method}` assumes Gaussian measurement errors and got `{}`; use `gaussian:sigma=...` \
-                 or a method that takes any likelihood (particle, the MAP path, KSP)",
-                other.describe(&sde.param_names())
-            ),
-        }),
-    }
+    observation.noise.gaussian_sigma(
+        &sde.param_names(),
+        &format!("`{method}`"),
+        "use `gaussian:sigma=...` or a method that takes any likelihood (particle, the MAP path, KSP)",
+    )
 }
 
 impl Setup {

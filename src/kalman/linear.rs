@@ -125,12 +125,13 @@ impl LinearGaussianModel {
         let g = sde.diffusion_matrix(theta)?;
         let mut noise = DMatrix::zeros(n, d.noisy);
         noise.view_mut((0, 0), (d.noisy, d.noisy)).copy_from(&g);
-        let sd = observation.noise.gaussian_sd(theta).ok_or_else(|| Error::InvalidOption {
-            name: "likelihood".into(),
-            reason: format!(
-                "the Kalman reference needs Gaussian measurement errors, not `{}`",
-                observation.noise
-            ),
+        let sigma = observation.noise.gaussian_sigma(
+            &sde.param_names(),
+            "the Kalman reference",
+            "it is exact for linear-Gaussian models only",
+        )?;
+        let sd = sigma.value(theta).ok_or_else(|| {
+            Error::invalid("likelihood", "the measurement sd refers to a parameter out of range")
         })?;
         let k = observation.states.len();
         let mut h = DMatrix::zeros(k, n);

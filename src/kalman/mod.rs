@@ -37,7 +37,7 @@
 //! - Gaussian measurement errors: any other [`Noise`](crate::model::observation::Noise) is an
 //!   [`Error::InvalidOption`] (name `likelihood`) — never a silent moment match.
 //! - Unbounded Gaussian initial-state priors (an [`Error::InvalidOption`], name `x0-prior`,
-//!   otherwise), placed at [`KalmanOptions::t0`].
+//!   otherwise), placed at the problem's initial time `t0`.
 //!
 //! References: A. H. Jazwinski, *Stochastic Processes and Filtering Theory*, 1970;
 //! S. Särkkä, "On unscented Kalman filtering for state estimation of continuous-time nonlinear

@@ -358,10 +358,29 @@ impl Noise {
 
     /// σ for a [`Noise::Gaussian`] law (for Kalman-type methods, which need Gaussian
     /// measurement errors), `None` for the other laws or an out-of-range θ index.
+    ///
+    /// The σ of a Gaussian law for a method that needs one is [`Noise::gaussian_sigma`].
     pub fn gaussian_sd(&self, theta: &[f64]) -> Option<f64> {
         match *self {
             Noise::Gaussian { sigma } => sigma.value(theta),
             _ => None,
+        }
+    }
+
+    /// σ of a [`Noise::Gaussian`] law (a number or a component of θ), for `user`, a method
+    /// whose model needs Gaussian measurement errors. Errors: [`Error::InvalidOption`] (name
+    /// `likelihood`) for another law, naming `user`, the law (with the names of θ in
+    /// `param_names`) and `instead`, what to use for other laws.
+    pub fn gaussian_sigma(&self, param_names: &[String], user: &str, instead: &str) -> Result<Param> {
+        match *self {
+            Noise::Gaussian { sigma } => Ok(sigma),
+            ref other => Err(Error::InvalidOption {
+                name: "likelihood".into(),
+                reason: format!(
+                    "{user} needs Gaussian measurement errors, not `{}`; {instead}",
+                    other.describe(param_names)
+                ),
+            }),
         }
     }
 

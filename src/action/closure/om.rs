@@ -100,7 +100,7 @@ pub struct MomentPathOptions {
     /// Iteration limit of the interior-point solver. Default 500.
     pub max_iterations: usize,
     /// Gauss–Hermite points of the averages ⟨f⟩, ⟨f(x − μ)⟩ (at least 1). Default `None`:
-    /// automatic, as [`super::ClosureOptions::gaussian_points`] (3 for a cubic drift, exact;
+    /// automatic, as [`super::GaussianFamily::gaussian_points`] (3 for a cubic drift, exact;
     /// 16 for a drift not declared polynomial).
     pub gaussian_points: Option<usize>,
 }

@@ -548,7 +548,7 @@ impl<S: Sde + ?Sized> ClosureDrift for GaussianDrift<'_, S> {
 #[non_exhaustive]
 pub struct GaussianFamily {
     /// Gauss–Hermite points per dimension of the averages, k^n nodes on n states; at least 1.
-    /// Default `None`: automatic ([`drift::gaussian_closure_rule`]): for a model that declares
+    /// Default `None`: automatic ([`gaussian_closure_rule`]): for a model that declares
     /// a polynomial drift of degree d ([`Sde::drift_polynomial_degree`]) and 1–3 states,
     /// ⌊(d + 1)/2⌋ + 1 points, which take the averages exactly (3 for the cubic double well);
     /// otherwise 16 / 8 / 5 points per dimension for 1 / 2 / 3 states and a fifth-degree
