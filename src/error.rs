@@ -100,5 +100,16 @@ impl Error {
     }
 }
 
+/// Checks an option that must be positive and finite (when given). Errors:
+/// [`Error::InvalidOption`] naming `name` and the value.
+pub fn check_positive(name: &str, value: impl Into<Option<f64>>) -> Result<()> {
+    match value.into() {
+        Some(v) if !(v.is_finite() && v > 0.0) => {
+            Err(Error::invalid(name, format!("must be positive and finite, got {v}")))
+        }
+        _ => Ok(()),
+    }
+}
+
 /// Shorthand for `Result<T, onsager::Error>`.
 pub type Result<T> = std::result::Result<T, Error>;

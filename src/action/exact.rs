@@ -20,6 +20,7 @@ use onsager_closures::dot;
 use serde::{Deserialize, Serialize};
 
 use crate::data::{Dataset, EventTimes, StatePath};
+use crate::error::check_positive;
 use crate::estimate::{Details, EstimationProblem, Method, MethodRun, PathEstimate, Status};
 use crate::estimator::EstimatorOptions;
 use crate::model::observation::StateMeasurement;
@@ -85,15 +86,6 @@ impl ExactOptions {
     }
 }
 
-fn positive(name: &str, v: Option<f64>) -> Result<()> {
-    match v {
-        Some(x) if !(x.is_finite() && x > 0.0) => {
-            Err(invalid(name, format!("must be positive and finite, got {x}")))
-        }
-        _ => Ok(()),
-    }
-}
-
 impl EstimatorOptions for ExactOptions {
     /// `ksp`: [`ksp_estimate`].
     fn run<S: Sde + ?Sized>(
@@ -109,8 +101,8 @@ impl EstimatorOptions for ExactOptions {
         if let Some(g) = &self.grid {
             g.validate()?;
         }
-        positive("dt", self.dt)?;
-        positive("output_step", self.output_step)?;
+        check_positive("dt", self.dt)?;
+        check_positive("output_step", self.output_step)?;
         match self.extra_times.iter().find(|t| !t.is_finite()) {
             Some(t) => Err(invalid("extra_times", format!("must be finite, got {t}"))),
             None => Ok(()),

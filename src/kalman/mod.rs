@@ -152,13 +152,7 @@ pub struct KalmanOptions {
 
 /// Checks an optional integration step: positive and finite.
 fn check_dt(dt: Option<f64>) -> Result<()> {
-    match dt {
-        Some(dt) if !(dt.is_finite() && dt > 0.0) => Err(Error::InvalidOption {
-            name: "dt".into(),
-            reason: format!("must be positive and finite, got {dt}"),
-        }),
-        _ => Ok(()),
-    }
+    crate::error::check_positive("dt", dt)
 }
 
 impl EstimatorOptions for KalmanOptions {
@@ -177,12 +171,7 @@ impl EstimatorOptions for KalmanOptions {
     fn validate(&self) -> Result<()> {
         check_dt(self.dt)?;
         let u = self.unscented;
-        if !(u.alpha.is_finite() && u.alpha > 0.0) {
-            return Err(Error::InvalidOption {
-                name: "alpha".into(),
-                reason: format!("must be positive and finite, got {}", u.alpha),
-            });
-        }
+        crate::error::check_positive("alpha", u.alpha)?;
         if !u.kappa.is_finite() {
             return Err(Error::InvalidOption {
                 name: "kappa".into(),

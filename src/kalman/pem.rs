@@ -98,13 +98,7 @@ impl EstimatorOptions for PemOptions {
                 reason: "must be at least 1, got 0".into(),
             });
         }
-        if !(self.gradient_tolerance > 0.0 && self.gradient_tolerance.is_finite()) {
-            return Err(Error::InvalidOption {
-                name: "gradient_tolerance".into(),
-                reason: format!("must be positive and finite, got {}", self.gradient_tolerance),
-            });
-        }
-        Ok(())
+        crate::error::check_positive("gradient_tolerance", self.gradient_tolerance)
     }
 }
 

@@ -120,12 +120,7 @@ impl EstimatorOptions for ParticleOptions {
         if !(0.0..=1.0).contains(&self.ess_threshold) {
             return bad("ess_threshold", format!("must lie in [0, 1], got {}", self.ess_threshold));
         }
-        if let Some(dt) = self.dt {
-            if !(dt > 0.0 && dt.is_finite()) {
-                return bad("dt", format!("must be positive and finite, got {dt}"));
-            }
-        }
-        Ok(())
+        crate::error::check_positive("dt", self.dt)
     }
 }
 

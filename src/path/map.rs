@@ -58,13 +58,7 @@ impl EstimatorOptions for MapOptions {
 
     /// Checks a positive finite `step`.
     fn validate(&self) -> Result<()> {
-        match self.step {
-            Some(step) if !(step.is_finite() && step > 0.0) => Err(Error::InvalidOption {
-                name: "step".into(),
-                reason: format!("must be positive and finite, got {step}"),
-            }),
-            _ => Ok(()),
-        }
+        crate::error::check_positive("step", self.step)
     }
 }
 

@@ -33,6 +33,7 @@ use std::time::Instant;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
+use crate::error::check_positive;
 use crate::estimate::{Details, EstimationProblem, Method, MethodRun, PathEstimate};
 use crate::estimator::EstimatorOptions;
 use crate::model::observation::StateMeasurement;
@@ -177,16 +178,9 @@ impl ClosureOptions {
     }
 
     fn validate(&self) -> Result<()> {
-        if let Some(s) = self.output_step {
-            if !(s.is_finite() && s > 0.0) {
-                return Err(invalid("output_step", format!("must be positive and finite, got {s}")));
-            }
-        }
-        for (name, v) in [("rtol", self.rtol), ("atol", self.atol)] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(invalid(name, format!("must be positive and finite, got {v}")));
-            }
-        }
+        check_positive("output_step", self.output_step)?;
+        check_positive("rtol", self.rtol)?;
+        check_positive("atol", self.atol)?;
         if let Some(&t) = self.extra_times.iter().find(|&&t| !t.is_finite()) {
             return Err(invalid("extra_times", format!("must be finite, got {t}")));
         }

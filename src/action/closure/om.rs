@@ -40,6 +40,7 @@ use onsager_closures::Gaussian;
 use serde::{Deserialize, Serialize};
 
 use crate::data::StatePath;
+use crate::error::check_positive;
 use crate::estimate::{Details, EstimationProblem, Method, MethodRun, PathEstimate};
 use crate::estimator::EstimatorOptions;
 use crate::model::ad::{hessian_into, ScalarFn};
@@ -145,14 +146,8 @@ impl EstimatorOptions for MomentPathOptions {
     /// Checks a positive finite `step` and `tolerance`, at least one iteration and at least one
     /// Gauss–Hermite point.
     fn validate(&self) -> Result<()> {
-        if let Some(s) = self.step {
-            if !(s.is_finite() && s > 0.0) {
-                return Err(invalid("step", format!("must be positive and finite, got {s}")));
-            }
-        }
-        if !(self.tolerance.is_finite() && self.tolerance > 0.0) {
-            return Err(invalid("tolerance", format!("must be positive and finite, got {}", self.tolerance)));
-        }
+        check_positive("step", self.step)?;
+        check_positive("tolerance", self.tolerance)?;
         if self.max_iterations == 0 {
             return Err(invalid("max_iterations", "must be at least 1"));
         }
