@@ -216,6 +216,10 @@ estimators! {
     /// of Evensen & van Leeuwen (2000) ([`crate::kalman::enks()`]).
     Enks, "enks", EnksOptions,
         "ensemble Kalman smoother (stochastic EnKF with perturbed observations, Evensen & van Leeuwen 2000)";
+    /// Ensemble Kalman filter: the filtered part of `enks` ([`crate::kalman::enks()`] without the
+    /// smoother's updates).
+    Enkf, "enkf", EnksOptions,
+        "ensemble Kalman filter (stochastic, perturbed observations; Evensen 2003)";
 }
 
 impl Method {

@@ -135,13 +135,17 @@ impl EnksOptions {
 }
 
 impl EstimatorOptions for EnksOptions {
-    /// `enks`: [`enks()`] with its random numbers seeded by the problem's seed.
+    /// `enks`: [`enks()`]; `enkf`: [`enkf()`]; with their random numbers seeded by the problem's
+    /// seed.
     fn run<S: Sde + ?Sized>(
         &self,
-        _: Method,
+        method: Method,
         problem: &EstimationProblem<'_, S, StateMeasurement>,
     ) -> Result<MethodRun> {
         let mut rng = <rand::rngs::StdRng as rand::SeedableRng>::seed_from_u64(problem.seed);
+        if method == Method::Enkf {
+            return enkf(problem, self, &mut rng).map(MethodRun::from);
+        }
         enks(problem, self, &mut rng).map(MethodRun::from)
     }
 
@@ -485,6 +489,22 @@ where
     S: Sde + ?Sized,
     R: Rng + ?Sized,
 {
+    ensemble_pass(problem, options, rng, true)
+}
+
+/// The forward pass of the ensemble Kalman filter, and with `smooth` the smoother's updates of
+/// the stored earlier ensembles (E5); without, `smoothed` is empty and the cost is linear in
+/// the number of measurement times. The random numbers drawn are the same either way.
+fn ensemble_pass<S, R>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    options: &EnksOptions,
+    rng: &mut R,
+    smooth: bool,
+) -> Result<EnksSmoothing>
+where
+    S: Sde + ?Sized,
+    R: Rng + ?Sized,
+{
     let Plan { nodes, sigma, dynamics, dt } = plan(problem, options)?;
     let dim = dynamics.dim;
     let mut ensemble = initial_ensemble(problem, options.members, rng)?;
@@ -513,18 +533,24 @@ where
         }
         if !finite {
             failed_at = Some(node.t);
-            // Keep the times whose smoothed ensembles are still finite.
-            let good = store.iter().position(|e| e.iter().any(|v| !v.is_finite())).unwrap_or(store.len());
+            // Keep the times whose smoothed (or filtered) ensembles are still finite.
+            let good = match smooth {
+                true => store.iter().position(|e| e.iter().any(|v| !v.is_finite())).unwrap_or(store.len()),
+                false => filtered.len(),
+            };
             store.truncate(good);
             filtered.truncate(good);
             break;
         }
         filtered.push(ensemble_moments(&ensemble, dim));
-        store.push(ensemble.clone());
+        if smooth {
+            store.push(ensemble.clone());
+        }
     }
+    let times = nodes[..filtered.len()].iter().map(|nd| nd.t).collect();
     let (filtered_mean, filtered_sd) = filtered.into_iter().unzip();
     Ok(EnksSmoothing {
-        times: nodes[..store.len()].iter().map(|nd| nd.t).collect(),
+        times,
         states: dim,
         smoothed: store,
         filtered_mean,
@@ -552,10 +578,42 @@ where
     S: Sde + ?Sized,
     R: Rng + ?Sized,
 {
-    no_estimated_parameters(problem, Method::Enks.name())?;
+    ensemble_estimate(problem, options, rng, Method::Enks)
+}
+
+/// The ensemble Kalman filter as an estimator (`enkf`): the mean and standard deviation of the
+/// analysed ensemble at t₀ and the measurement times (E1–E4 without the smoother's updates; the
+/// filtered part of [`enks()`] with the same random numbers, at a cost linear in the number of
+/// measurement times). Details and errors as [`enks()`].
+pub fn enkf<S, R>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    options: &EnksOptions,
+    rng: &mut R,
+) -> Result<PathEstimate>
+where
+    S: Sde + ?Sized,
+    R: Rng + ?Sized,
+{
+    ensemble_estimate(problem, options, rng, Method::Enkf)
+}
+
+/// `enks` (the smoothed ensembles) or `enkf` (the filtered ones) as a [`PathEstimate`].
+fn ensemble_estimate<S, R>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    options: &EnksOptions,
+    rng: &mut R,
+    method: Method,
+) -> Result<PathEstimate>
+where
+    S: Sde + ?Sized,
+    R: Rng + ?Sized,
+{
+    no_estimated_parameters(problem, method.name())?;
     let start = Instant::now();
-    let out = ensemble_smoother(problem, options, rng)?;
-    let (mean, sd) = out.mean_and_sd();
+    let smooth = method != Method::Enkf;
+    let out = ensemble_pass(problem, options, rng, smooth)?;
+    let (mean, sd) =
+        if smooth { out.mean_and_sd() } else { (out.filtered_mean.clone(), out.filtered_sd.clone()) };
     let details = EnksDetails {
         members: options.members,
         inflation: options.inflation,
@@ -565,7 +623,7 @@ where
         failed_at: out.failed_at,
     };
     Ok(PathEstimate {
-        method: Method::Enks,
+        method,
         path: StatePath { names: problem.sde.state_names(), times: out.times, values: mean, sd: Some(sd) },
         theta_names: problem.sde.param_names(),
         theta: problem.theta.to_vec(),

@@ -330,3 +330,26 @@ fn a_non_finite_ensemble_is_a_numerical_failure_with_the_path_up_to_it() {
     assert_eq!(details.failed_at, Some(3.0));
     assert!(details.log_likelihood.is_nan());
 }
+
+/// `enkf` is the filtered part of `enks`: the same random numbers give, bit for bit, the
+/// smoother's filtered moments (whose identity with the Kalman filter the tests above check),
+/// without the smoother's updates of the stored ensembles.
+#[test]
+fn the_ensemble_kalman_filter_is_the_filtered_part_of_the_smoother() {
+    let record = double_well();
+    let problem = EstimationProblem { seed: 9, ..record.problem(&[]) };
+    let options = EnksOptions::default().with_members(60);
+    let filter = Estimator::Enkf(options).run(&problem).unwrap().estimate;
+    let smoothing = ensemble_smoother(&problem, &options, &mut StdRng::seed_from_u64(9)).unwrap();
+    assert_eq!((filter.method, filter.status), (Method::Enkf, Status::Converged));
+    assert_eq!(filter.path.times, smoothing.times);
+    assert_eq!(filter.path.values, smoothing.filtered_mean);
+    assert_eq!(filter.path.sd.as_ref().unwrap(), &smoothing.filtered_sd);
+    let details = filter.details.get::<EnksDetails>().unwrap();
+    assert_eq!((details.analyses, details.log_likelihood), (smoothing.analyses, smoothing.log_likelihood));
+    // At the last time the filter is the smoother.
+    let smoothed = Estimator::Enks(options).run(&problem).unwrap().estimate;
+    assert_eq!(smoothed.path.values.last(), filter.path.values.last());
+    assert_ne!(smoothed.path.values[0], filter.path.values[0]);
+    assert!(matches!(Estimator::parse("enkf:members=1"), Err(Error::EstimatorOption { .. })));
+}
