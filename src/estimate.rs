@@ -116,9 +116,19 @@ pub struct Details(Option<Arc<Written>>);
 
 /// Typed details with their JSON form.
 struct Written {
-    typed: Box<dyn Any + Send + Sync>,
-    debug: String,
+    typed: Box<dyn Typed>,
     json: Map<String, Value>,
+}
+
+/// A details struct behind the type erasure: readable back as itself, printable.
+trait Typed: Any + fmt::Debug + Send + Sync {
+    fn as_any(&self) -> &dyn Any;
+}
+
+impl<T: Any + fmt::Debug + Send + Sync> Typed for T {
+    fn as_any(&self) -> &dyn Any {
+        self
+    }
 }
 
 impl Details {
@@ -128,13 +138,14 @@ impl Details {
             Ok(Value::Object(map)) => map,
             _ => Map::new(),
         };
-        let debug = format!("{details:?}");
-        Details(Some(Arc::new(Written { typed: Box::new(details), debug, json })))
+        Details(Some(Arc::new(Written { typed: Box::new(details), json })))
     }
 
     /// The typed details, when they are a `T`.
     pub fn get<T: 'static>(&self) -> Option<&T> {
-        self.0.as_ref()?.typed.downcast_ref::<T>()
+        // Through `&dyn Typed`: the box itself is `Typed` too, and its `as_any` is not the content's.
+        let typed: &dyn Typed = &*self.0.as_ref()?.typed;
+        typed.as_any().downcast_ref::<T>()
     }
 
     /// The details as a JSON object (empty when there are none).
@@ -164,7 +175,7 @@ impl std::ops::Index<&str> for Details {
 impl fmt::Debug for Details {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match &self.0 {
-            Some(w) => f.write_str(&w.debug),
+            Some(w) => w.typed.fmt(f),
             None => f.write_str("Details(none)"),
         }
     }
