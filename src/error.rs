@@ -71,6 +71,16 @@ pub enum Error {
         /// What is wrong.
         reason: String,
     },
+    /// The shards of a sharded experiment cannot be merged: they are not parts of one run, a
+    /// row is duplicated or misplaced, or a shard is still running. Names the folder; the
+    /// reason names the files.
+    #[error("cannot merge the shards in {}: {reason}", .path.display())]
+    Merge {
+        /// The output folder being merged.
+        path: PathBuf,
+        /// Why, naming the shard folders or files at fault.
+        reason: String,
+    },
     /// An I/O error, with the path it concerns.
     #[error("{}: {source}", .path.display())]
     Io {

@@ -28,6 +28,8 @@
 pub mod builtin;
 pub mod report;
 pub mod runner;
+pub mod shard;
+pub mod slurm;
 pub mod spec;
 
 #[cfg(test)]
@@ -35,4 +37,5 @@ mod tests;
 
 pub use builtin::{builtin, BUILTIN};
 pub use runner::{replicate_seed, run, Progress, Row, RunOptions, RunReport};
+pub use shard::{merge, MergeOptions, MergeReport, MergeStatus, Missing, Shard};
 pub use spec::{EstimatorSpec, Experiment, ExperimentSpec, Metric, Scenario, ScenarioEstimator};

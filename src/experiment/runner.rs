@@ -12,8 +12,9 @@ use rand::rngs::StdRng;
 use rand::SeedableRng;
 use rayon::prelude::*;
 
-use super::report;
-use super::spec::{Experiment, Metric, Scenario, ScenarioEstimator};
+use super::report::{self, Results};
+use super::shard::{self, Shard};
+use super::spec::{Experiment, ExperimentSpec, Metric, Scenario, ScenarioEstimator};
 use crate::data::{Dataset, StatePath};
 use crate::estimate::{EstimationProblem, PathEstimate, RowStatus};
 use crate::estimator::Method;
@@ -45,6 +46,9 @@ pub struct RunOptions {
     pub max_rows: Option<usize>,
     /// Write the plots (default true).
     pub plots: bool,
+    /// Run only this shard's replicates, into `out/shards/I-of-N` (see [`super::shard`]); no
+    /// summary then (the merge writes it). Default: none, the whole experiment.
+    pub shard: Option<Shard>,
 }
 
 impl RunOptions {
@@ -60,6 +64,7 @@ impl RunOptions {
             seed: None,
             max_rows: None,
             plots: true,
+            shard: None,
         }
     }
 }
@@ -113,11 +118,12 @@ pub struct RunReport {
     pub resumed: usize,
     /// Rows of the whole experiment.
     pub total: usize,
-    /// Whether every row is present (false when stopped by `max_rows`).
+    /// Whether every row is present (of the shard, for a shard; false when stopped by
+    /// `max_rows`).
     pub complete: bool,
-    /// `results.csv`.
+    /// `results.csv` (`out/shards/I-of-N/results.csv` for a shard).
     pub results: PathBuf,
-    /// `summary.json` (written when complete).
+    /// `summary.json` (written when complete, unless the run is a shard).
     pub summary: Option<PathBuf>,
     /// The plots written (stems; each has `.svg` and `.png`).
     pub plots: Vec<PathBuf>,
@@ -155,7 +161,7 @@ fn header(metric_cols: &[String], theta_cols: &[String]) -> Vec<String> {
 }
 
 /// One CSV line (with its newline), quoted where needed.
-fn csv_line(fields: &[String]) -> String {
+pub(crate) fn csv_line(fields: &[String]) -> String {
     let mut w = csv::WriterBuilder::new().terminator(csv::Terminator::Any(b'\n')).from_writer(Vec::new());
     w.write_record(fields).expect("writing to memory");
     String::from_utf8(w.into_inner().expect("writing to memory")).expect("UTF-8 fields")
@@ -171,7 +177,8 @@ fn number(v: f64) -> String {
 }
 
 impl Row {
-    fn fields(&self) -> Vec<String> {
+    /// The fields of its `results.csv` line.
+    pub(crate) fn fields(&self) -> Vec<String> {
         let mut f = vec![
             self.scenario.clone(),
             self.replicate.to_string(),
@@ -286,22 +293,35 @@ fn io_error(path: &Path) -> impl Fn(std::io::Error) -> Error + '_ {
     move |source| Error::Io { path: path.to_path_buf(), source }
 }
 
-/// Opens the output folder: checks a resumed run's key, reads its rows, writes `run.json` and
-/// the header of a new `results.csv`.
+/// Opens the output folder: locks `results.csv` (so that a second run of the same folder or
+/// shard fails instead of writing its rows twice), checks a resumed run's key, reads its rows,
+/// writes `run.json` and the header of a new `results.csv`.
 fn open_output(out: &Path, header: &[String], key: &str, resume: bool) -> Result<Output> {
     std::fs::create_dir_all(out).map_err(io_error(out))?;
     let results = out.join("results.csv");
     let run_json = out.join("run.json");
-    let done = if results.exists() {
-        if !resume {
-            return Err(Error::InvalidOption {
-                name: "--out".into(),
-                reason: format!(
-                    "{} exists; pass --resume to continue it, or choose another folder",
-                    results.display()
-                ),
-            });
-        }
+    let existed = results.exists();
+    if existed && !resume {
+        return Err(Error::InvalidOption {
+            name: "--out".into(),
+            reason: format!(
+                "{} exists; pass --resume to continue it, or choose another folder",
+                results.display()
+            ),
+        });
+    }
+    let mut file = OpenOptions::new().create(true).append(true).open(&results).map_err(io_error(&results))?;
+    // Advisory and best effort: a file system without locks runs unguarded.
+    if let Err(std::fs::TryLockError::WouldBlock) = file.try_lock() {
+        return Err(Error::InvalidOption {
+            name: "--out".into(),
+            reason: format!(
+                "{} is being written by another run of the same folder (or shard); wait for it to end",
+                results.display()
+            ),
+        });
+    }
+    let done = if existed {
         let recorded = std::fs::read_to_string(&run_json).unwrap_or_default();
         if recorded.trim() != key {
             return Err(Error::InvalidOption {
@@ -317,7 +337,6 @@ fn open_output(out: &Path, header: &[String], key: &str, resume: bool) -> Result
         Vec::new()
     };
     std::fs::write(&run_json, format!("{key}\n")).map_err(io_error(&run_json))?;
-    let mut file = OpenOptions::new().create(true).append(true).open(&results).map_err(io_error(&results))?;
     if done.is_empty() && file.metadata().map(|m| m.len()).unwrap_or(0) == 0 {
         file.write_all(csv_line(header).as_bytes()).map_err(io_error(&results))?;
         file.flush().map_err(io_error(&results))?;
@@ -490,6 +509,52 @@ impl Shared<'_> {
     }
 }
 
+/// Writes `summary.json` of `table` in `out` and, with `plots`, the summary plots in
+/// `out/plots`; returns the summary's path and the plots' stems.
+pub(crate) fn finish(
+    out: &Path,
+    spec: &ExperimentSpec,
+    scenarios: &[Scenario],
+    table: &Results,
+    quick: bool,
+    plots: bool,
+) -> Result<(PathBuf, Vec<PathBuf>)> {
+    let path = out.join("summary.json");
+    let json = report::summary(spec, scenarios, table, quick);
+    let pretty = serde_json::to_string_pretty(&json).expect("a JSON value serialises");
+    std::fs::write(&path, pretty + "\n").map_err(io_error(&path))?;
+    let stems = if plots { report::summary_plots(scenarios, table, &out.join("plots"))? } else { Vec::new() };
+    Ok((path, stems))
+}
+
+/// The (scenario, replicate) units of the run (those of `shard` only, when given) with at
+/// least one row not in `done`; the rows of the run and how many of them are in `done`.
+fn units(
+    scenarios: &[Scenario],
+    replicates: usize,
+    shard: Option<Shard>,
+    done: &[Row],
+) -> (Vec<(usize, usize)>, usize, usize) {
+    let (mut units, mut total, mut resumed) = (Vec::new(), 0, 0);
+    let is_done = |s: &str, r: usize, e: &str| {
+        done.iter().any(|row| row.scenario == s && row.replicate == r && row.estimator == e)
+    };
+    for (si, s) in scenarios.iter().enumerate() {
+        for r in 0..replicates {
+            if shard.is_some_and(|sh| !sh.owns(si, r, scenarios.len())) {
+                continue;
+            }
+            let missing = s.estimators.iter().filter(|e| !is_done(&s.name, r, &e.label)).count();
+            total += s.estimators.len();
+            resumed += s.estimators.len() - missing;
+            if missing > 0 {
+                units.push((si, r));
+            }
+        }
+    }
+    (units, total, resumed)
+}
+
 /// Runs the experiment `spec` with `options`: every (scenario, replicate, estimator) row is
 /// appended to `out/results.csv` when its estimator finishes (flushed), `progress` is called
 /// after each row, and at the end `summary.json` and the plots are written.
@@ -498,8 +563,12 @@ impl Shared<'_> {
 /// a row with its status. With `resume`, the rows of an earlier run of the same spec and seed
 /// in `out` are kept (a truncated last line is dropped) and only the missing rows are computed.
 ///
+/// With [`RunOptions::shard`], only the shard's (scenario, replicate) units run, into
+/// `out/shards/I-of-N/` ([`super::shard`]: the assignment, the files); their rows are those
+/// an unsharded run writes for them, and [`super::shard::merge`] writes the summary.
+///
 /// Errors: an invalid spec (naming the key), an existing `results.csv` without `resume`, a
-/// resumed folder of another spec, I/O, a simulation error.
+/// resumed folder of another spec, a folder another run is writing, I/O, a simulation error.
 pub fn run(
     experiment: &Experiment,
     options: &RunOptions,
@@ -517,23 +586,13 @@ pub fn run(
     let replicates = spec.replicates;
     let (metric_cols, theta_cols) = columns(&scenarios);
     let header = header(&metric_cols, &theta_cols);
+    let folder = options.shard.map_or_else(|| options.out.clone(), |s| s.folder(&options.out));
     let Output { results, file, done } =
-        open_output(&options.out, &header, &experiment.resume_key(options.quick), options.resume)?;
-    // The work: (scenario, replicate) units with at least one missing row.
-    let (mut units, mut total, mut resumed) = (Vec::new(), 0, 0);
-    let is_done = |s: &str, r: usize, e: &str| {
-        done.iter().any(|row| row.scenario == s && row.replicate == r && row.estimator == e)
-    };
-    for (si, s) in scenarios.iter().enumerate() {
-        for r in 0..replicates {
-            let missing = s.estimators.iter().filter(|e| !is_done(&s.name, r, &e.label)).count();
-            total += s.estimators.len();
-            resumed += s.estimators.len() - missing;
-            if missing > 0 {
-                units.push((si, r));
-            }
-        }
+        open_output(&folder, &header, &experiment.resume_key(options.quick), options.resume)?;
+    if let Some(s) = options.shard {
+        shard::write_record(&folder, s, replicates)?;
     }
+    let (units, total, resumed) = units(&scenarios, replicates, options.shard, &done);
     let shared = Shared {
         scenarios: &scenarios,
         seed: spec.seed,
@@ -561,19 +620,14 @@ pub fn run(
     let mut plots = shared.plots.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner);
     let complete = resumed + written == total;
     let mut summary = None;
-    if complete {
+    if complete && options.shard.is_none() {
         let text = std::fs::read_to_string(&results).map_err(io_error(&results))?;
         let mut table = report::parse_results(&text, &results)?;
         // A resumed run may ask for fewer replicates than were computed: summarise its own.
         table.rows.retain(|r| r.replicate < replicates && scenarios.iter().any(|s| s.name == r.scenario));
-        let path = options.out.join("summary.json");
-        let json = report::summary(&spec, &scenarios, &table, options.quick);
-        let pretty = serde_json::to_string_pretty(&json).expect("a JSON value serialises");
-        std::fs::write(&path, pretty + "\n").map_err(io_error(&path))?;
+        let (path, stems) = finish(&options.out, &spec, &scenarios, &table, options.quick, options.plots)?;
         summary = Some(path);
-        if options.plots {
-            plots.extend(report::summary_plots(&scenarios, &table, &options.out.join("plots"))?);
-        }
+        plots.extend(stems);
     }
     plots.sort();
     Ok(RunReport { written, resumed, total, complete, results, summary, plots })
