@@ -80,7 +80,12 @@ fn main() -> ExitCode {
         Some(Command::Simulate(args)) => cli::simulate::run(&args).map(|()| true),
         Some(Command::Estimate(args)) => cli::estimate::run(&args),
         Some(Command::Compare(args)) => cli::compare::run(&args),
-        Some(Command::Experiment(args)) => cli::experiment::run_command(&args).map(|()| true),
+        Some(Command::Experiment(args)) => match cli::experiment::run_command(&args) {
+            Ok(cli::experiment::Finished::Done) => Ok(true),
+            // A merge with missing rows: they are listed on stderr; nothing was written.
+            Ok(cli::experiment::Finished::Incomplete) => return ExitCode::FAILURE,
+            Err(e) => Err(e),
+        },
         None => main_job(),
     };
     match result {
