@@ -24,7 +24,7 @@ fn options(out: &Path, quick: bool, jobs: usize) -> RunOptions {
 
 /// The rows of a results.csv as a set of lines without the timing column (`solve_seconds`,
 /// the only column that legitimately differs between two runs).
-fn row_set(out: &Path) -> BTreeSet<String> {
+pub(crate) fn row_set(out: &Path) -> BTreeSet<String> {
     let text = std::fs::read_to_string(out.join("results.csv")).unwrap();
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();

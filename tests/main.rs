@@ -8,3 +8,4 @@ mod estimators;
 mod experiment;
 mod golden;
 mod path;
+mod shard;
