@@ -1,6 +1,7 @@
 //! The Monte Carlo runner: replicates in parallel, one `results.csv` row per (scenario,
 //! replicate, estimator) appended as soon as the estimator finishes, resumable.
 
+use std::collections::HashSet;
 use std::fs::OpenOptions;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -344,13 +345,26 @@ fn open_output(out: &Path, header: &[String], key: &str, resume: bool) -> Result
     Ok(Output { results, file, done })
 }
 
+/// The (scenario, replicate, estimator) of the rows an earlier run left (found by `--resume`).
+struct Done(HashSet<(String, usize, String)>);
+
+impl Done {
+    fn new(rows: &[Row]) -> Done {
+        Done(rows.iter().map(|r| (r.scenario.clone(), r.replicate, r.estimator.clone())).collect())
+    }
+
+    fn contains(&self, scenario: &str, replicate: usize, label: &str) -> bool {
+        self.0.contains(&(scenario.to_string(), replicate, label.to_string()))
+    }
+}
+
 /// What every worker of a run shares.
 struct Shared<'a> {
     scenarios: &'a [Scenario],
     seed: u64,
     metric_cols: &'a [String],
     theta_cols: &'a [String],
-    done: &'a [Row],
+    done: &'a Done,
     options: &'a RunOptions,
     results: &'a Path,
     writer: Mutex<std::fs::File>,
@@ -367,9 +381,7 @@ type Outcome = std::result::Result<PathEstimate, String>;
 
 impl Shared<'_> {
     fn is_done(&self, scenario: &str, replicate: usize, label: &str) -> bool {
-        self.done
-            .iter()
-            .any(|row| row.scenario == scenario && row.replicate == replicate && row.estimator == label)
+        self.done.contains(scenario, replicate, label)
     }
 
     /// Runs estimator `e` on the replicate's data with its seed (a function of the replicate's
@@ -533,12 +545,10 @@ fn units(
     scenarios: &[Scenario],
     replicates: usize,
     shard: Option<Shard>,
-    done: &[Row],
+    done: &Done,
 ) -> (Vec<(usize, usize)>, usize, usize) {
     let (mut units, mut total, mut resumed) = (Vec::new(), 0, 0);
-    let is_done = |s: &str, r: usize, e: &str| {
-        done.iter().any(|row| row.scenario == s && row.replicate == r && row.estimator == e)
-    };
+    let is_done = |s: &str, r: usize, e: &str| done.contains(s, r, e);
     for (si, s) in scenarios.iter().enumerate() {
         for r in 0..replicates {
             if shard.is_some_and(|sh| !sh.owns(si, r, scenarios.len())) {
@@ -592,6 +602,7 @@ pub fn run(
     if let Some(s) = options.shard {
         shard::write_record(&folder, s, replicates)?;
     }
+    let done = Done::new(&done);
     let (units, total, resumed) = units(&scenarios, replicates, options.shard, &done);
     let shared = Shared {
         scenarios: &scenarios,
