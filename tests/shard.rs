@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use onsager::experiment::builtin::builtin_text;
 use onsager::experiment::report::parse_results;
 use onsager::experiment::{builtin, merge, run, Experiment, MergeOptions, MergeStatus, RunOptions, Shard};
 use onsager::Error;
@@ -263,6 +264,14 @@ fn shards_of_different_runs_are_refused() {
         assert!(err.contains(message) && err.contains("not parts of one run"), "{case}: {err}");
         let _ = std::fs::remove_dir_all(&out);
     }
+    // The same name, another spec (a spec file edited between two shards).
+    let out = scratch("differ-edited");
+    run(&tanh, &options(&out, None, shard(0, 3)), &|_| {}).unwrap();
+    let text = builtin_text("tanh-limits").unwrap().replace("dt = 0.005", "dt = 0.01");
+    run(&Experiment::from_toml(&text).unwrap(), &options(&out, None, shard(1, 3)), &|_| {}).unwrap();
+    let err = merge_error(&out);
+    assert!(err.contains("different specs named `tanh-limits`"), "{err}");
+    let _ = std::fs::remove_dir_all(&out);
     // Another number of replicates (a shard rerun with another --replicates).
     let out = scratch("differ-replicates");
     run_shards(&tanh, &out, None, 2, &[0]);

@@ -325,7 +325,9 @@ fn check_same_run(dir: &Path, first: &ShardData, other: &ShardData) -> Result<()
                 .and_then(|t| t.get("name").and_then(|n| n.as_str().map(String::from)))
                 .unwrap_or_default()
         };
-        let reason = if ka.spec != kb.spec {
+        let reason = if ka.spec != kb.spec && name(&ka) == name(&kb) {
+            format!("different specs named `{}` in {a} and {b} (a spec file edited between them?)", name(&ka))
+        } else if ka.spec != kb.spec {
             format!("different specs (`{}` in {a}, `{}` in {b})", name(&ka), name(&kb))
         } else if ka.seed != kb.seed {
             format!("seed {} in {a}, seed {} in {b}", ka.seed, kb.seed)
