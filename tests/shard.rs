@@ -202,6 +202,13 @@ fn a_merge_with_a_shard_missing_lists_its_replicates_and_fails() {
         stderr.contains("shard 1/3: 4 rows missing") && stderr.contains("scenario h=0.05: replicates 0"),
         "{stderr}"
     );
+    // The command that reruns it, with the run's replicates, seed and --quick.
+    assert!(
+        stderr.contains(
+            "onsager experiment run tanh-limits --replicates 2 --seed 1 --quick --shard 1/3 --resume"
+        ),
+        "{stderr}"
+    );
     assert!(stderr.contains("--array=1"), "{stderr}");
     let _ = std::fs::remove_dir_all(&out);
 }

@@ -9,7 +9,8 @@ use clap::{Args, Subcommand};
 use onsager::experiment::builtin::builtin_text;
 use onsager::experiment::slurm::{self, SlurmOptions};
 use onsager::experiment::{
-    merge, run, Experiment, MergeOptions, MergeStatus, Missing, Progress, RunOptions, Shard, BUILTIN,
+    merge, run, Experiment, MergeOptions, MergeReport, MergeStatus, Missing, Progress, RunOptions, Shard,
+    BUILTIN,
 };
 use onsager::{Error, Result};
 
@@ -99,9 +100,9 @@ pub struct RunArgs {
     /// Run the spec's quick version (few replicates, short horizons).
     #[arg(long)]
     pub quick: bool,
-    /// Run only shard I of N (from 0): the (scenario, replicate) units whose index
-    /// replicate·S + scenario (S scenarios) is I modulo N, into `OUT/shards/I-of-N`; merge the
-    /// shards with `onsager experiment merge OUT`.
+    /// Run only shard I of N (from 0) into `OUT/shards/I-of-N`: the (scenario, replicate)
+    /// units k = replicate·S + scenario (S scenarios) with (k + ⌊k/L⌋) mod N = I, L = lcm(S, N)
+    /// (docs/cluster.md); merge the shards with `onsager experiment merge OUT`.
     #[arg(long, value_name = "I/N")]
     pub shard: Option<Shard>,
 }
@@ -280,8 +281,9 @@ fn ranges(replicates: &[usize]) -> String {
     parts.join(", ")
 }
 
-/// The missing rows on stderr, by shard and scenario, with what reruns them.
-fn print_missing(dir: &std::path::Path, missing: &[Missing], count: usize) {
+/// The missing rows on stderr, by shard and scenario, with the commands that rerun them.
+fn print_missing(dir: &std::path::Path, report: &MergeReport, missing: &[Missing]) {
+    let count = report.count;
     let mut err = std::io::stderr().lock();
     let mut shards: Vec<usize> = missing.iter().map(|m| m.shard.index()).collect();
     shards.dedup();
@@ -298,11 +300,17 @@ fn print_missing(dir: &std::path::Path, missing: &[Missing], count: usize) {
         }
     }
     let list: Vec<String> = shards.iter().map(|i| i.to_string()).collect();
+    let which =
+        if list.len() == 1 { format!("shard {}", list[0]) } else { format!("shards {}", list.join(", ")) };
+    let shard = if list.len() == 1 { format!("{}/{count}", list[0]) } else { format!("I/{count}") };
     let _ = writeln!(
         err,
-        "rerun the shards {} with `onsager experiment run NAME --shard I/{count} --resume --out {}` \
+        "rerun {which} with `onsager experiment run {} --replicates {} --seed {}{} --shard {shard} --resume --out {}` \
          (on Slurm: sbatch --array={} {}/array.sbatch), then merge again",
-        list.join(", "),
+        if BUILTIN.iter().any(|(n, _)| *n == report.experiment) { report.experiment.as_str() } else { "SPEC.toml" },
+        report.replicates,
+        report.seed,
+        if report.quick { " --quick" } else { "" },
         dir.display(),
         list.join(","),
         slurm::folder(dir).display()
@@ -338,7 +346,7 @@ fn merge_shards(a: &MergeArgs) -> Result<Finished> {
                 a.dir.display(),
                 report.total
             );
-            print_missing(&a.dir, missing, report.count);
+            print_missing(&a.dir, &report, missing);
             Ok(Finished::Incomplete)
         }
     }

@@ -3,9 +3,13 @@
 //!
 //! The work of an experiment is its (scenario, replicate) units. With `S` scenarios (in the
 //! order of the grid), unit (s, r) is the `k = r·S + s`-th, counting replicate by replicate,
-//! and belongs to shard `k mod N` of `N` ([`Shard::owns`]). So each shard gets every N-th
-//! unit, the shards differ by at most one unit, every scenario is spread over all of them, and
-//! growing the number of replicates later does not move a unit to another shard.
+//! and belongs to shard `(k + ⌊k/L⌋) mod N` of `N`, where `L = lcm(S, N)`
+//! ([`Shard::assigned`]): the units are dealt round-robin, and the deal shifts by one shard
+//! after every `L` units, so that a scenario does not stay on the same shards when `S` and `N`
+//! have a common factor (with `S = N = 3`, plain `k mod N` would give each shard one
+//! scenario). So the shards differ by at most one unit in all and by at most one replicate of
+//! each scenario, and growing the number of replicates later does not move a unit to another
+//! shard.
 //!
 //! Shard `I` of `N` writes `OUT/shards/I-of-N/` ([`Shard::folder`]): its `results.csv` (the
 //! rows of its units, exactly those an unsharded run with the same seed writes for them, since
@@ -67,11 +71,14 @@ impl Shard {
     }
 
     /// The shard (of `count`) that runs replicate `replicate` of scenario `scenario` (its index
-    /// in the grid) when the experiment has `scenarios` scenarios: `(replicate·scenarios +
-    /// scenario) mod count`.
+    /// in the grid) when the experiment has `scenarios` scenarios: `(k + ⌊k/L⌋) mod count`
+    /// with `k = replicate·scenarios + scenario` and `L = lcm(scenarios, count)` (see the
+    /// [module](self)).
     pub fn assigned(scenario: usize, replicate: usize, scenarios: usize, count: usize) -> usize {
-        let k = replicate as u128 * scenarios as u128 + scenario as u128;
-        (k % count.max(1) as u128) as usize
+        let (s, n) = (scenarios.max(1) as u128, count.max(1) as u128);
+        let k = replicate as u128 * s + scenario as u128;
+        let lcm = s / gcd(s, n) * n;
+        ((k + k / lcm) % n) as usize
     }
 
     /// Whether this shard runs replicate `replicate` of scenario `scenario` (see
@@ -89,6 +96,14 @@ impl Shard {
     fn from_folder_name(name: &str) -> Option<Shard> {
         let (i, n) = name.split_once("-of-")?;
         Shard::try_new(i.parse().ok()?, n.parse().ok()?).ok()
+    }
+}
+
+fn gcd(a: u128, b: u128) -> u128 {
+    if b == 0 {
+        a
+    } else {
+        gcd(b, a % b)
     }
 }
 
@@ -204,6 +219,8 @@ pub struct MergeReport {
     pub experiment: String,
     /// Whether the shards ran the quick version.
     pub quick: bool,
+    /// The seed the shards ran with.
+    pub seed: u64,
     /// The number of shards N.
     pub count: usize,
     /// Replicates per scenario.
@@ -350,13 +367,13 @@ fn check_same_run(dir: &Path, first: &ShardData, other: &ShardData) -> Result<()
 }
 
 /// The experiment the shards ran, from their resume key and replicates.
-fn experiment_of(dir: &Path, data: &ShardData) -> Result<(Experiment, bool)> {
+fn experiment_of(dir: &Path, data: &ShardData) -> Result<(Experiment, RunKey)> {
     let key: RunKey = serde_json::from_str(&data.key).map_err(|e| {
         refuse(dir, format!("{}: not a run key: {e}", data.folder.join("run.json").display()))
     })?;
     let experiment =
         Experiment::from_toml(&key.spec)?.with_seed(key.seed).with_replicates(data.record.replicates);
-    Ok((experiment, key.quick))
+    Ok((experiment, key))
 }
 
 /// Every row once, each in the shard that runs it; the rows sorted by scenario (grid order),
@@ -465,7 +482,7 @@ pub fn merge(options: &MergeOptions) -> Result<MergeReport> {
     for d in &data[1..] {
         check_same_run(dir, &data[0], d)?;
     }
-    let (experiment, quick) = experiment_of(dir, &data[0])?;
+    let (experiment, RunKey { quick, seed, .. }) = experiment_of(dir, &data[0])?;
     let scenarios = experiment.scenarios(quick)?;
     let spec = scenarios[0].spec.clone();
     let (count, replicates, key) = (data[0].shard.count, data[0].record.replicates, data[0].key.clone());
@@ -483,6 +500,7 @@ pub fn merge(options: &MergeOptions) -> Result<MergeReport> {
     let report = |status| MergeReport {
         experiment: spec.name.clone(),
         quick,
+        seed,
         count,
         replicates,
         shards: shards.clone(),
@@ -533,24 +551,36 @@ mod tests {
     use super::*;
 
     #[test]
-    fn every_unit_falls_to_exactly_one_shard_and_the_shards_are_balanced() {
-        for (scenarios, replicates, count) in [(1, 1, 1), (2, 2, 3), (9, 50, 7), (3, 20, 40), (1, 2000, 16)] {
+    fn every_unit_falls_to_one_shard_and_the_shards_share_every_scenario_evenly() {
+        let cases = [(1, 1, 1), (2, 2, 3), (9, 50, 7), (3, 20, 40), (1, 2000, 16), (3, 60, 3), (9, 2000, 40)];
+        let more = [(4, 37, 2), (6, 25, 4), (9, 31, 6), (9, 100, 9), (2, 5, 5), (12, 13, 8)];
+        for (scenarios, replicates, count) in cases.into_iter().chain(more) {
             let shards: Vec<Shard> = (0..count).map(|i| Shard::try_new(i, count).unwrap()).collect();
-            let mut sizes = vec![0usize; count];
+            let mut sizes = vec![vec![0usize; count]; scenarios];
             for s in 0..scenarios {
                 for r in 0..replicates {
                     let owners: Vec<usize> =
                         shards.iter().filter(|sh| sh.owns(s, r, scenarios)).map(|sh| sh.index()).collect();
                     assert_eq!(owners, [Shard::assigned(s, r, scenarios, count)]);
-                    sizes[owners[0]] += 1;
+                    sizes[s][owners[0]] += 1;
                 }
             }
-            let (min, max) = (sizes.iter().min().unwrap(), sizes.iter().max().unwrap());
-            assert!(max - min <= 1, "{scenarios}×{replicates} over {count}: {sizes:?}");
+            let spread = |v: &[usize]| v.iter().max().unwrap() - v.iter().min().unwrap();
+            let all: Vec<usize> = (0..count).map(|i| sizes.iter().map(|s| s[i]).sum()).collect();
+            assert!(spread(&all) <= 1, "{scenarios}×{replicates} over {count}: {all:?}");
+            for (s, per_shard) in sizes.iter().enumerate() {
+                assert!(
+                    spread(per_shard) <= 1,
+                    "{scenarios}×{replicates} over {count}, scenario {s}: {per_shard:?}"
+                );
+            }
         }
-        // Unit k = replicate·S + scenario goes to k mod N: (scenario 1, replicate 2) of 3
-        // scenarios is unit 7, shard 3 of 4; growing the replicates moves no unit.
+        // Unit k = replicate·S + scenario goes to (k + ⌊k/L⌋) mod N, L = lcm(S, N):
+        // (scenario 1, replicate 2) of 3 scenarios is unit 7, L = 12, shard 3 of 4;
+        // (scenario 0, replicate 1) of 3 is unit 3, L = 3, shard (3 + 1) mod 3 = 1 of 3.
         assert_eq!(Shard::assigned(1, 2, 3, 4), 3);
+        assert_eq!(Shard::assigned(0, 1, 3, 3), 1);
+        // Growing the replicates moves no unit: the rule does not involve their number.
     }
 
     #[test]
