@@ -215,7 +215,8 @@ impl Comparison {
     }
 
     /// All estimated paths in one long table: `method,t,<states>,sd_<states>` (the estimator's
-    /// label in `method`; empty sd where an estimate has none).
+    /// label in `method`; the sd cells empty where an estimate has none, or a NaN), the same
+    /// columns whatever the estimators.
     pub fn write_paths_csv(&self, path: &std::path::Path, state_names: &[String]) -> Result<()> {
         let io = |source| crate::Error::Io { path: path.to_path_buf(), source };
         let mut w = csv::Writer::from_path(path).map_err(|e| match e.into_kind() {
@@ -232,7 +233,11 @@ impl Comparison {
                 let mut rec = vec![label.to_string(), format!("{t}")];
                 rec.extend(est.path.values[i].iter().map(|v| format!("{v}")));
                 match &est.path.sd {
-                    Some(sd) => rec.extend(sd[i].iter().map(|v| format!("{v}"))),
+                    Some(sd) => {
+                        rec.extend(
+                            sd[i].iter().map(|v| if v.is_nan() { String::new() } else { format!("{v}") }),
+                        )
+                    }
                     None => rec.extend(state_names.iter().map(|_| String::new())),
                 }
                 w.write_record(&rec).map_err(csv_err)?;
@@ -338,5 +343,24 @@ mod tests {
         assert!(svg.contains("uks") && svg.contains("truth"));
         let bad = StatePath { names: vec!["q".into()], ..truth.clone() };
         assert!(compare(&problem, &methods, Some(&bad), &options).is_err());
+    }
+
+    #[test]
+    fn paths_csv_has_the_sd_columns_whatever_the_estimators() {
+        let mut p = preset("double-well").unwrap();
+        (p.t_end, p.dt, p.sample_every) = (5.0, 0.01, 1.0);
+        let PresetRecord { preset: p, truth, data } = PresetRecord::simulate_from(p, 2, &[1.0], &[]).unwrap();
+        let problem = p.problem(&data, &[]);
+        // jme without its Laplace sd, so with no sd at all.
+        let methods = crate::estimator::parse_list("jme:laplace_max_states=0").unwrap();
+        let c = compare(&problem, &methods, Some(&truth), &CompareOptions::default()).unwrap();
+        assert!(c.estimates[0].as_ref().unwrap().path.sd.is_none());
+        let file = std::env::temp_dir().join(format!("onsager-paths-{}.csv", std::process::id()));
+        c.write_paths_csv(&file, &p.model.state_names()).unwrap();
+        let text = std::fs::read_to_string(&file).unwrap();
+        std::fs::remove_file(&file).unwrap();
+        let mut lines = text.lines();
+        assert_eq!(lines.next(), Some("method,t,x,sd_x"));
+        assert!(lines.all(|l| l.starts_with("jme,") && l.ends_with(',') && l.split(',').count() == 4));
     }
 }
