@@ -293,7 +293,7 @@ impl Comparison {
                 }
             })
             .collect();
-        Panels { title: title.into(), panels, columns: 1 }
+        Panels { title: title.into(), panels, columns: 1, ..Panels::default() }
     }
 }
 

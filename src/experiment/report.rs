@@ -208,6 +208,7 @@ pub fn summary_plots(scenarios: &[Scenario], results: &Results, dir: &Path) -> R
                             .filter(|r| r.scenario == s.name && r.estimator == e.label)
                             .map(|r| r.metrics[k])
                             .collect(),
+                        ..BoxGroup::default()
                     })
                     .collect(),
                 log_y: col != "well_side" && !col.starts_with("well_side_"),
@@ -217,7 +218,8 @@ pub fn summary_plots(scenarios: &[Scenario], results: &Results, dir: &Path) -> R
             })
             .collect();
         let stem = dir.join(format!("metric_{}", file_name(col)));
-        Panels { title: col.clone(), columns: columns_for(panels.len()), panels }.write(&stem)?;
+        Panels { title: col.clone(), columns: columns_for(panels.len()), panels, ..Panels::default() }
+            .write(&stem)?;
         stems.push(stem);
     }
     for (k, name) in results.theta_columns.iter().enumerate() {
@@ -236,6 +238,7 @@ pub fn summary_plots(scenarios: &[Scenario], results: &Results, dir: &Path) -> R
                         .filter(|r| r.scenario == s.name && r.estimator == e.label)
                         .filter_map(|r| r.theta[k])
                         .collect(),
+                    ..BoxGroup::default()
                 })
                 .collect();
             let nominal = s.truth.param_index(name).ok().map(|i| s.truth.theta[i]);
@@ -250,8 +253,13 @@ pub fn summary_plots(scenarios: &[Scenario], results: &Results, dir: &Path) -> R
             });
         }
         let stem = dir.join(format!("theta_{}", file_name(name)));
-        Panels { title: format!("estimates of {name}"), columns: columns_for(panels.len()), panels }
-            .write(&stem)?;
+        Panels {
+            title: format!("estimates of {name}"),
+            columns: columns_for(panels.len()),
+            panels,
+            ..Panels::default()
+        }
+        .write(&stem)?;
         stems.push(stem);
     }
     Ok(stems)
@@ -301,5 +309,5 @@ pub fn path_plot(
             ..LinePlot::default()
         });
     }
-    Panels { title: String::new(), columns: 1, panels }.write(stem)
+    Panels { title: String::new(), columns: 1, panels, ..Panels::default() }.write(stem)
 }
