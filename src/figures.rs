@@ -174,6 +174,8 @@ const PANEL_HEIGHT: u32 = 250;
 const TRUTH_WIDTH: f64 = 0.9;
 /// Line width of the estimated paths.
 const PATH_WIDTH: f64 = 1.8;
+/// Logical pixels per character of a title's second line, at most (for line breaks).
+const SUBTITLE_CHAR: f64 = 7.0;
 /// Most points of the truth drawn (the simulation grid can be much finer than the figure).
 const TRUTH_POINTS: usize = 4000;
 
@@ -267,9 +269,10 @@ impl PathFigure<'_> {
                     None => (vec![], "no path of this state".to_string()),
                 }
             }
-            Outcome::Missing(why) => (vec![], format!("no estimate: {}", shorten(why))),
+            Outcome::Missing(why) => (vec![], format!("no estimate: {}", why.lines().next().unwrap_or(""))),
         };
         let size = (FIGURE_WIDTH / columns as u32, PANEL_HEIGHT);
+        let what = wrap(&what, (f64::from(size.0) / SUBTITLE_CHAR) as usize);
         let series = self.with_context(a, path);
         LinePlot { legend: false, ..self.plot(a, format!("{head}\n{what}"), series, frame, size, x_named) }
     }
@@ -428,14 +431,32 @@ fn no_sd_reason(e: &PathEstimate) -> String {
     }
 }
 
-/// At most 90 characters of `text`'s first line, with "…" when cut.
-fn shorten(text: &str) -> String {
-    let line = text.lines().next().unwrap_or("");
-    if line.chars().count() <= 90 {
-        line.to_string()
-    } else {
-        line.chars().take(89).collect::<String>() + "…"
+/// `text` in at most two lines of at most `width` characters, broken at spaces, with "…" where
+/// it is cut.
+fn wrap(text: &str, width: usize) -> String {
+    let width = width.max(8);
+    let mut lines: Vec<String> = Vec::new();
+    for word in text.split(' ') {
+        match lines.last_mut() {
+            Some(line) if line.chars().count() + 1 + word.chars().count() <= width => {
+                line.push(' ');
+                line.push_str(word);
+            }
+            _ => lines.push(word.to_string()),
+        }
     }
+    let more = lines.len() > 2;
+    lines.truncate(2);
+    let n = lines.len();
+    for (i, line) in lines.iter_mut().enumerate() {
+        let cut = more && i + 1 == n;
+        if line.chars().count() > width || (cut && line.chars().count() == width) {
+            *line = line.chars().take(width - 1).collect::<String>() + "…";
+        } else if cut {
+            line.push('…');
+        }
+    }
+    lines.join("\n")
 }
 
 /// A box of a box plot: `values` of the successful rows of an estimator in its look's colour,

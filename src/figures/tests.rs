@@ -158,29 +158,35 @@ fn titles_claim_bands_only_where_bands_are_drawn_and_say_why_there_are_none() {
     for p in &fig.header {
         assert!(p.title.contains("no bands"));
     }
-    let title = |label: &str| -> &str {
+    // An estimator's title, its lines joined by spaces.
+    let title = |label: &str| -> String {
         let prefix = format!("{label}\n");
-        fig.panels.iter().map(|p| p.title.as_str()).find(|t| t.starts_with(&prefix)).unwrap()
+        let t = fig.panels.iter().map(|p| p.title.as_str()).find(|t| t.starts_with(&prefix)).unwrap();
+        t.lines().collect::<Vec<_>>().join(" ")
     };
     // ksp and uks have their bands, mee its Laplace band.
-    assert_eq!(title("ksp"), "ksp\npath ± 2 sd");
-    assert_eq!(title("mee"), "mee\npath ± 2 sd (Laplace)");
+    assert_eq!(title("ksp"), "ksp path ± 2 sd");
+    assert_eq!(title("uks"), "uks path ± 2 sd");
+    assert_eq!(title("mee"), "mee path ± 2 sd (Laplace)");
     // jme skipped its Laplace sd (more than 5 node states) and says so, with the remedy.
     assert_eq!(
         title("jme"),
-        "jme\npath, no sd (Laplace skipped above 5 node states; raise laplace_max_states)"
+        "jme path, no sd (Laplace skipped above 5 node states; raise laplace_max_states)"
     );
     // pem did not run and says why.
     let pem = title("pem");
-    assert!(pem.starts_with("pem\nno estimate: ") && pem.contains("needs parameters to estimate"), "{pem}");
-    assert!(fig
-        .panels
-        .iter()
-        .find(|p| p.title == pem)
-        .unwrap()
-        .series
-        .iter()
-        .all(|s| s.label == "truth" || s.label == "data"));
+    assert!(pem.starts_with("pem no estimate: ") && pem.contains("needs parameters"), "{pem}");
+    let pem = fig.panels.iter().find(|p| p.title.starts_with("pem\n")).unwrap();
+    assert!(pem.series.iter().all(|s| s.label == "truth" || s.label == "data"));
+}
+
+#[test]
+fn long_lines_under_a_title_wrap_in_two_lines_at_most() {
+    assert_eq!(wrap("path ± 2 sd", 20), "path ± 2 sd");
+    assert_eq!(wrap("path, no sd (Laplace sd off)", 16), "path, no sd\n(Laplace sd off)");
+    assert_eq!(wrap("one two three four five", 9), "one two\nthree…");
+    assert_eq!(wrap("abcdefghijklmnopqrstuvwxyz", 10), "abcdefghi…");
+    assert_eq!(wrap("", 10), "");
 }
 
 #[test]
