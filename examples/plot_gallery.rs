@@ -5,7 +5,7 @@
 //!
 //! Run with `cargo run --release --example plot_gallery`.
 
-use onsager::plot::{BoxGroup, BoxPlot, LinePlot, Panels, Series, SeriesStyle};
+use onsager::plot::{BoxGroup, BoxPlot, Dash, LinePlot, Panels, Series, SeriesStyle, DATA, TRUTH};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use std::path::Path;
@@ -43,16 +43,16 @@ fn main() -> onsager::Result<()> {
         x_label: "time t".into(),
         y_label: "state x".into(),
         series: vec![
-            Series::line("truth", t.clone(), x.clone()),
+            Series::line("truth", t.clone(), x.clone()).with_look(TRUTH, Dash::Solid),
             Series::line("mean-optimal", t.clone(), est_a.clone()).with_sd_band(&sd_a, 2.0),
             Series::line("Gaussian closure", t.clone(), est_b.clone()).with_sd_band(&sd_b, 2.0),
-            Series::points("measurements", obs_t, obs),
+            Series::points("measurements", obs_t, obs).with_look(DATA, Dash::Solid),
         ],
         ..LinePlot::default()
     };
     paths.write(&out.join("paths"))?;
 
-    // Box plot of a metric per estimator, with outliers and a NaN (a failed replicate).
+    // Box plot of a metric per estimator, with outliers, a NaN and three failed replicates.
     let names = ["JME", "MEE", "Euler MAP", "trapezoidal MAP", "UKS", "PEM"];
     let groups: Vec<BoxGroup> = names
         .iter()
@@ -64,7 +64,12 @@ fn main() -> onsager::Result<()> {
             if k == 4 {
                 values.push(f64::NAN);
             }
-            BoxGroup { label: name.to_string(), values }
+            BoxGroup {
+                label: name.to_string(),
+                values,
+                failed: usize::from(k == 4) * 3,
+                ..BoxGroup::default()
+            }
         })
         .collect();
     let boxes = BoxPlot {
@@ -85,7 +90,11 @@ fn main() -> onsager::Result<()> {
         y_label: "θ̂ (log scale)".into(),
         groups: ["JME", "MEE", "PEM"]
             .iter()
-            .map(|name| BoxGroup { label: name.to_string(), values: theta(nominal, rng) })
+            .map(|name| BoxGroup {
+                label: name.to_string(),
+                values: theta(nominal, rng),
+                ..BoxGroup::default()
+            })
             .collect(),
         reference_lines: vec![(format!("nominal {nominal}"), nominal)],
         log_y: true,
@@ -96,6 +105,7 @@ fn main() -> onsager::Result<()> {
         title: "Duffing: parameter estimates, t_f = 100".into(),
         panels: vec![panel("damping d", 0.1, &mut rng), panel("stiffness a", 2.0, &mut rng)],
         columns: 2,
+        ..Panels::default()
     };
     grid.write(&out.join("theta"))?;
 
@@ -132,6 +142,7 @@ fn main() -> onsager::Result<()> {
                 values: (0..30)
                     .map(|_| (1.0 + 0.05 * k as f64) * (0.3 * noise.sample(&mut rng)).exp())
                     .collect(),
+                ..BoxGroup::default()
             })
             .collect(),
         reference_lines: vec![],

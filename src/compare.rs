@@ -13,10 +13,11 @@ use serde::Serialize;
 use crate::data::{Dataset, StatePath};
 use crate::estimate::{EstimationProblem, PathEstimate, RowStatus};
 use crate::estimator::{Estimator, Labelled, Method};
+use crate::figures::{EstimatorLooks, Outcome, PathFigure};
 use crate::metrics::{self, Metric};
 use crate::model::observation::StateMeasurement;
 use crate::model::Sde;
-use crate::plot::{LinePlot, Panels, Series};
+use crate::plot::{LinePlot, Panels};
 use crate::Result;
 
 /// Options of [`compare`].
@@ -215,7 +216,8 @@ impl Comparison {
     }
 
     /// All estimated paths in one long table: `method,t,<states>,sd_<states>` (the estimator's
-    /// label in `method`; empty sd where an estimate has none).
+    /// label in `method`; the sd cells empty where an estimate has none, or a NaN), the same
+    /// columns whatever the estimators.
     pub fn write_paths_csv(&self, path: &std::path::Path, state_names: &[String]) -> Result<()> {
         let io = |source| crate::Error::Io { path: path.to_path_buf(), source };
         let mut w = csv::Writer::from_path(path).map_err(|e| match e.into_kind() {
@@ -232,7 +234,11 @@ impl Comparison {
                 let mut rec = vec![label.to_string(), format!("{t}")];
                 rec.extend(est.path.values[i].iter().map(|v| format!("{v}")));
                 match &est.path.sd {
-                    Some(sd) => rec.extend(sd[i].iter().map(|v| format!("{v}"))),
+                    Some(sd) => {
+                        rec.extend(
+                            sd[i].iter().map(|v| if v.is_nan() { String::new() } else { format!("{v}") }),
+                        )
+                    }
                     None => rec.extend(state_names.iter().map(|_| String::new())),
                 }
                 w.write_record(&rec).map_err(csv_err)?;
@@ -243,8 +249,14 @@ impl Comparison {
 }
 
 impl Comparison {
-    /// The figure of the comparison: one panel per state with the truth (when given), every
-    /// estimate with its ±2 sd band (where it has an sd), and the measurements of that state.
+    /// The looks of the estimators of the comparison (failed ones included), one per label.
+    pub fn looks(&self) -> EstimatorLooks {
+        EstimatorLooks::new(self.rows.iter().map(|r| (r.label.as_str(), r.method)))
+    }
+
+    /// The figure of the comparison ([`PathFigure`]): per state an overview of every path with
+    /// the truth (when given) and the measurements of that state, then one panel per estimator
+    /// with its ±2 sd band where it has an sd, or why it has none or no estimate.
     pub fn figure(
         &self,
         state_names: &[String],
@@ -253,42 +265,29 @@ impl Comparison {
         truth: Option<&StatePath>,
         title: &str,
     ) -> Panels<LinePlot> {
-        let panels = state_names
+        let looks = self.looks();
+        let estimates = self
+            .rows
             .iter()
-            .enumerate()
-            .map(|(a, name)| {
-                let mut series = Vec::new();
-                if let Some(t) = truth {
-                    series.push(Series::line(
-                        "truth",
-                        t.times.clone(),
-                        t.values.iter().map(|r| r[a]).collect(),
-                    ));
-                }
-                for (label, est) in self.labelled() {
-                    let p = &est.path;
-                    let y: Vec<f64> = p.values.iter().map(|r| r[a]).collect();
-                    let mut s = Series::line(label, p.times.clone(), y);
-                    if let Some(sd) = &p.sd {
-                        let sd: Vec<f64> = sd.iter().map(|r| r[a]).collect();
-                        s = s.with_sd_band(&sd, 2.0);
-                    }
-                    series.push(s);
-                }
-                if let Some(c) = observation.states.iter().position(|&st| st == a) {
-                    let y: Vec<f64> = data.values.iter().map(|r| r[c]).collect();
-                    series.push(Series::points("data", data.times.clone(), y));
-                }
-                LinePlot {
-                    title: format!("{name} (bands: ±2 sd)"),
-                    x_label: "t".into(),
-                    y_label: name.clone(),
-                    series,
-                    ..LinePlot::default()
-                }
+            .zip(&self.estimates)
+            .map(|(r, e)| {
+                let outcome = match e {
+                    Some(e) => Outcome::Estimate(e),
+                    None => Outcome::Missing(r.error.as_deref().unwrap_or("it did not run")),
+                };
+                (r.label.as_str(), outcome)
             })
             .collect();
-        Panels { title: title.into(), panels, columns: 1 }
+        PathFigure {
+            title: title.into(),
+            states: state_names,
+            truth,
+            data,
+            measured: &observation.states,
+            estimates,
+            looks: &looks,
+        }
+        .panels()
     }
 }
 
@@ -331,12 +330,32 @@ mod tests {
         assert_eq!(j["methods"][3]["status"], "converged");
         // A truth with other states is an error.
         let fig = c.figure(&p.model.state_names(), &data, &p.observation, Some(&truth), "double well");
-        assert_eq!(fig.panels.len(), 1);
-        // truth, three estimates (KSP, UKS, EKS) and the data.
-        assert_eq!(fig.panels[0].series.len(), 2 + c.estimates.iter().flatten().count());
+        // One overview and one panel per estimator.
+        assert_eq!((fig.header.len(), fig.panels.len()), (1, 4));
+        // The overview: the truth, every estimate and the data.
+        assert_eq!(fig.header[0].series.len(), 2 + c.estimates.iter().flatten().count());
         let svg = crate::plot::render_svg(&fig.scene().unwrap());
         assert!(svg.contains("uks") && svg.contains("truth"));
         let bad = StatePath { names: vec!["q".into()], ..truth.clone() };
         assert!(compare(&problem, &methods, Some(&bad), &options).is_err());
+    }
+
+    #[test]
+    fn paths_csv_has_the_sd_columns_whatever_the_estimators() {
+        let mut p = preset("double-well").unwrap();
+        (p.t_end, p.dt, p.sample_every) = (5.0, 0.01, 1.0);
+        let PresetRecord { preset: p, truth, data } = PresetRecord::simulate_from(p, 2, &[1.0], &[]).unwrap();
+        let problem = p.problem(&data, &[]);
+        // jme without its Laplace sd, so with no sd at all.
+        let methods = crate::estimator::parse_list("jme:laplace_max_states=0").unwrap();
+        let c = compare(&problem, &methods, Some(&truth), &CompareOptions::default()).unwrap();
+        assert!(c.estimates[0].as_ref().unwrap().path.sd.is_none());
+        let file = std::env::temp_dir().join(format!("onsager-paths-{}.csv", std::process::id()));
+        c.write_paths_csv(&file, &p.model.state_names()).unwrap();
+        let text = std::fs::read_to_string(&file).unwrap();
+        std::fs::remove_file(&file).unwrap();
+        let mut lines = text.lines();
+        assert_eq!(lines.next(), Some("method,t,x,sd_x"));
+        assert!(lines.all(|l| l.starts_with("jme,") && l.ends_with(',') && l.split(',').count() == 4));
     }
 }

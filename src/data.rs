@@ -3,7 +3,9 @@
 //! Formats (DESIGN.md, "Data formats"):
 //! - measurements: header `t,<output names...>`, one row per measurement time, strictly
 //!   increasing finite `t`, an empty cell or `NaN` for a missing value;
-//! - paths: header `t,<state names...>[,sd_<state>...]`.
+//! - paths: header `t,<state names...>,sd_<state>...`, the sd cells empty where a path has no
+//!   standard deviations (so that the layout does not depend on the method); reading also
+//!   accepts a file without `sd_` columns.
 //!
 //! Every malformed input is an [`Error::Data`] naming the file, the line (the header is line 1)
 //! and, where it concerns one cell, the column.
@@ -197,19 +199,19 @@ impl StatePath {
         Some(self.values.iter().map(|r| r[j]).collect())
     }
 
-    /// Writes `t,<names>[,sd_<names>]`.
+    /// Writes `t,<names>,sd_<names>`: the sd cells are empty where the path has no sd (and
+    /// where an sd is NaN).
     pub fn write_csv(&self, path: impl AsRef<Path>) -> Result<()> {
         let path = path.as_ref();
         let mut header = vec!["t".to_string()];
         header.extend(self.names.iter().cloned());
-        if self.sd.is_some() {
-            header.extend(self.names.iter().map(|n| format!("sd_{n}")));
-        }
+        header.extend(self.names.iter().map(|n| format!("sd_{n}")));
         let rows = (0..self.times.len()).map(|i| {
             let mut r = vec![self.times[i]];
             r.extend(&self.values[i]);
-            if let Some(sd) = &self.sd {
-                r.extend(&sd[i]);
+            match &self.sd {
+                Some(sd) => r.extend(&sd[i]),
+                None => r.extend(self.names.iter().map(|_| f64::NAN)),
             }
             r
         });
@@ -217,7 +219,8 @@ impl StatePath {
     }
 
     /// Reads a path CSV (`t,<names>[,sd_<names>]`); the `sd_` columns, if any, must follow
-    /// the state columns and match them one to one.
+    /// the state columns and match them one to one. A path whose sd cells are all empty has
+    /// no sd (`sd` is `None`), as written by [`StatePath::write_csv`].
     pub fn read_csv(path: impl AsRef<Path>) -> Result<StatePath> {
         let path = path.as_ref();
         let file = File::open(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
@@ -256,7 +259,8 @@ impl StatePath {
         }
         let lines: Vec<usize> = table.rows.iter().map(|(l, _)| *l).collect();
         check_times(&times, path, |i| lines[i])?;
-        Ok(StatePath { names, times, values, sd: (n_sd > 0).then_some(sd) })
+        let has_sd = sd.iter().flatten().any(|v| !v.is_nan());
+        Ok(StatePath { names, times, values, sd: has_sd.then_some(sd) })
     }
 }
 
@@ -460,6 +464,11 @@ mod tests {
         let pf = dir.join("path.csv");
         p.write_csv(&pf).unwrap();
         assert_eq!(StatePath::read_csv(&pf).unwrap(), p);
+        // Without sd: the same columns, the sd cells empty; read back without sd.
+        let bare = StatePath { sd: None, ..p.clone() };
+        bare.write_csv(&pf).unwrap();
+        assert_eq!(std::fs::read_to_string(&pf).unwrap(), "t,x,z,sd_x,sd_z\n0,1,2,,\n0.5,3,4,,\n");
+        assert_eq!(StatePath::read_csv(&pf).unwrap(), bare);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -49,7 +49,8 @@
 //!   specs and the JSON form; [`estimator::Estimator::run`] is the one way in.
 //!
 //! - [`compare`]: several estimators on the same data, measured against each other and the truth.
-//! - [`plot`]: SVG/PNG line plots with bands, box plots and panel grids (no system fonts).
+//! - [`plot`]: SVG/PNG line plots with bands, box plots and panel grids (no system fonts);
+//!   [`figures`]: the figures of estimates built on it, with one look per estimator.
 //! - [`metrics`]: distances between paths (ISE, RMSE, same-well fraction) for comparisons.
 //! - [`test_models`]: the shared test fixtures (models with known answers, seeded data sets) of
 //!   the tests, examples and benchmarks.
@@ -66,6 +67,7 @@ pub mod error;
 pub mod estimate;
 pub mod estimator;
 pub mod experiment;
+pub mod figures;
 pub mod kalman;
 pub mod metrics;
 pub mod model;

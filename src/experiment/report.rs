@@ -11,7 +11,8 @@ use super::spec::{ExperimentSpec, Scenario};
 use crate::data::{Dataset, StatePath};
 use crate::estimate::{PathEstimate, RowStatus};
 use crate::estimator::Method;
-use crate::plot::{quantile, BoxGroup, BoxPlot, LinePlot, Panels, Series};
+use crate::figures::{box_group, EstimatorLooks, Outcome, PathFigure};
+use crate::plot::{quantile, BoxGroup, BoxPlot, LinePlot, Panels};
 use crate::{Error, Result};
 
 /// The rows of a `results.csv` with its header.
@@ -183,15 +184,48 @@ fn columns_for(n: usize) -> usize {
     n.clamp(1, 3)
 }
 
-/// Box plots of each metric (one panel per scenario, one box per estimator) and of each
-/// estimated parameter with its nominal value as a reference line, as in
-/// `000_74b95e149527c64e.txt` Figs. 4.4–4.5 and `001_8aefdf0570c96f51.txt` Fig. 3. Returns the
-/// stems written (`DIR/metric_COL`, `DIR/theta_NAME`).
-pub fn summary_plots(scenarios: &[Scenario], results: &Results, dir: &Path) -> Result<Vec<PathBuf>> {
-    let mut stems = Vec::new();
-    let ok = |r: &&Row| r.status.is_success();
+/// The looks of the estimators of `scenarios` (one per label, in the order of the spec), the
+/// same in every figure of the experiment.
+pub fn looks(scenarios: &[Scenario]) -> EstimatorLooks {
+    EstimatorLooks::new(
+        scenarios.iter().flat_map(|s| s.estimators.iter().map(|e| (e.label.as_str(), e.estimator.method()))),
+    )
+}
+
+/// The box of one scenario's estimator: `value` of its successful rows, the others counted as
+/// failed.
+fn group(
+    results: &Results,
+    scenario: &str,
+    label: &str,
+    value: impl Fn(&Row) -> Option<f64>,
+    looks: &EstimatorLooks,
+) -> BoxGroup {
+    let rows: Vec<&Row> =
+        results.rows.iter().filter(|r| r.scenario == scenario && r.estimator == label).collect();
+    let ok: Vec<&Row> = rows.iter().copied().filter(|r| r.status.is_success()).collect();
+    box_group(label, ok.iter().filter_map(|r| value(r)).collect(), rows.len() - ok.len(), looks)
+}
+
+/// Box plots of each metric (one panel per scenario, one box per estimator over its
+/// successful rows, labelled `n = drawn/rows` with its failed rows) and of each estimated
+/// parameter with its nominal value as a reference line, as in `000_74b95e149527c64e.txt`
+/// Figs. 4.4–4.5 and `001_8aefdf0570c96f51.txt` Fig. 3; each estimator in its look of
+/// `looks`. Returns each figure with its file stem (`metric_COL`, `theta_NAME`).
+pub fn summary_figures(
+    scenarios: &[Scenario],
+    results: &Results,
+    looks: &EstimatorLooks,
+) -> Vec<(String, Panels<BoxPlot>)> {
+    let mut figures = Vec::new();
+    let panels = |title: String, panels: Vec<BoxPlot>| Panels {
+        title,
+        columns: columns_for(panels.len()),
+        panels,
+        ..Panels::default()
+    };
     for (k, col) in results.metric_columns.iter().enumerate() {
-        let panels: Vec<BoxPlot> = scenarios
+        let boxes: Vec<BoxPlot> = scenarios
             .iter()
             .map(|s| BoxPlot {
                 title: s.name.clone(),
@@ -199,107 +233,104 @@ pub fn summary_plots(scenarios: &[Scenario], results: &Results, dir: &Path) -> R
                 groups: s
                     .estimators
                     .iter()
-                    .map(|e| BoxGroup {
-                        label: e.label.clone(),
-                        values: results
-                            .rows
-                            .iter()
-                            .filter(ok)
-                            .filter(|r| r.scenario == s.name && r.estimator == e.label)
-                            .map(|r| r.metrics[k])
-                            .collect(),
-                    })
+                    .map(|e| group(results, &s.name, &e.label, |r| Some(r.metrics[k]), looks))
                     .collect(),
                 log_y: col != "well_side" && !col.starts_with("well_side_"),
                 width: 520,
-                height: 360,
+                height: 380,
                 ..BoxPlot::default()
             })
             .collect();
-        let stem = dir.join(format!("metric_{}", file_name(col)));
-        Panels { title: col.clone(), columns: columns_for(panels.len()), panels }.write(&stem)?;
-        stems.push(stem);
+        let title = format!("{col} over the successful rows (n = drawn/rows)");
+        figures.push((format!("metric_{}", file_name(col)), panels(title, boxes)));
     }
     for (k, name) in results.theta_columns.iter().enumerate() {
-        let mut panels = Vec::new();
+        let mut boxes = Vec::new();
         for s in scenarios {
             let groups: Vec<BoxGroup> = s
                 .estimators
                 .iter()
                 .filter(|e| e.estimate.iter().any(|&i| e.preset.param_names()[i] == *name))
-                .map(|e| BoxGroup {
-                    label: e.label.clone(),
-                    values: results
-                        .rows
-                        .iter()
-                        .filter(ok)
-                        .filter(|r| r.scenario == s.name && r.estimator == e.label)
-                        .filter_map(|r| r.theta[k])
-                        .collect(),
-                })
+                .map(|e| group(results, &s.name, &e.label, |r| r.theta[k], looks))
                 .collect();
             let nominal = s.truth.param_index(name).ok().map(|i| s.truth.theta[i]);
-            panels.push(BoxPlot {
+            boxes.push(BoxPlot {
                 title: s.name.clone(),
                 y_label: name.clone(),
                 groups,
                 reference_lines: nominal.map(|v| vec![("nominal".to_string(), v)]).unwrap_or_default(),
                 width: 520,
-                height: 360,
+                height: 380,
                 ..BoxPlot::default()
             });
         }
-        let stem = dir.join(format!("theta_{}", file_name(name)));
-        Panels { title: format!("estimates of {name}"), columns: columns_for(panels.len()), panels }
-            .write(&stem)?;
+        let title = format!("estimates of {name} over the successful rows (n = drawn/rows)");
+        figures.push((format!("theta_{}", file_name(name)), panels(title, boxes)));
+    }
+    figures
+}
+
+/// Writes the [`summary_figures`] into `dir`; returns the stems written (`DIR/metric_COL`,
+/// `DIR/theta_NAME`).
+///
+/// Errors: [`Error::Io`] for a file that could not be written.
+pub fn summary_plots(scenarios: &[Scenario], results: &Results, dir: &Path) -> Result<Vec<PathBuf>> {
+    let looks = looks(scenarios);
+    let mut stems = Vec::new();
+    for (name, figure) in summary_figures(scenarios, results, &looks) {
+        let stem = dir.join(name);
+        figure.write(&stem)?;
         stems.push(stem);
     }
     Ok(stems)
 }
 
-/// One panel per state: the truth, the measurements of that state and every estimate of one
-/// replicate (`000_74b95e149527c64e.txt` Figs. 4.2, 4.6; `001_8aefdf0570c96f51.txt` Fig. 4).
-pub fn path_plot(
+/// The estimates of one replicate of a scenario, for its path figure.
+#[derive(Debug, Clone, Copy)]
+pub struct ReplicatePaths<'a> {
+    /// The true path.
+    pub truth: &'a StatePath,
+    /// The measurements.
+    pub data: &'a Dataset,
+    /// The estimates by label.
+    pub estimates: &'a [(String, PathEstimate)],
+    /// The estimators that failed, by label, with the error's message.
+    pub errors: &'a [(String, String)],
+}
+
+/// The paths of one replicate ([`PathFigure`]): per state an overview of the truth, the
+/// measurements and every estimate, then one panel per estimator with its ±2 sd band where it
+/// has one (`000_74b95e149527c64e.txt` Figs. 4.2, 4.6; `001_8aefdf0570c96f51.txt` Fig. 4), in
+/// the looks of the experiment. An estimator of the scenario without an estimate has a panel
+/// saying why (its error, or that its row is from an earlier run).
+pub fn path_figure(
     scenario: &Scenario,
-    truth: &StatePath,
-    data: &Dataset,
-    estimates: &[(String, PathEstimate)],
-    stem: &Path,
-) -> Result<()> {
-    // At most ~4000 points of the truth (the simulation grid can be much finer).
-    let stride = truth.times.len().div_ceil(4000).max(1);
-    let mut panels = Vec::new();
-    for (j, name) in truth.names.iter().enumerate() {
-        let mut series = vec![Series::line(
-            "truth",
-            truth.times.iter().step_by(stride).copied().collect(),
-            truth.values.iter().step_by(stride).map(|r| r[j]).collect(),
-        )];
-        for (col, &state) in scenario.truth.observation.states.iter().enumerate() {
-            if state == j {
-                series.push(Series::points(
-                    format!("data {}", data.names[col]),
-                    data.times.clone(),
-                    data.values.iter().map(|r| r[col]).collect(),
-                ));
-            }
-        }
-        for (label, e) in estimates {
-            if let Some(k) = e.path.names.iter().position(|n| n == name) {
-                series.push(Series::line(
-                    label.clone(),
-                    e.path.times.clone(),
-                    e.path.values.iter().map(|r| r[k]).collect(),
-                ));
-            }
-        }
-        panels.push(LinePlot {
-            title: format!("{} ({}, replicate 0)", name, scenario.name),
-            x_label: "t".into(),
-            y_label: name.clone(),
-            series,
-            ..LinePlot::default()
-        });
+    replicate: usize,
+    paths: ReplicatePaths<'_>,
+    looks: &EstimatorLooks,
+) -> Panels<LinePlot> {
+    let outcomes = scenario
+        .estimators
+        .iter()
+        .map(|e| {
+            let estimate = paths.estimates.iter().find(|(l, _)| *l == e.label);
+            let error = paths.errors.iter().find(|(l, _)| *l == e.label);
+            let outcome = match (estimate, error) {
+                (Some((_, est)), _) => Outcome::Estimate(est),
+                (None, Some((_, why))) => Outcome::Missing(why),
+                (None, None) => Outcome::Missing("not run now: its row is from an earlier run"),
+            };
+            (e.label.as_str(), outcome)
+        })
+        .collect();
+    PathFigure {
+        title: format!("{}, replicate {replicate}", scenario.name),
+        states: &paths.truth.names,
+        truth: Some(paths.truth),
+        data: paths.data,
+        measured: &scenario.truth.observation.states,
+        estimates: outcomes,
+        looks,
     }
-    Panels { title: String::new(), columns: 1, panels }.write(stem)
+    .panels()
 }

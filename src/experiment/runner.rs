@@ -19,6 +19,7 @@ use super::spec::{Experiment, ExperimentSpec, Metric, Scenario, ScenarioEstimato
 use crate::data::{Dataset, StatePath};
 use crate::estimate::{EstimationProblem, PathEstimate, RowStatus};
 use crate::estimator::Method;
+use crate::figures::EstimatorLooks;
 use crate::metrics;
 use crate::simulate::{sample_measurements_at, simulate, SimulateOptions};
 use crate::{Error, Result};
@@ -371,6 +372,7 @@ struct Shared<'a> {
     written: AtomicUsize,
     stop: AtomicBool,
     plots: Mutex<Vec<PathBuf>>,
+    looks: EstimatorLooks,
     start: Instant,
     total: usize,
     resumed: usize,
@@ -482,6 +484,7 @@ impl Shared<'_> {
         order.sort_by_key(|&i| !refs.contains(&scenario.estimators[i].label.as_str()));
         let n_refs = order.iter().filter(|&&i| refs.contains(&scenario.estimators[i].label.as_str())).count();
         let mut estimates: Vec<(String, PathEstimate)> = Vec::new();
+        let mut errors: Vec<(String, String)> = Vec::new();
         let mut pending: Vec<(usize, Outcome)> = Vec::new();
         for (position, &i) in order.iter().enumerate() {
             let e = &scenario.estimators[i];
@@ -493,8 +496,9 @@ impl Shared<'_> {
                 return Ok(());
             }
             let outcome = self.estimate(e, &data, unit_seed);
-            if let Ok(est) = &outcome {
-                estimates.push((e.label.clone(), est.clone()));
+            match &outcome {
+                Ok(est) => estimates.push((e.label.clone(), est.clone())),
+                Err(why) => errors.push((e.label.clone(), why.clone())),
             }
             pending.push((i, outcome));
             if is_ref && position + 1 < n_refs {
@@ -514,7 +518,9 @@ impl Shared<'_> {
         if r == 0 && self.options.plots {
             let stem =
                 self.options.out.join("plots").join(format!("paths_{}", report::file_name(&scenario.name)));
-            report::path_plot(scenario, &truth, &data, &estimates, &stem)?;
+            let paths =
+                report::ReplicatePaths { truth: &truth, data: &data, estimates: &estimates, errors: &errors };
+            report::path_figure(scenario, r, paths, &self.looks).write(&stem)?;
             self.plots.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push(stem);
         }
         Ok(())
@@ -616,6 +622,7 @@ pub fn run(
         written: AtomicUsize::new(0),
         stop: AtomicBool::new(false),
         plots: Mutex::new(Vec::new()),
+        looks: report::looks(&scenarios),
         start: Instant::now(),
         total,
         resumed,

@@ -1,10 +1,12 @@
 use std::path::Path;
 
 use super::report::parse_results;
-use super::runner::replicate_seed;
+use super::runner::{replicate_seed, simulate_replicate};
 use super::spec::{Experiment, Metric};
 use super::BUILTIN;
-use crate::Error;
+use crate::estimate::RowStatus;
+use crate::plot::{Color, Prim, DATA, TRUTH};
+use crate::{Error, Status};
 
 /// A small valid spec; `extra` is appended (TOML tables after the top-level keys).
 fn spec(top: &str, extra: &str) -> String {
@@ -190,5 +192,111 @@ fn step_of(e: &super::ScenarioEstimator) -> Option<f64> {
     match &e.estimator {
         crate::Estimator::Jme(o) | crate::Estimator::Mee(o) => o.step,
         other => panic!("not a MAP estimator: {other:?}"),
+    }
+}
+
+/// Results of `scenarios` with `rows` rows per scenario and estimator, the first `failed[k]`
+/// of the k-th estimator failed (status `error`), the others converged with metric value
+/// 0.1 × (k + 1) and θ̂ = 0.5.
+fn results_of(scenarios: &[super::Scenario], rows: usize, failed: &[usize]) -> super::report::Results {
+    let mut out = Vec::new();
+    for s in scenarios {
+        for (k, e) in s.estimators.iter().enumerate() {
+            for r in 0..rows {
+                let ok = r >= failed[k];
+                let status = if ok { RowStatus::Finished(Status::Converged) } else { RowStatus::Error };
+                out.push(super::Row {
+                    scenario: s.name.clone(),
+                    replicate: r,
+                    estimator: e.label.clone(),
+                    method: e.estimator.method(),
+                    status,
+                    iterations: 1,
+                    solve_seconds: 0.0,
+                    metrics: vec![if ok { 0.1 * (k + 1) as f64 } else { f64::NAN }],
+                    theta: vec![(ok && !e.estimate.is_empty()).then_some(0.5)],
+                    message: String::new(),
+                });
+            }
+        }
+    }
+    super::report::Results {
+        header: Vec::new(),
+        metric_columns: vec!["ise".into()],
+        theta_columns: vec!["D".into()],
+        rows: out,
+    }
+}
+
+#[test]
+fn an_estimator_has_one_colour_in_every_figure_of_an_experiment_and_boxes_state_their_rows() {
+    use super::report::{looks, path_figure, summary_figures, ReplicatePaths};
+    // uks; euler, a second jme; jme estimating D (trapezoidal, as D scales the noise).
+    let text = spec("", "[grid]\n\"measurements.every\" = [0.5, 1.0]")
+        .replace("options = { step = 0.1 }", "options = { step = 0.1, transcription = \"trapezoidal\" }")
+        .replace("method = \"jme\"", "method = \"jme\"\nestimate = [\"D\"]")
+        .replace("[[estimators]]\nmethod = \"uks\"", "[[estimators]]\nmethod = \"uks\"\n\n[[estimators]]\nlabel = \"euler\"\nmethod = \"jme\"\noptions = { transcription = \"euler\", step = 0.1 }");
+    let scenarios = Experiment::from_toml(&text).unwrap().scenarios(false).unwrap();
+    let looks = looks(&scenarios);
+    let labels: Vec<&str> = scenarios[0].estimators.iter().map(|e| e.label.as_str()).collect();
+    assert_eq!(labels, ["uks", "euler", "jme"]);
+    // The colour of each estimator in the path figures of both scenarios (euler fails on the
+    // second: its error is stated in its panel).
+    let mut colours: Vec<(String, Color)> = Vec::new();
+    for (i, s) in scenarios.iter().enumerate() {
+        let (truth, data) = simulate_replicate(s, replicate_seed(1, &s.name, 0)).unwrap();
+        let mut estimates = Vec::new();
+        let mut errors = Vec::new();
+        for e in &s.estimators {
+            if i == 1 && e.label == "euler" {
+                errors.push((e.label.clone(), "it failed".to_string()));
+                continue;
+            }
+            let est = e.estimator.run(&e.preset.problem(&data, &e.estimate)).unwrap().estimate;
+            estimates.push((e.label.clone(), est));
+        }
+        let paths = ReplicatePaths { truth: &truth, data: &data, estimates: &estimates, errors: &errors };
+        let fig = path_figure(s, 0, paths, &looks);
+        for q in fig.header.iter().chain(&fig.panels) {
+            for series in q.series.iter().filter(|x| labels.contains(&x.label.as_str())) {
+                colours.push((series.label.clone(), series.color.unwrap()));
+            }
+            if q.title.starts_with("euler\n") && i == 1 {
+                assert_eq!(q.title, "euler\nno estimate: it failed");
+            }
+        }
+    }
+    // 33 of 50 rows of uks succeed; jme and euler all 50.
+    let results = results_of(&scenarios, 50, &[17, 0, 0]);
+    let figures = summary_figures(&scenarios, &results, &looks);
+    let names: Vec<&str> = figures.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names, ["metric_ise", "theta_D"]);
+    for (_, fig) in &figures {
+        for q in &fig.panels {
+            for g in &q.groups {
+                colours.push((g.label.clone(), g.color.unwrap()));
+            }
+            let scene = q.scene().unwrap();
+            let texts: Vec<&str> = scene
+                .prims
+                .iter()
+                .filter_map(|p| if let Prim::Text { text, .. } = p { Some(text.as_str()) } else { None })
+                .collect();
+            for g in &q.groups {
+                let rows =
+                    if g.label == "uks" { ["n = 33/50", "17 failed"].as_slice() } else { &["n = 50/50"] };
+                assert!(rows.iter().all(|r| texts.contains(r)), "{}: {texts:?}", g.label);
+            }
+        }
+        assert!(fig.title.contains("n = drawn/rows"));
+    }
+    // The box of uks counts its failed rows; the θ̂ panels have only the estimators of D.
+    let uks = &figures[0].1.panels[0].groups[0];
+    assert_eq!((uks.label.as_str(), uks.values.len(), uks.failed), ("uks", 33, 17));
+    assert_eq!(figures[1].1.panels[0].groups.iter().map(|g| g.label.as_str()).collect::<Vec<_>>(), ["jme"]);
+    for label in &labels {
+        let mine: Vec<Color> = colours.iter().filter(|(l, _)| l == label).map(|(_, c)| *c).collect();
+        assert!(mine.len() >= 4, "{label}: {mine:?}");
+        assert!(mine.iter().all(|c| *c == looks.look(label).color && *c != TRUTH && *c != DATA), "{label}");
     }
 }

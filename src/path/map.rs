@@ -5,9 +5,10 @@
 use serde::{Deserialize, Serialize};
 
 use super::{
-    default_step, estimate_path, regression_theta_guess, spline_guess, Merit, PathOptions, Transcription,
+    default_step, estimate_path, regression_theta_guess, spline_guess, LaplaceSd, Merit, PathDetails,
+    PathOptions, Transcription,
 };
-use crate::estimate::{EstimationProblem, Method, MethodRun};
+use crate::estimate::{Details, EstimationProblem, Method, MethodRun};
 use crate::estimator::EstimatorOptions;
 use crate::model::observation::StateMeasurement;
 use crate::model::Sde;
@@ -122,10 +123,19 @@ pub fn map_estimate<S: Sde + ?Sized>(
     let mut path_options =
         PathOptions::new(merit, options.transcription).with_step(step).with_initial_path(guess);
     let states = nodes * problem.sde.dims().states();
-    if states > options.laplace_max_states {
+    let skipped = states > options.laplace_max_states;
+    if skipped {
         notes
             .push(format!("skipping the Laplace sd ({states} node states > {})", options.laplace_max_states));
         path_options = path_options.with_laplace(false);
     }
-    Ok(MethodRun { estimate: estimate_path(problem, path_options)?.estimate, notes })
+    let mut estimate = estimate_path(problem, path_options)?.estimate;
+    if skipped {
+        // The reason reaches the report and the figures with the estimate.
+        if let Some(details) = estimate.details.get::<PathDetails>() {
+            let sd = LaplaceSd::Skipped { node_states: states, max_states: options.laplace_max_states };
+            estimate.details = Details::new(PathDetails { sd, ..details.clone() });
+        }
+    }
+    Ok(MethodRun { estimate, notes })
 }

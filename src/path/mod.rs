@@ -448,13 +448,16 @@ pub fn estimate_path_with<S: Sde + ?Sized, O: Observation + ?Sized, K: nlp::KktS
     let n_nodes = nlp_problem.grid().intervals + 1;
     let ne = problem.estimate.len();
     let (mut path_sd, mut theta_sd) = (None, None);
+    let mut sd = if options.laplace { LaplaceSd::NotSolved } else { LaplaceSd::Off };
     if options.laplace && solution.report.status.is_success() {
         let n = nlp_problem.num_variables();
         let wanted: Vec<usize> = (0..n_nodes * ns).chain(n - ne..n).collect();
+        sd = LaplaceSd::NotAMaximum;
         if let Some(var) = laplace::laplace_variances(&mut nlp_problem, w, &solution.lambda, &wanted, kkt) {
-            let sd: Vec<f64> = var.iter().map(|v| v.sqrt()).collect();
-            path_sd = Some(sd[..n_nodes * ns].chunks(ns).map(|c| c.to_vec()).collect());
-            theta_sd = Some(sd[n_nodes * ns..].to_vec());
+            let sd_all: Vec<f64> = var.iter().map(|v| v.sqrt()).collect();
+            path_sd = Some(sd_all[..n_nodes * ns].chunks(ns).map(|c| c.to_vec()).collect());
+            theta_sd = Some(sd_all[n_nodes * ns..].to_vec());
+            sd = LaplaceSd::Computed;
         }
     }
     let parts = nlp_problem.merit_parts(w);
@@ -485,6 +488,7 @@ pub fn estimate_path_with<S: Sde + ?Sized, O: Observation + ?Sized, K: nlp::KktS
         linear_solver: report.linear_solver,
         kkt_nnz: report.kkt_nnz,
         factor_nnz: report.factor_nnz,
+        sd,
     };
     let estimate = PathEstimate {
         method: options.merit.method(),
@@ -555,4 +559,53 @@ pub struct PathDetails {
     pub kkt_nnz: usize,
     /// Non-zeros of its factor.
     pub factor_nnz: usize,
+    /// What the path's `sd` is, or why it has none.
+    pub sd: LaplaceSd,
+}
+
+/// The standard deviations of a MAP estimate: the Laplace sd, or why there is none. Written in
+/// reports as a sentence (the `sd` entry of the details).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum LaplaceSd {
+    /// The Laplace sd: square roots of the diagonal of the inverse reduced Hessian of −J.
+    Computed,
+    /// Not asked for ([`PathOptions::laplace`] off).
+    Off,
+    /// Skipped by [`map_estimate`] because the grid has more node states than the option
+    /// `laplace_max_states` allows.
+    Skipped {
+        /// Nodes × states of the grid.
+        node_states: usize,
+        /// The option `laplace_max_states`.
+        max_states: usize,
+    },
+    /// The solve did not succeed.
+    NotSolved,
+    /// The KKT matrix at the solution does not have the inertia of a strict maximum.
+    NotAMaximum,
+}
+
+impl std::fmt::Display for LaplaceSd {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            LaplaceSd::Computed => f.write_str("Laplace"),
+            LaplaceSd::Off => f.write_str("none: not asked for"),
+            LaplaceSd::Skipped { max_states: 0, .. } => f.write_str("none: laplace_max_states = 0"),
+            LaplaceSd::Skipped { node_states, max_states } => {
+                write!(
+                    f,
+                    "none: Laplace skipped ({node_states} node states > laplace_max_states = {max_states})"
+                )
+            }
+            LaplaceSd::NotSolved => f.write_str("none: the solve did not succeed"),
+            LaplaceSd::NotAMaximum => f.write_str("none: not a strict maximum (KKT inertia)"),
+        }
+    }
+}
+
+impl Serialize for LaplaceSd {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> std::result::Result<S::Ok, S::Error> {
+        serializer.collect_str(self)
+    }
 }

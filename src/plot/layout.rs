@@ -1,10 +1,10 @@
 //! Layout: line plots, box plots and panel grids turned into a [`Scene`].
 
 use super::font::{text_width, CAP_HEIGHT};
-use super::scene::{Anchor, Color, Prim, Rect, Scene, PALETTE};
+use super::scene::{Anchor, Color, Dash, Prim, Rect, Scene, PALETTE};
 use super::stats::BoxStats;
 use super::ticks::{format_log_ticks, format_ticks, linear_ticks, log_ticks, widen};
-use super::{BoxPlot, LinePlot, SeriesStyle};
+use super::{BoxGroup, BoxPlot, LinePlot, Panels, Series, SeriesStyle};
 use crate::{Error, Result};
 
 const TICK_FONT: f64 = 12.0;
@@ -20,14 +20,21 @@ const BAND_ALPHA: f32 = 0.2;
 /// rectangle anyway) never produce infinite or NaN coordinates.
 const COORD_LIMIT: f64 = 1e6;
 
-/// The colour and dash pattern of series `i`: the palette, then the palette dashed.
-pub(crate) fn series_look(i: usize) -> (Color, Vec<f64>) {
-    let dash = match (i / PALETTE.len()) % 3 {
-        0 => vec![],
-        1 => vec![7.0, 3.5],
-        _ => vec![2.0, 2.5],
-    };
-    (PALETTE[i % PALETTE.len()], dash)
+/// The colour and dash pattern of the `i`-th of a plot's series or groups without a colour of
+/// their own: the palette, then the palette with each further dash pattern.
+fn palette_look(i: usize) -> (Color, Dash) {
+    (PALETTE[i % PALETTE.len()], Dash::ALL[(i / PALETTE.len()) % Dash::ALL.len()])
+}
+
+/// The colour and dash pattern series `s`, the `i`-th of its plot, is drawn with.
+fn series_look(s: &Series, i: usize) -> (Color, Vec<f64>) {
+    let (color, dash) = s.color.map_or_else(|| palette_look(i), |c| (c, s.dash));
+    (color, dash.pattern())
+}
+
+/// The colour of box group `g`, the `i`-th of its plot.
+fn group_color(g: &BoxGroup, i: usize) -> Color {
+    g.color.unwrap_or_else(|| palette_look(i).0)
 }
 
 /// A numeric axis: its range, whether logarithmic, ticks (as values) and their labels.
@@ -96,22 +103,25 @@ fn fit_size(text: &str, size: f64, width: f64) -> f64 {
     }
 }
 
-/// Title at the top of `area`; returns the y where the content may start.
+/// Size of the lines of a title after its first.
+const SUBTITLE_FONT: f64 = 12.0;
+
+/// Title at the top of `area`: its first line at the title size, further lines (after `\n`)
+/// smaller in the note colour; returns the y where the content may start.
 fn draw_title(scene: &mut Scene, area: &Rect, title: &str) -> f64 {
     if title.trim().is_empty() {
         return area.y + 12.0;
     }
-    // A long title is set smaller rather than cut at the canvas edges.
-    let size = fit_size(title, TITLE_FONT, area.w - 20.0);
-    scene.text(
-        area.x + area.w / 2.0,
-        area.y + 10.0 + CAP_HEIGHT * TITLE_FONT,
-        title,
-        size,
-        Anchor::Middle,
-        Color::TEXT,
-    );
-    area.y + 18.0 + TITLE_FONT + 8.0
+    let mut y = area.y + 10.0;
+    for (i, line) in title.lines().enumerate() {
+        let (font, color) = if i == 0 { (TITLE_FONT, Color::TEXT) } else { (SUBTITLE_FONT, Color::NOTE) };
+        // A long line is set smaller rather than cut at the canvas edges.
+        let size = fit_size(line, font, area.w - 20.0);
+        y += CAP_HEIGHT * font;
+        scene.text(area.x + area.w / 2.0, y, line, size, Anchor::Middle, color);
+        y += if i == 0 { 8.0 } else { 6.0 } + (1.0 - CAP_HEIGHT) * font;
+    }
+    y + 8.0
 }
 
 fn left_margin(y_axis: &Axis, y_label: &str) -> f64 {
@@ -185,6 +195,16 @@ fn runs(n: usize, ok: impl Fn(usize) -> bool) -> Vec<std::ops::Range<usize>> {
 
 pub(crate) fn validate_line_plot(p: &LinePlot) -> Result<()> {
     check_size("LinePlot", p.width, p.height)?;
+    for (name, range) in [("x_range", p.x_range), ("y_range", p.y_range)] {
+        if let Some((lo, hi)) = range {
+            if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+                return Err(Error::InvalidOption {
+                    name: format!("LinePlot.{name}"),
+                    reason: format!("({lo}, {hi}) is not a finite increasing range"),
+                });
+            }
+        }
+    }
     for s in &p.series {
         let n = s.x.len();
         let mismatch = |what: &str, got: usize| Error::DimensionMismatch {
@@ -297,7 +317,7 @@ fn draw_series(
 ) {
     for (k, s) in p.series.iter().enumerate() {
         let Some((lo, hi)) = &s.band else { continue };
-        let (color, _) = series_look(k);
+        let (color, _) = series_look(s, k);
         for r in runs(s.x.len(), |i| s.x[i].is_finite() && lo[i].is_finite() && hi[i].is_finite()) {
             let mut pts: Vec<(f64, f64)> =
                 r.clone().map(|i| (px(plot, x_axis, s.x[i]), py(plot, y_axis, hi[i]))).collect();
@@ -308,7 +328,7 @@ fn draw_series(
         }
     }
     for (k, s) in p.series.iter().enumerate() {
-        let (color, dash) = series_look(k);
+        let (color, dash) = series_look(s, k);
         let ok = |i: usize| s.x[i].is_finite() && s.y[i].is_finite();
         if matches!(s.style, SeriesStyle::Line | SeriesStyle::LineAndPoints) {
             for r in runs(s.x.len(), ok) {
@@ -318,7 +338,7 @@ fn draw_series(
                     scene.prims.push(Prim::Polyline {
                         points: pts,
                         color,
-                        width: LINE_WIDTH,
+                        width: s.width.unwrap_or(LINE_WIDTH),
                         dash: dash.clone(),
                         clip,
                     });
@@ -362,8 +382,11 @@ struct Legend {
 
 impl Legend {
     fn new(p: &LinePlot) -> Legend {
-        let entries: Vec<usize> =
-            (0..p.series.len()).filter(|i| !p.series[*i].label.trim().is_empty()).collect();
+        let entries: Vec<usize> = if p.legend {
+            (0..p.series.len()).filter(|i| !p.series[*i].label.trim().is_empty()).collect()
+        } else {
+            Vec::new()
+        };
         let row_h = LEGEND_FONT + 7.0;
         let label_w =
             entries.iter().map(|i| text_width(&p.series[*i].label, LEGEND_FONT)).fold(0.0, f64::max);
@@ -382,7 +405,7 @@ impl Legend {
         });
         for (row, &k) in self.entries.iter().enumerate() {
             let s = &p.series[k];
-            let (color, dash) = series_look(k);
+            let (color, dash) = series_look(s, k);
             let cy = ly + 4.0 + row_h * (row as f64 + 0.5);
             let (sx0, sx1) = (lx + 10.0, lx + 36.0);
             if s.band.is_some() {
@@ -397,7 +420,7 @@ impl Legend {
                 scene.prims.push(Prim::Polyline {
                     points: vec![(sx0, cy), (sx1, cy)],
                     color,
-                    width: LINE_WIDTH,
+                    width: s.width.unwrap_or(LINE_WIDTH),
                     dash,
                     clip: None,
                 });
@@ -429,16 +452,25 @@ pub(crate) fn layout_line_plot(scene: &mut Scene, area: Rect, p: &LinePlot) -> R
     validate_line_plot(p)?;
     let top = draw_title(scene, &area, &p.title);
 
-    // Data ranges over finite points, bands included.
+    // Data ranges over finite points, bands included, unless the plot fixes them.
     let range = data_range(p);
     let empty = range.is_none();
-    let (x0, x1, y0, y1) = range.unwrap_or((0.0, 1.0, 0.0, 1.0));
+    let (mut x0, mut x1, mut y0, mut y1) = range.unwrap_or((0.0, 1.0, 0.0, 1.0));
+    if let Some((lo, hi)) = p.x_range {
+        (x0, x1) = (lo, hi);
+    }
+    let y_pad = if let Some((lo, hi)) = p.y_range {
+        (y0, y1) = (lo, hi);
+        0.0
+    } else {
+        0.04
+    };
 
     let has_x_label = !p.x_label.trim().is_empty();
     let bottom = area.bottom()
         - (TICK_LEN + 6.0 + TICK_FONT + 8.0 + if has_x_label { LABEL_FONT + 10.0 } else { 0.0 });
     let plot_h = (bottom - top).max(10.0);
-    let y_axis = Axis::new(y0, y1, false, 0.04, (plot_h / 45.0).round().max(2.0) as usize);
+    let y_axis = Axis::new(y0, y1, false, y_pad, (plot_h / 45.0).round().max(2.0) as usize);
     let left = area.x + left_margin(&y_axis, &p.y_label);
     let mut right = area.right() - 18.0;
 
@@ -447,7 +479,11 @@ pub(crate) fn layout_line_plot(scene: &mut Scene, area: Rect, p: &LinePlot) -> R
     let (leg_w, leg_h) = (legend.w, legend.h);
     let mut plot = Rect { x: left, y: top, w: (right - left).max(10.0), h: plot_h };
     // Time axes end at the data, except that markers at the ends get room.
-    let x_pad = if p.series.iter().any(|s| !matches!(s.style, SeriesStyle::Line)) { 0.015 } else { 0.0 };
+    let x_pad = if p.x_range.is_none() && p.series.iter().any(|s| !matches!(s.style, SeriesStyle::Line)) {
+        0.015
+    } else {
+        0.0
+    };
     let mut x_axis = Axis::new(x0, x1, false, x_pad, (plot.w / 90.0).round().max(2.0) as usize);
     let mut legend_at = None;
     if !legend.entries.is_empty() && !empty {
@@ -511,6 +547,90 @@ pub(crate) fn validate_box_plot(p: &BoxPlot) -> Result<()> {
     Ok(())
 }
 
+/// Distance between the baselines of the stacked lines of a box label.
+const LABEL_LINE: f64 = TICK_FONT + 3.0;
+
+/// The lines under a box: its label; `n = drawn/rows`; the failed rows and the skipped values,
+/// if any.
+fn box_label(g: &BoxGroup, s: Option<&BoxStats>) -> Vec<String> {
+    let (drawn, skipped) = s.map_or((0, g.values.len()), |s| (s.n, s.skipped));
+    let mut lines = vec![g.label.clone(), format!("n = {drawn}/{}", g.values.len() + g.failed)];
+    let mut lost = vec![];
+    if g.failed > 0 {
+        lost.push(format!("{} failed", g.failed));
+    }
+    if skipped > 0 {
+        lost.push(format!("{skipped} skipped"));
+    }
+    if !lost.is_empty() {
+        lines.push(lost.join(", "));
+    }
+    lines
+}
+
+/// The label of the box centred at `cx` under the plot's bottom edge `bottom`: stacked lines
+/// when `angle` is 0, else the lines joined and rotated.
+fn draw_box_label(scene: &mut Scene, cx: f64, bottom: f64, lines: &[String], angle: f64) {
+    let ty = bottom + TICK_LEN + 4.0 + CAP_HEIGHT * TICK_FONT;
+    let text = lines.join("; ");
+    let (x, y) = if angle == -90.0 {
+        (cx + CAP_HEIGHT * TICK_FONT / 2.0, bottom + TICK_LEN + 4.0)
+    } else {
+        (cx + 4.0, ty)
+    };
+    if angle == 0.0 {
+        for (i, line) in lines.iter().enumerate() {
+            let color = if i == 0 { Color::TEXT } else { Color::NOTE };
+            scene.text(cx, ty + LABEL_LINE * i as f64, line, TICK_FONT, Anchor::Middle, color);
+        }
+    } else {
+        scene.prims.push(Prim::Text {
+            x,
+            y,
+            text,
+            size: TICK_FONT,
+            anchor: Anchor::End,
+            angle,
+            color: Color::TEXT,
+        });
+    }
+}
+
+/// A Tukey box (`BoxStats`) centred at `center.0` with half-width `center.1`, in `color`; `y`
+/// maps values to the canvas.
+fn draw_box(
+    scene: &mut Scene,
+    b: &BoxStats,
+    (cx, half): (f64, f64),
+    color: Color,
+    y: impl Fn(f64) -> f64,
+    clip: Option<usize>,
+) {
+    // Whiskers with caps.
+    for (from, to) in [(b.q1, b.whisker_low), (b.q3, b.whisker_high)] {
+        scene.line(vec![(cx, y(from)), (cx, y(to))], Color::AXIS, 1.2, clip);
+        scene.line(vec![(cx - half * 0.5, y(to)), (cx + half * 0.5, y(to))], Color::AXIS, 1.2, clip);
+    }
+    let (top_y, bot_y) = (y(b.q3), y(b.q1));
+    scene.prims.push(Prim::Rect {
+        rect: Rect { x: cx - half, y: top_y, w: 2.0 * half, h: (bot_y - top_y).max(0.0) },
+        fill: Some(color.with_alpha(0.35)),
+        stroke: Some((color, 1.4)),
+        clip,
+    });
+    scene.line(vec![(cx - half, y(b.median)), (cx + half, y(b.median))], Color::TEXT, 2.2, clip);
+    for o in &b.outliers {
+        scene.prims.push(Prim::Circle {
+            cx,
+            cy: y(*o),
+            r: MARKER_R,
+            fill: None,
+            stroke: Some((color, 1.1)),
+            clip,
+        });
+    }
+}
+
 /// Lay out a box plot in `area` of `scene`.
 pub(crate) fn layout_box_plot(scene: &mut Scene, area: Rect, p: &BoxPlot) -> Result<()> {
     validate_box_plot(p)?;
@@ -534,33 +654,30 @@ pub(crate) fn layout_box_plot(scene: &mut Scene, area: Rect, p: &BoxPlot) -> Res
         (y0, y1) = if log { (1.0, 10.0) } else { (0.0, 1.0) };
     }
 
-    let labels: Vec<String> = p
-        .groups
-        .iter()
-        .zip(&stats)
-        .map(|(g, s)| {
-            let skipped = s.as_ref().map_or(g.values.len(), |s| s.skipped);
-            if skipped > 0 {
-                format!("{} ({skipped} skipped)", g.label)
-            } else {
-                g.label.clone()
-            }
-        })
-        .collect();
-    let max_label = labels.iter().map(|l| text_width(l, TICK_FONT)).fold(0.0, f64::max);
+    let labels: Vec<Vec<String>> =
+        p.groups.iter().zip(&stats).map(|(g, s)| box_label(g, s.as_ref())).collect();
+    // Horizontal labels are stacked lines; slanted and vertical ones are the lines joined.
+    let joined: Vec<String> = labels.iter().map(|l| l.join("; ")).collect();
+    let max_line = labels.iter().flatten().map(|l| text_width(l, TICK_FONT)).fold(0.0, f64::max);
+    let max_joined = joined.iter().map(|l| text_width(l, TICK_FONT)).fold(0.0, f64::max);
+    let lines = labels.iter().map(Vec::len).max().unwrap_or(1) as f64;
     let n = p.groups.len().max(1);
     let right = area.right() - 18.0;
     // Label angle: horizontal when the labels fit their slots, −30° when the slanted labels
     // (TICK_FONT / sin 30° apart horizontally) do not overlap, else vertical.
     let bottom_for = |angle: f64| {
-        let a = angle.abs().to_radians();
-        let labels_h = max_label * a.sin() + TICK_FONT * a.cos();
+        let labels_h = if angle == 0.0 {
+            lines * LABEL_LINE - (LABEL_LINE - TICK_FONT)
+        } else {
+            let a = angle.abs().to_radians();
+            max_joined * a.sin() + TICK_FONT * a.cos()
+        };
         area.bottom() - (TICK_LEN + 6.0 + labels_h + 10.0)
     };
     // Decide the label rotation with the unrotated layout, then lay out for good.
     let provisional = Axis::new(y0, y1, log, 0.05, ((bottom_for(0.0) - top) / 45.0).max(2.0) as usize);
     let slot = (right - area.x - left_margin(&provisional, &p.y_label)) / n as f64;
-    let angle = if max_label <= 0.92 * slot {
+    let angle = if max_line <= 0.92 * slot {
         0.0
     } else if slot >= 2.0 * TICK_FONT + 2.0 {
         -30.0
@@ -572,7 +689,7 @@ pub(crate) fn layout_box_plot(scene: &mut Scene, area: Rect, p: &BoxPlot) -> Res
     let y_axis = Axis::new(y0, y1, log, 0.05, (plot_h / 45.0).round().max(2.0) as usize);
     // A slanted first label reaches left of its box by its width × cos 30°: keep it on the canvas.
     let first_reach = if angle == -30.0 {
-        labels.first().map_or(0.0, |l| text_width(l, TICK_FONT) * 30f64.to_radians().cos() + 6.0)
+        joined.first().map_or(0.0, |l| text_width(l, TICK_FONT) * 30f64.to_radians().cos() + 6.0)
     } else {
         0.0
     };
@@ -582,62 +699,16 @@ pub(crate) fn layout_box_plot(scene: &mut Scene, area: Rect, p: &BoxPlot) -> Res
 
     draw_y_axis(scene, &area, &plot, &y_axis, &p.y_label);
     let clip = Some(scene.clip(plot));
-    for (k, (label, s)) in labels.iter().zip(&stats).enumerate() {
+    for (k, ((g, s), lines)) in p.groups.iter().zip(&stats).zip(&labels).enumerate() {
         let cx = plot.x + slot * (k as f64 + 0.5);
         scene.line(vec![(cx, plot.bottom()), (cx, plot.bottom() + TICK_LEN)], Color::AXIS, 1.0, None);
-        let ty = plot.bottom() + TICK_LEN + 4.0 + CAP_HEIGHT * TICK_FONT;
-        if angle == -90.0 {
-            scene.prims.push(Prim::Text {
-                x: cx + CAP_HEIGHT * TICK_FONT / 2.0,
-                y: plot.bottom() + TICK_LEN + 4.0,
-                text: label.clone(),
-                size: TICK_FONT,
-                anchor: Anchor::End,
-                angle,
-                color: Color::TEXT,
-            });
-        } else if angle != 0.0 {
-            scene.prims.push(Prim::Text {
-                x: cx + 4.0,
-                y: ty,
-                text: label.clone(),
-                size: TICK_FONT,
-                anchor: Anchor::End,
-                angle,
-                color: Color::TEXT,
-            });
-        } else {
-            scene.text(cx, ty, label, TICK_FONT, Anchor::Middle, Color::TEXT);
-        }
-        let Some(b) = s else {
-            scene.text(cx, plot.y + plot.h / 2.0, "no data", NOTE_FONT, Anchor::Middle, Color::NOTE);
-            continue;
-        };
-        let (color, _) = series_look(k);
-        let half = (slot * 0.3).min(40.0);
-        let y = |v: f64| py(&plot, &y_axis, v);
-        // Whiskers with caps.
-        for (from, to) in [(b.q1, b.whisker_low), (b.q3, b.whisker_high)] {
-            scene.line(vec![(cx, y(from)), (cx, y(to))], Color::AXIS, 1.2, clip);
-            scene.line(vec![(cx - half * 0.5, y(to)), (cx + half * 0.5, y(to))], Color::AXIS, 1.2, clip);
-        }
-        let (top_y, bot_y) = (y(b.q3), y(b.q1));
-        scene.prims.push(Prim::Rect {
-            rect: Rect { x: cx - half, y: top_y, w: 2.0 * half, h: (bot_y - top_y).max(0.0) },
-            fill: Some(color.with_alpha(0.35)),
-            stroke: Some((color, 1.4)),
-            clip,
-        });
-        scene.line(vec![(cx - half, y(b.median)), (cx + half, y(b.median))], Color::TEXT, 2.2, clip);
-        for o in &b.outliers {
-            scene.prims.push(Prim::Circle {
-                cx,
-                cy: y(*o),
-                r: MARKER_R,
-                fill: None,
-                stroke: Some((color, 1.1)),
-                clip,
-            });
+        draw_box_label(scene, cx, plot.bottom(), lines, angle);
+        match s {
+            Some(b) => {
+                let half = (slot * 0.3).min(40.0);
+                draw_box(scene, b, (cx, half), group_color(g, k), |v| py(&plot, &y_axis, v), clip);
+            }
+            None => scene.text(cx, plot.y + plot.h / 2.0, "no data", NOTE_FONT, Anchor::Middle, Color::NOTE),
         }
     }
     for (name, v) in &p.reference_lines {
@@ -722,20 +793,25 @@ pub(crate) fn single<F: Figure>(f: &F) -> Result<Scene> {
     Ok(scene)
 }
 
-/// Panels on a grid of `columns` columns, each cell as large as the largest panel, under a title.
-pub(crate) fn grid<F: Figure>(title: &str, panels: &[F], columns: usize) -> Result<Scene> {
-    if columns == 0 {
+/// Panels on a grid of `columns` columns, each cell as large as the largest panel, under a
+/// title and the header row (whose panels share the width equally).
+pub(crate) fn grid<F: Figure>(p: &Panels<F>) -> Result<Scene> {
+    let (title, panels, header) = (&p.title, &p.panels, &p.header);
+    if p.columns == 0 {
         return Err(Error::InvalidOption { name: "columns".into(), reason: "must be at least 1".into() });
     }
-    for f in panels {
+    for f in header.iter().chain(panels) {
         f.validate()?;
     }
-    let cols = columns.min(panels.len().max(1));
-    let rows = panels.len().div_ceil(cols).max(1);
+    let cols = p.columns.min(panels.len().max(1));
+    let rows = panels.len().div_ceil(cols);
     let cw = panels.iter().map(|f| f.size().0).max().unwrap_or(400);
     let ch = panels.iter().map(|f| f.size().1).max().unwrap_or(300);
+    let header_h = f64::from(header.iter().map(|f| f.size().1).max().unwrap_or(0));
     let title_h = if title.trim().is_empty() { 0.0 } else { TITLE_FONT + 22.0 };
-    let (w, h) = (f64::from(cw) * cols as f64, f64::from(ch) * rows as f64 + title_h);
+    let body_h =
+        if panels.is_empty() && !header.is_empty() { 0.0 } else { f64::from(ch) * rows.max(1) as f64 };
+    let (w, h) = (f64::from(cw) * cols as f64, title_h + header_h + body_h);
     if w * h > 1e8 {
         return Err(Error::InvalidOption {
             name: "panels".into(),
@@ -747,15 +823,19 @@ pub(crate) fn grid<F: Figure>(title: &str, panels: &[F], columns: usize) -> Resu
         let size = fit_size(title, TITLE_FONT, w - 20.0);
         scene.text(w / 2.0, 12.0 + CAP_HEIGHT * TITLE_FONT, title, size, Anchor::Middle, Color::TEXT);
     }
-    if panels.is_empty() {
+    if panels.is_empty() && header.is_empty() {
         let r = Rect { x: 0.0, y: title_h, w, h: h - title_h };
         note(&mut scene, &r, "no panels");
+    }
+    let header_w = w / header.len().max(1) as f64;
+    for (i, f) in header.iter().enumerate() {
+        f.layout(&mut scene, Rect { x: header_w * i as f64, y: title_h, w: header_w, h: header_h })?;
     }
     for (i, f) in panels.iter().enumerate() {
         let (r, c) = (i / cols, i % cols);
         let area = Rect {
             x: f64::from(cw) * c as f64,
-            y: title_h + f64::from(ch) * r as f64,
+            y: title_h + header_h + f64::from(ch) * r as f64,
             w: f64::from(cw),
             h: f64::from(ch),
         };

@@ -37,6 +37,13 @@
 //! same family first, so browsers with DejaVu or the metrically similar Verdana show the
 //! layout as measured.
 //!
+//! A series or box group has a colour (and a series a dash pattern and width) of its own, or
+//! takes the next [`PALETTE`] colour by its position, dashed after the ninth. The palette is
+//! Paul Tol's colour-blind-safe "muted" scheme; black ([`TRUTH`]) and grey ([`DATA`]) are not
+//! in it, so that a true path and measurements drawn in them never share an estimate's colour.
+//! [`crate::figures`] gives every estimator a fixed look. A title's lines after the first
+//! (`\n`) are set smaller, in grey, e.g. what a panel draws.
+//!
 //! Degenerate input is drawn, not refused: lines break at NaN, a single point or constant
 //! data gets a widened range, all-NaN data gives empty axes with a note, a box group with no
 //! finite value says "no data". Size mismatches and undrawable options are errors.
@@ -52,7 +59,7 @@ mod ticks;
 
 pub use layout::Figure;
 pub use raster::{render_pixmap, render_png};
-pub use scene::{Anchor, Color, Prim, Rect, Scene, PALETTE};
+pub use scene::{Anchor, Color, Dash, Prim, Rect, Scene, DATA, PALETTE, TRUTH};
 pub use stats::{quantile, BoxStats};
 pub use svg::render_svg;
 
@@ -78,6 +85,13 @@ pub enum SeriesStyle {
 /// One curve of a [`LinePlot`], with an optional band (drawn translucent in the series colour).
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Series {
+    /// Its colour; `None` takes the plot's next [`PALETTE`] colour by position (dashed after
+    /// the ninth).
+    pub color: Option<Color>,
+    /// Its dash pattern (with an explicit `color`).
+    pub dash: Dash,
+    /// Its line width in logical pixels (`None`: 1.6).
+    pub width: Option<f64>,
     /// Legend text; series with an empty label are not in the legend.
     pub label: String,
     /// Abscissae.
@@ -93,11 +107,11 @@ pub struct Series {
 impl Series {
     /// A line series.
     pub fn line(label: impl Into<String>, x: Vec<f64>, y: Vec<f64>) -> Series {
-        Series { label: label.into(), x, y, band: None, style: SeriesStyle::Line }
+        Series { label: label.into(), x, y, style: SeriesStyle::Line, ..Series::default() }
     }
     /// A series of markers.
     pub fn points(label: impl Into<String>, x: Vec<f64>, y: Vec<f64>) -> Series {
-        Series { label: label.into(), x, y, band: None, style: SeriesStyle::Points }
+        Series { label: label.into(), x, y, style: SeriesStyle::Points, ..Series::default() }
     }
     /// With a band between `lower` and `upper`.
     pub fn with_band(mut self, lower: Vec<f64>, upper: Vec<f64>) -> Series {
@@ -118,19 +132,38 @@ impl Series {
         self.style = style;
         self
     }
+    /// With line width `width`.
+    pub fn with_width(mut self, width: f64) -> Series {
+        self.width = Some(width);
+        self
+    }
+    /// In colour `color` with dash pattern `dash`.
+    pub fn with_look(mut self, color: Color, dash: Dash) -> Series {
+        self.color = Some(color);
+        self.dash = dash;
+        self
+    }
 }
 
 /// Curves against a common x axis, with a legend.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LinePlot {
-    /// Title above the axes (empty for none).
+    /// Title above the axes (empty for none); lines after the first are set smaller.
     pub title: String,
     /// x-axis label.
     pub x_label: String,
     /// y-axis label.
     pub y_label: String,
-    /// The curves, coloured in order from [`PALETTE`].
+    /// The curves: each in its own colour, or in order from [`PALETTE`].
     pub series: Vec<Series>,
+    /// A fixed x range (lower, upper) instead of the data's, e.g. shared by small multiples;
+    /// what lies outside is clipped.
+    pub x_range: Option<(f64, f64)>,
+    /// A fixed y range, as `x_range`.
+    pub y_range: Option<(f64, f64)>,
+    /// Whether the labelled series are listed in a legend (default true); small multiples
+    /// whose titles name what they draw leave it to one panel.
+    pub legend: bool,
     /// Width in logical pixels (default 900).
     pub width: u32,
     /// Height in logical pixels (default 500).
@@ -144,30 +177,38 @@ impl Default for LinePlot {
             x_label: String::new(),
             y_label: String::new(),
             series: vec![],
+            x_range: None,
+            y_range: None,
+            legend: true,
             width: 900,
             height: 500,
         }
     }
 }
 
-/// One box of a [`BoxPlot`]: NaN and infinite values (and non-positive ones on a log axis) are
-/// skipped and their number shown beside the label.
+/// One box of a [`BoxPlot`]. Under its label the box states its count, `n = drawn/rows`, where
+/// the rows are the values and the `failed` rows that have none; a third line gives the failed
+/// rows and the values skipped (NaN and infinite values, and non-positive ones on a log axis).
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct BoxGroup {
     /// Label under the box.
     pub label: String,
     /// The sample.
     pub values: Vec<f64>,
+    /// Rows of the group without a value (e.g. failed runs), counted in `n = drawn/rows`.
+    pub failed: usize,
+    /// Its colour; `None` takes the next [`PALETTE`] colour by position.
+    pub color: Option<Color>,
 }
 
 /// Tukey box plots ([`BoxStats`]) side by side, with optional horizontal reference lines.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BoxPlot {
-    /// Title above the axes (empty for none).
+    /// Title above the axes (empty for none); lines after the first are set smaller.
     pub title: String,
     /// y-axis label.
     pub y_label: String,
-    /// One box per group, coloured in order from [`PALETTE`].
+    /// One box per group: each in its own colour, or in order from [`PALETTE`].
     pub groups: Vec<BoxGroup>,
     /// Dashed horizontal lines with their labels (e.g. a parameter's nominal value).
     pub reference_lines: Vec<(String, f64)>,
@@ -193,12 +234,16 @@ impl Default for BoxPlot {
     }
 }
 
-/// A grid of figures (e.g. one per state), `columns` wide, under a common title. Each cell is
-/// as large as the largest panel's `width`×`height`.
+/// A grid of figures (e.g. one per state), `columns` wide, under a common title, with an
+/// optional header row above it (e.g. an overview of the panels below). Each grid cell is as
+/// large as the largest panel's `width`×`height`; the header panels share the grid's width
+/// equally, as tall as the tallest of them.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Panels<T> {
     /// Title above the grid (empty for none).
     pub title: String,
+    /// The header row (empty for none).
+    pub header: Vec<T>,
     /// The panels, row by row.
     pub panels: Vec<T>,
     /// Number of columns (≥ 1).
@@ -207,7 +252,7 @@ pub struct Panels<T> {
 
 impl<T> Default for Panels<T> {
     fn default() -> Self {
-        Panels { title: String::new(), panels: vec![], columns: 1 }
+        Panels { title: String::new(), header: vec![], panels: vec![], columns: 1 }
     }
 }
 
@@ -240,7 +285,8 @@ impl LinePlot {
     ///
     /// # Errors
     /// [`Error::DimensionMismatch`] when a series' y or band lengths differ from its x length;
-    /// [`Error::InvalidOption`] for a size outside 120×80 … 20000×20000.
+    /// [`Error::InvalidOption`] for a size outside 120×80 … 20000×20000 or a fixed range that
+    /// is not finite and increasing.
     pub fn scene(&self) -> Result<Scene> {
         layout::single(self)
     }
@@ -277,7 +323,7 @@ impl<T: Figure> Panels<T> {
     /// # Errors
     /// [`Error::InvalidOption`] when `columns` is 0; any panel's error.
     pub fn scene(&self) -> Result<Scene> {
-        layout::grid(&self.title, &self.panels, self.columns)
+        layout::grid(self)
     }
     /// Write `stem.svg` and `stem.png`.
     ///

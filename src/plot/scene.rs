@@ -35,22 +35,58 @@ impl Color {
     pub(crate) const NOTE: Color = Color::rgb(120, 120, 120);
 }
 
-/// The series palette: the Okabe–Ito colour-blind-safe colours (Okabe & Ito 2008, "Color
-/// Universal Design") without yellow, which is unreadable on white, then wine, olive and
-/// grey from Paul Tol's "muted" scheme: ten colours distinguishable under the common
-/// colour-vision deficiencies. Series beyond ten reuse them with dashes.
-pub const PALETTE: [Color; 10] = [
-    Color::rgb(0x00, 0x72, 0xB2), // blue
-    Color::rgb(0xD5, 0x5E, 0x00), // vermillion
-    Color::rgb(0x00, 0x9E, 0x73), // bluish green
-    Color::rgb(0xE6, 0x9F, 0x00), // orange
-    Color::rgb(0xCC, 0x79, 0xA7), // reddish purple
-    Color::rgb(0x56, 0xB4, 0xE9), // sky blue
-    Color::rgb(0x00, 0x00, 0x00), // black
+/// The series palette: Paul Tol's "muted" qualitative scheme, nine colours distinct for
+/// readers with normal vision and with the common colour-vision deficiencies, and distinct from
+/// black and from grey (P. Tol, "Colour schemes", SRON/EPS/TN/09-002, issue 3.2, 2021, the
+/// qualitative schemes; <https://personal.sron.nl/~pault/>). Black and grey are kept for the
+/// truth and the data ([`TRUTH`], [`DATA`]); series beyond nine reuse the colours with dashes
+/// ([`Dash`]).
+pub const PALETTE: [Color; 9] = [
+    Color::rgb(0xCC, 0x66, 0x77), // rose
+    Color::rgb(0x33, 0x22, 0x88), // indigo
+    Color::rgb(0xDD, 0xCC, 0x77), // sand
+    Color::rgb(0x11, 0x77, 0x33), // green
+    Color::rgb(0x88, 0xCC, 0xEE), // cyan
     Color::rgb(0x88, 0x22, 0x55), // wine
+    Color::rgb(0x44, 0xAA, 0x99), // teal
     Color::rgb(0x99, 0x99, 0x33), // olive
-    Color::rgb(0x7F, 0x7F, 0x7F), // grey
+    Color::rgb(0xAA, 0x44, 0x99), // purple
 ];
+
+/// The colour of the true path (a black line): no palette colour.
+pub const TRUTH: Color = Color::rgb(0, 0, 0);
+
+/// The colour of the measurements (grey markers): no palette colour.
+pub const DATA: Color = Color::rgb(0x6E, 0x6E, 0x6E);
+
+/// The dash pattern of a line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Dash {
+    /// A solid line.
+    #[default]
+    Solid,
+    /// Long dashes.
+    Dashed,
+    /// Dots.
+    Dotted,
+    /// Dashes and dots.
+    DashDot,
+}
+
+impl Dash {
+    /// Every pattern, solid first.
+    pub const ALL: [Dash; 4] = [Dash::Solid, Dash::Dashed, Dash::Dotted, Dash::DashDot];
+
+    /// The pattern (on, off, …) in pixels; empty for a solid line.
+    pub fn pattern(self) -> Vec<f64> {
+        match self {
+            Dash::Solid => vec![],
+            Dash::Dashed => vec![7.0, 3.5],
+            Dash::Dotted => vec![1.6, 2.4],
+            Dash::DashDot => vec![7.0, 2.5, 1.6, 2.5],
+        }
+    }
+}
 
 /// An axis-aligned rectangle.
 #[derive(Debug, Clone, Copy, PartialEq)]

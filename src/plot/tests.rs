@@ -167,7 +167,8 @@ fn png_decodes_with_ink_in_the_plot_area_and_translucent_bands() {
     assert!(ink as f64 > 0.8 * total as f64, "{ink} of {total}");
 
     // Between the line (y = 0) and the band's upper edge (y = 1), away from grid lines: the series
-    // colour (0, 114, 178) at the band opacity 0.2 over white gives (204, 227, 240).
+    // colour, the first of the palette (204, 102, 119), at the band opacity 0.2 over white gives
+    // (245, 224, 228).
     let Some(Prim::Polygon { points, .. }) = scene.prims.iter().find(|p| matches!(p, Prim::Polygon { .. }))
     else {
         panic!("no band polygon")
@@ -177,7 +178,7 @@ fn png_decodes_with_ink_in_the_plot_area_and_translucent_bands() {
     let y = top + 0.3 * (mid - top);
     let (r, g, b) = pixel(&pm, x * s, y * s);
     assert!(
-        (r as i32 - 204).abs() <= 4 && (g as i32 - 227).abs() <= 4 && (b as i32 - 240).abs() <= 4,
+        (r as i32 - 245).abs() <= 4 && (g as i32 - 224).abs() <= 4 && (b as i32 - 228).abs() <= 4,
         "{r} {g} {b}"
     );
     // Outside the canvas' plot area (the margin) the background is white.
@@ -191,10 +192,10 @@ fn box_plot_stats_labels_and_degenerate_groups() {
         title: "ISE by estimator".into(),
         y_label: "θ̂".into(),
         groups: vec![
-            BoxGroup { label: "JME".into(), values: spread },
-            BoxGroup { label: "MEE".into(), values: vec![4.0; 5] },
-            BoxGroup { label: "UKS".into(), values: vec![f64::NAN] },
-            BoxGroup { label: "PEM".into(), values: vec![] },
+            BoxGroup { label: "JME".into(), values: spread, ..BoxGroup::default() },
+            BoxGroup { label: "MEE".into(), values: vec![4.0; 5], ..BoxGroup::default() },
+            BoxGroup { label: "UKS".into(), values: vec![f64::NAN], ..BoxGroup::default() },
+            BoxGroup { label: "PEM".into(), values: vec![], ..BoxGroup::default() },
         ],
         reference_lines: vec![("nominal θ = 5".into(), 5.0)],
         ..BoxPlot::default()
@@ -202,9 +203,21 @@ fn box_plot_stats_labels_and_degenerate_groups() {
     let scene = p.scene().unwrap();
     let svg = render_svg(&scene);
     assert_well_formed(&svg);
-    for label in
-        ["ISE by estimator", "θ̂", "JME (1 skipped)", "MEE", "UKS (1 skipped)", "nominal θ = 5", "no data"]
-    {
+    // Each box states its count of rows drawn and what it lost.
+    for label in [
+        "ISE by estimator",
+        "θ̂",
+        "JME",
+        "n = 10/11",
+        "1 skipped",
+        "MEE",
+        "n = 5/5",
+        "UKS",
+        "n = 0/1",
+        "n = 0/0",
+        "nominal θ = 5",
+        "no data",
+    ] {
         assert!(svg.contains(&format!(">{label}</text>")), "missing {label}");
     }
     // One outlier (30) drawn as a hollow circle.
@@ -213,14 +226,21 @@ fn box_plot_stats_labels_and_degenerate_groups() {
 
     // Log axis: non-positive values are skipped, decades labelled.
     let log = BoxPlot {
-        groups: vec![BoxGroup { label: "a".into(), values: vec![-1.0, 0.0, 1e-3, 1e-2, 0.1, 1.0] }],
+        groups: vec![BoxGroup {
+            label: "a".into(),
+            values: vec![-1.0, 0.0, 1e-3, 1e-2, 0.1, 1.0],
+            ..BoxGroup::default()
+        }],
         log_y: true,
         ..BoxPlot::default()
     };
     let svg = render_svg(&log.scene().unwrap());
     assert_well_formed(&svg);
     assert!(
-        svg.contains(">a (2 skipped)</text>") && svg.contains(">0.01</text>") && svg.contains(">1</text>")
+        svg.contains(">n = 4/6</text>")
+            && svg.contains(">2 skipped</text>")
+            && svg.contains(">0.01</text>")
+            && svg.contains(">1</text>")
     );
 
     // No groups at all, and long labels (rotated).
@@ -231,6 +251,7 @@ fn box_plot_stats_labels_and_degenerate_groups() {
             .map(|i| BoxGroup {
                 label: format!("a rather long estimator name {i}"),
                 values: vec![i as f64, 1.0],
+                ..BoxGroup::default()
             })
             .collect(),
         ..BoxPlot::default()
@@ -240,7 +261,11 @@ fn box_plot_stats_labels_and_degenerate_groups() {
     assert!(svg.contains("rotate(-30"));
     let crowded = BoxPlot {
         groups: (0..60)
-            .map(|i| BoxGroup { label: format!("scenario {i}"), values: vec![i as f64] })
+            .map(|i| BoxGroup {
+                label: format!("scenario {i}"),
+                values: vec![i as f64],
+                ..BoxGroup::default()
+            })
             .collect(),
         ..BoxPlot::default()
     };
@@ -261,7 +286,12 @@ fn panels_grid_and_files() {
         series: vec![Series::line("x", vec![0.0, 1.0], vec![0.0, i as f64])],
         ..LinePlot::default()
     };
-    let grid = Panels { title: "paths".into(), panels: (0..3).map(panel).collect(), columns: 2 };
+    let grid = Panels {
+        title: "paths".into(),
+        panels: (0..3).map(panel).collect(),
+        columns: 2,
+        ..Panels::default()
+    };
     let scene = grid.scene().unwrap();
     assert_eq!(scene.width, 800.0);
     assert!(scene.height > 500.0 && scene.height < 560.0);
@@ -278,10 +308,11 @@ fn panels_grid_and_files() {
     let boxes = Panels {
         title: String::new(),
         panels: vec![BoxPlot {
-            groups: vec![BoxGroup { label: "g".into(), values: vec![1.0, 2.0] }],
+            groups: vec![BoxGroup { label: "g".into(), values: vec![1.0, 2.0], ..BoxGroup::default() }],
             ..BoxPlot::default()
         }],
         columns: 3,
+        ..Panels::default()
     };
     boxes.write(&dir.join("boxes")).unwrap();
     assert!(dir.join("boxes.png").exists());
