@@ -619,3 +619,67 @@ fn a_coarse_stage_cut_short_is_continued_at_the_requested_tolerance() {
         assert!(diff < 1e-6, "{kind:?}: the estimates differ by {diff}");
     }
 }
+
+/// The largest |closure − RTS| over the output grid and all states of the Gaussian closure on a
+/// three-state linear model with a clean state (`test_models::RotationWithPosition`: x2 and z
+/// measured every 0.25 on [0, 4] with sd 0.2, one datum missing) at Runge–Kutta tolerances
+/// (rtol, rtol/100).
+fn three_state_closure_error(rtol: f64) -> f64 {
+    use onsager::kalman::linear::{kalman_rts, LinearGaussianModel};
+    use onsager::model::observation::{Noise, Param};
+    use onsager::test_models::RotationWithPosition;
+    let sde = RotationWithPosition;
+    let obs = StateMeasurement::new(
+        vec![1, 2],
+        vec!["y2".into(), "yz".into()],
+        Noise::Gaussian { sigma: Param::Fixed(0.2) },
+    );
+    let mut rng = StdRng::seed_from_u64(5);
+    let path =
+        simulate(&sde, &[], &[0.8, -0.4], &[0.3], &SimulateOptions::new(0.0, 4.0, 0.01), &mut rng).unwrap();
+    let times: Vec<f64> = (1..=16).map(|k| 0.25 * k as f64).collect();
+    let mut data = sample_measurements_at(&obs, &[], &path, 2, &times, &mut rng).unwrap();
+    data.values[5][0] = f64::NAN;
+    let x0 = [Prior::gaussian(0.5, 0.5), Prior::gaussian(-0.2, 0.4)];
+    let z0 = [Prior::gaussian(0.0, 0.6)];
+    let problem = EstimationProblem {
+        sde: &sde,
+        observation: &obs,
+        theta: &[],
+        theta_prior: &[],
+        estimate: &[],
+        x0_prior: &x0,
+        z0_prior: &z0,
+        data: &data,
+        t0: 0.0,
+        seed: 0,
+    };
+    let options = ClosureOptions::new().with_tolerances(rtol, rtol * 1e-2).with_output_step(0.125);
+    let est = closure_estimate(&problem, &ClosureKind::Gaussian, &options).unwrap();
+    assert_eq!(est.status, Status::Converged);
+    let m0 = nalgebra::DVector::from_vec(vec![0.5, -0.2, 0.0]);
+    let p0 = DMatrix::from_diagonal(&nalgebra::DVector::from_vec(vec![0.25, 0.16, 0.36]));
+    let model = LinearGaussianModel::from_sde(&sde, &[], &obs, 0.0, m0, p0).unwrap();
+    let kf = kalman_rts(&model, &data, &est.path.times).unwrap();
+    let sd = est.path.sd.as_ref().unwrap();
+    let mut max_err: f64 = 0.0;
+    for (i, &t) in est.path.times.iter().enumerate() {
+        let j = kf.index_of(t).unwrap();
+        for s in 0..3 {
+            max_err = max_err.max((est.path.values[i][s] - kf.smoothed_mean[j][s]).abs());
+            max_err = max_err.max((sd[i][s] - kf.smoothed_cov[j][(s, s)].sqrt()).abs());
+        }
+    }
+    max_err
+}
+
+#[test]
+fn gaussian_closure_of_a_three_state_model_with_a_clean_state_is_the_rts_smoother() {
+    // The Gaussian closure is exact for linear dynamics, also with a clean state (a singular
+    // diffusion on the full state): its estimate is the RTS smoothed mean and its dispersion the
+    // smoothed sd, up to the Runge–Kutta error, which shrinks with the tolerance.
+    let coarse = three_state_closure_error(1e-6);
+    let fine = three_state_closure_error(1e-10);
+    assert!(fine < 1e-6, "max |closure − RTS| at rtol 1e-10: {fine}");
+    assert!(fine < 0.1 * coarse, "the error shrinks with the tolerance: {coarse} → {fine}");
+}

@@ -14,6 +14,7 @@
 //! | [`CubicDampedDuffing`] | dV = (−Q³ + Q − 0.2V − V³) dt + σ dW, dQ = V dt | strong orders 1 and 1.5, with a clean state |
 //! | [`TwoNoisyOneClean`] | two noisy states, a clean one, t-dependent, full G | one Itô–Taylor step = its formula from Jacobians |
 //! | [`DampedRotation`] | dX = AX dt + 0.5 dW, A = [[−1, 0.5], [−0.5, −1]] | Gaussian smoothing laws; stationary Σ = 0.125 I |
+//! | [`RotationWithPosition`] | [`DampedRotation`] and dZ = X₁ dt (three states, one clean) | exact Kalman/RTS |
 //!
 //! Data sets (each owning what an [`EstimationProblem`](crate::estimate::EstimationProblem)
 //! borrows, with a `problem()` method):
@@ -34,8 +35,8 @@ mod models;
 mod records;
 
 pub use models::{
-    CubicDampedDuffing, DampedRotation, LinearOscillator, TwoNoisyOneClean, UnforcedDuffing,
-    UnscaledDoubleWell,
+    CubicDampedDuffing, DampedRotation, LinearOscillator, RotationWithPosition, TwoNoisyOneClean,
+    UnforcedDuffing, UnscaledDoubleWell,
 };
 pub use records::{
     cosine_data, gaussian_measurement, van_der_pol_student_t, DoubleWellRecord, OscillatorRecord, OuRecord,

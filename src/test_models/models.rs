@@ -301,3 +301,51 @@ impl Sde for DampedRotation {
         out[3] = D::from(0.5);
     }
 }
+
+/// The damped rotation of [`DampedRotation`] with a clean state that integrates the first noisy
+/// state, no parameters:
+///
+/// $$ dX = A X\,dt + 0.5\,dW, \qquad dZ = X_1\,dt, \qquad
+///    A = \begin{pmatrix} -1 & 0.5 \\ -0.5 & -1 \end{pmatrix}, $$
+///
+/// noisy states `x1`, `x2`, clean state `z`: three states, of which the clean one has no noise
+/// (a singular diffusion on the full state).
+///
+/// Known answers: linear with additive noise, so
+/// [`LinearGaussianModel::from_sde`](crate::kalman::linear::LinearGaussianModel::from_sde) gives
+/// its exact Kalman filter and RTS smoother, and the Gaussian closure is exact for it.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct RotationWithPosition;
+
+impl Sde for RotationWithPosition {
+    fn dims(&self) -> Dims {
+        Dims { noisy: 2, clean: 1, params: 0 }
+    }
+
+    fn noisy_names(&self) -> Vec<String> {
+        names(&["x1", "x2"])
+    }
+
+    fn clean_names(&self) -> Vec<String> {
+        names(&["z"])
+    }
+
+    fn param_names(&self) -> Vec<String> {
+        Vec::new()
+    }
+
+    /// f = A x, as [`DampedRotation`].
+    fn drift<D: Scalar>(&self, t: D, x: &[D], z: &[D], theta: &[D], out: &mut [D]) {
+        DampedRotation.drift(t, x, z, theta, out);
+    }
+
+    /// h = x₁.
+    fn clean_drift<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], _theta: &[D], out: &mut [D]) {
+        out[0] = x[0];
+    }
+
+    /// G = 0.5 I, as [`DampedRotation`].
+    fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
+        DampedRotation.diffusion(theta, out);
+    }
+}

@@ -15,11 +15,13 @@
 //! | `holmes-rand` | [`HolmesRand`] | `000_74b95e149527c64e.txt` Sec. 4.1.3, (4.8), Table 4.3 |
 //! | `double-well` | [`DoubleWell`] | `003_d2fc48a470e528fc.txt (0.1)` notation (our defaults) |
 //! | `lorenz63` | [`Lorenz63`] | Lorenz (1963) drift (our noise defaults) |
+//! | `lorenz96` | [`Lorenz96`] | Lorenz (1996) drift, 10 states (our noise defaults) |
 
 mod double_well;
 mod duffing;
 mod holmes_rand;
 mod lorenz63;
+mod lorenz96;
 mod ou;
 mod tanh;
 mod van_der_pol;
@@ -31,6 +33,7 @@ pub use double_well::DoubleWell;
 pub use duffing::Duffing;
 pub use holmes_rand::HolmesRand;
 pub use lorenz63::Lorenz63;
+pub use lorenz96::Lorenz96;
 pub use ou::Ou;
 pub use tanh::Tanh;
 pub use van_der_pol::VanDerPol;
@@ -49,7 +52,7 @@ fn names(list: &[&str]) -> Vec<String> {
 
 /// The names [`preset`] accepts, in the order of the table in the module documentation.
 pub const NAMES: &[&str] =
-    &["ou", "tanh", "van-der-pol", "duffing", "holmes-rand", "double-well", "lorenz63"];
+    &["ou", "tanh", "van-der-pol", "duffing", "holmes-rand", "double-well", "lorenz63", "lorenz96"];
 
 /// One of the built-in models, chosen at run time. Implements [`Sde`] by delegating to the
 /// model it holds.
@@ -69,6 +72,8 @@ pub enum BuiltinModel {
     DoubleWell(DoubleWell),
     /// [`Lorenz63`], `lorenz63`.
     Lorenz63(Lorenz63),
+    /// [`Lorenz96`], `lorenz96`.
+    Lorenz96(Lorenz96),
 }
 
 /// Runs `$body` with `$m` bound to the model inside a [`BuiltinModel`].
@@ -82,6 +87,7 @@ macro_rules! delegate {
             BuiltinModel::HolmesRand($m) => $body,
             BuiltinModel::DoubleWell($m) => $body,
             BuiltinModel::Lorenz63($m) => $body,
+            BuiltinModel::Lorenz96($m) => $body,
         }
     };
 }
@@ -97,6 +103,7 @@ impl BuiltinModel {
             BuiltinModel::HolmesRand(_) => "holmes-rand",
             BuiltinModel::DoubleWell(_) => "double-well",
             BuiltinModel::Lorenz63(_) => "lorenz63",
+            BuiltinModel::Lorenz96(_) => "lorenz96",
         }
     }
 }
@@ -365,6 +372,11 @@ fn gaussian_of(state: usize, sigma: Param) -> StateMeasurement {
 ///   x0 ~ N((1, 1, 1), I), all three states measured as y1, y2, y3 ~ N(x_i, 1) every 0.1 from
 ///   t = 0 to 10, simulation step 0.001. Noise levels, initial prior and sampling are our
 ///   choice.
+/// - `lorenz96` — [`Lorenz96`] with 10 states, F = 8 (Lorenz 1996), σ_w = √0.1 (noise
+///   variance 0.1 per unit time), x0 ~ N(2.3, 3.6²) per state (about the mean and sd of a state
+///   on the attractor at F = 8), every state measured as y1, …, y10 ~ N(x_i, 1) every 0.1 from
+///   t = 0 to 5, simulation step 0.001. Noise levels, initial prior and sampling are our
+///   choice.
 pub fn preset(name: &str) -> Result<Preset> {
     let unknown = || Error::UnknownName { kind: "model".into(), name: name.into(), known: names(NAMES) };
     let p = match name {
@@ -518,6 +530,30 @@ pub fn preset(name: &str) -> Result<Preset> {
             first_sample: 0.0,
             sample_every: 0.1,
         },
+        "lorenz96" => {
+            let model = Lorenz96::default();
+            let n = model.states();
+            Preset {
+                name: "lorenz96",
+                description: "Lorenz-96 system with 10 states, forcing F and additive noise sigma_w I, all states measured",
+                source: "Lorenz (1996) drift; noise and sampling defaults are our choice",
+                model: BuiltinModel::Lorenz96(model),
+                theta: Lorenz96::NOMINAL.to_vec(),
+                theta_prior: vec![Prior::flat(), positive()],
+                estimate: vec![false; 2],
+                x0_prior: vec![normal(2.3, 3.6); n],
+                z0_prior: vec![],
+                observation: StateMeasurement::new(
+                    (0..n).collect(),
+                    (1..=n).map(|i| format!("y{i}")).collect(),
+                    Noise::Gaussian { sigma: Param::Fixed(1.0) },
+                ),
+                t_end: 5.0,
+                dt: 0.001,
+                first_sample: 0.0,
+                sample_every: 0.1,
+            }
+        }
         _ => return Err(unknown()),
     };
     Ok(p)

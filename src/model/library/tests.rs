@@ -260,6 +260,8 @@ fn divergence_closed_form(p: &Preset, x: &[f64], z: &[f64], th: &[f64]) -> f64 {
         BuiltinModel::DoubleWell(_) => 4.0 - 12.0 * x[0] * x[0],
         // Lorenz: −s − 1 − b.
         BuiltinModel::Lorenz63(_) => -(th[Lorenz63::SIGMA] + 1.0 + th[Lorenz63::BETA]),
+        // Lorenz-96: ∂f_i/∂x_i = −1.
+        BuiltinModel::Lorenz96(m) => -(m.states() as f64),
     }
 }
 
