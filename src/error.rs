@@ -81,6 +81,19 @@ pub enum Error {
         /// Why, naming the shard folders or files at fault.
         reason: String,
     },
+    /// A model file is malformed or declares an inconsistent model; names the file, the line
+    /// and the column (1-based, in characters) of the problem, and what was expected.
+    #[error("{file}:{line}:{column}: {reason}")]
+    ModelFile {
+        /// The file (as given), or a label for text that did not come from a file.
+        file: String,
+        /// 1-based line.
+        line: usize,
+        /// 1-based column, in characters.
+        column: usize,
+        /// What is wrong and what was expected.
+        reason: String,
+    },
     /// An I/O error, with the path it concerns.
     #[error("{}: {source}", .path.display())]
     Io {

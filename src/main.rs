@@ -31,8 +31,9 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// List the built-in models with their states, parameters and defaults.
-    Models,
+    /// List the built-in models with their states, parameters and defaults, or check a model
+    /// file and print what it declares (`--check FILE.toml`).
+    Models(cli::ModelsArgs),
     /// Simulate a model and write its measurements (and optionally the true path) as CSV.
     Simulate(SimulateArgs),
     /// Estimate the state path (and parameters) of a model from measurements.
@@ -73,10 +74,7 @@ fn main() -> ExitCode {
         }
     };
     let result = match cli.command {
-        Some(Command::Models) => {
-            cli::print_models();
-            Ok(true)
-        }
+        Some(Command::Models(args)) => cli::models(&args).map(|()| true),
         Some(Command::Simulate(args)) => cli::simulate::run(&args).map(|()| true),
         Some(Command::Estimate(args)) => cli::estimate::run(&args),
         Some(Command::Compare(args)) => cli::compare::run(&args),

@@ -9,7 +9,7 @@ use onsager::action::GridSpec;
 use onsager::data::Dataset;
 use onsager::estimate::{EstimationProblem, PathEstimate};
 use onsager::estimator::{options_from_pairs, Estimator, Method};
-use onsager::model::library::{BuiltinModel, Preset};
+use onsager::model::library::{Model, Preset};
 use onsager::model::observation::StateMeasurement;
 use onsager::model::{Observation, Sde};
 use onsager::path::Transcription;
@@ -148,7 +148,7 @@ impl EstimateArgs {
 }
 
 /// The estimation problem of the command line: a built-in model with the flags applied.
-pub type CliProblem<'a> = EstimationProblem<'a, BuiltinModel, StateMeasurement>;
+pub type CliProblem<'a> = EstimationProblem<'a, Model, StateMeasurement>;
 
 /// Builds the problem pieces that the [`EstimationProblem`] borrows.
 pub struct Setup {

@@ -128,9 +128,7 @@ fn default_out(name: &str, quick: bool) -> PathBuf {
 
 fn load(experiment: &str) -> Result<Experiment> {
     if experiment.ends_with(".toml") || std::path::Path::new(experiment).is_file() {
-        let text = std::fs::read_to_string(experiment)
-            .map_err(|source| Error::Io { path: PathBuf::from(experiment), source })?;
-        Experiment::from_toml(&text).map_err(|e| match e {
+        Experiment::from_path(std::path::Path::new(experiment)).map_err(|e| match e {
             Error::InvalidOption { name, reason } => {
                 Error::InvalidOption { name, reason: format!("in {experiment}: {reason}") }
             }

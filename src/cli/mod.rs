@@ -5,7 +5,7 @@ pub mod estimate;
 pub mod experiment;
 pub mod simulate;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use clap::Args;
 
@@ -21,6 +21,10 @@ pub struct ModelArgs {
     /// Built-in model name (see `onsager models`).
     #[arg(long, default_value = "double-well")]
     pub model: String,
+    /// A model file (TOML; see docs/models.md, "Models in a file") instead of a built-in
+    /// model.
+    #[arg(long, value_name = "PATH", conflicts_with = "model")]
+    pub model_file: Option<PathBuf>,
     /// Parameter value `NAME=VALUE`; repeatable.
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,
@@ -122,9 +126,12 @@ fn parse_initial_prior(spec: &str, names: &[String]) -> Result<Vec<(usize, Prior
 }
 
 impl ModelArgs {
-    /// The model's preset with the flags applied.
+    /// The model's preset (built-in, or read from `--model-file`) with the flags applied.
     pub fn preset(&self) -> Result<Preset> {
-        let mut p = library::preset(&self.model)?;
+        let mut p = match &self.model_file {
+            Some(path) => Preset::from_path(path)?,
+            None => library::preset(&self.model)?,
+        };
         for s in &self.params {
             let (k, v) = parse_assignment(s, "--param")?;
             let value = parse_number(&v, "--param", &format!("parameter `{k}`"))?;
@@ -157,12 +164,60 @@ pub fn create_parent(file: &Path) -> Result<()> {
     Ok(())
 }
 
-/// `onsager models`.
-pub fn print_models() {
-    for name in library::NAMES {
-        let p = library::preset(name).expect("every listed model has a preset");
+/// Flags of `onsager models`.
+#[derive(Args, Debug, Clone)]
+pub struct ModelsArgs {
+    /// Check a model file and print what it declares, instead of listing the built-in models.
+    #[arg(long, value_name = "PATH")]
+    pub check: Option<PathBuf>,
+}
+
+/// `onsager models`: the built-in models, or the model a file declares (`--check`).
+pub fn models(args: &ModelsArgs) -> Result<()> {
+    match &args.check {
+        Some(path) => {
+            let p = Preset::from_path(path)?;
+            outln!("{}: a valid model file", path.display());
+            print_preset(&p);
+            if let library::Model::Expression(m) = &p.model {
+                print_expressions(m);
+            }
+        }
+        None => {
+            for name in library::NAMES {
+                print_preset(&library::preset(name)?);
+                outln!();
+            }
+        }
+    }
+    Ok(())
+}
+
+/// What an expression model derives from its expressions.
+fn print_expressions(m: &onsager::model::expression::ExpressionModel) {
+    let degree = m.drift_polynomial_degree().map_or("not a polynomial in the state".to_string(), |d| {
+        format!("polynomial of degree {d} in the state")
+    });
+    outln!("  drift: {degree}");
+    let g_only: Vec<String> = m
+        .param_names()
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| !m.drift_uses_param(*i))
+        .map(|(_, n)| n)
+        .collect();
+    if !g_only.is_empty() {
+        outln!("  parameters not in the drift: {}", g_only.join(", "));
+    }
+    let [f, h, g, div, d] = m.tape_lengths();
+    outln!("  compiled operations: drift {f}, clean drift {h}, G {g}, divergence {div}, derivatives {d}");
+}
+
+/// One model's declaration.
+fn print_preset(p: &Preset) {
+    {
         let m = &p.model;
-        outln!("{name} — {}", p.description);
+        outln!("{} — {}", p.name, p.description);
         outln!("  source:  {}", p.source);
         outln!("  noisy states: {}", m.noisy_names().join(", "));
         let clean = m.clean_names();
@@ -191,8 +246,13 @@ pub fn print_models() {
             p.observation.names.join(", "),
             p.observation.noise.describe(&m.param_names())
         );
-        outln!("  simulation: t_end={} dt={} sample_every={}", p.t_end, p.dt, p.sample_every);
-        outln!();
+        outln!(
+            "  simulation: t_end={} dt={} first_sample={} sample_every={}",
+            p.t_end,
+            p.dt,
+            p.first_sample,
+            p.sample_every
+        );
     }
 }
 

@@ -69,7 +69,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     data.write_csv(&args.out)?;
     outln!(
         "simulated `{}` to t = {} with {} steps of {} ({}), seed {}",
-        args.model.model,
+        p.name,
         p.t_end,
         path.len() - 1,
         p.dt,

@@ -17,6 +17,7 @@
 //! experiment is run with `--quick` (fewer replicates, shorter horizons, a smaller grid).
 
 use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
@@ -82,8 +83,14 @@ pub struct ExperimentSpec {
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ModelSpec {
-    /// A built-in model (see `onsager models`).
+    /// A built-in model (see `onsager models`); give `name` or `file`.
+    #[serde(default)]
     pub name: String,
+    /// A model file (docs/models.md, "Models in a file") instead of a built-in model; a relative
+    /// path is taken from the spec file's folder ([`Experiment::from_path`]), or from the
+    /// working directory for a spec given as text ([`Experiment::from_toml`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub file: Option<PathBuf>,
     /// Parameter values replacing the preset's nominal ones (name → value).
     #[serde(default)]
     pub params: BTreeMap<String, f64>,
@@ -215,6 +222,8 @@ pub struct Experiment {
     seed: Option<u64>,
     /// A number of replicates replacing the document's and the quick version's.
     replicates: Option<usize>,
+    /// The folder relative model-file paths start from (the spec file's), if any.
+    base_dir: Option<PathBuf>,
     /// The spec of the first scenario of the full version (name, description, source,
     /// replicates, seed, estimators as written there).
     pub spec: ExperimentSpec,
@@ -227,9 +236,24 @@ impl Experiment {
     /// (with the line) for a syntax error; `section.key` for an unknown key or an invalid value
     /// (e.g. `measurements.every`, `estimators.jme.options.step`).
     pub fn from_toml(text: &str) -> Result<Experiment> {
+        Self::from_toml_in(text, None)
+    }
+
+    /// Reads a spec file: [`Experiment::from_toml`] on its text, with relative model-file paths
+    /// (`[model] file`) taken from the spec file's folder. Errors: [`Error::Io`] when the file
+    /// cannot be read, and those of [`Experiment::from_toml`].
+    pub fn from_path(path: &Path) -> Result<Experiment> {
+        let text =
+            std::fs::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
+        let base = path.parent().map(Path::to_path_buf);
+        Self::from_toml_in(&text, base)
+    }
+
+    fn from_toml_in(text: &str, base_dir: Option<PathBuf>) -> Result<Experiment> {
         let table: toml::Table =
             toml::from_str(text).map_err(|e| invalid("spec", e.to_string().trim_end().to_string()))?;
-        let mut experiment = Experiment { table, seed: None, replicates: None, spec: placeholder() };
+        let mut experiment =
+            Experiment { table, seed: None, replicates: None, base_dir, spec: placeholder() };
         experiment.spec = experiment.scenarios(false)?.remove(0).spec;
         experiment.scenarios(true)?;
         Ok(experiment)
@@ -347,7 +371,8 @@ impl Experiment {
             if let Some(r) = self.replicates {
                 spec.replicates = r;
             }
-            scenarios.push(Scenario::resolve(name.clone(), vars.clone(), spec).map_err(in_scenario)?);
+            let base = self.base_dir.as_deref();
+            scenarios.push(Scenario::resolve(name.clone(), vars.clone(), spec, base).map_err(in_scenario)?);
         }
         Ok(scenarios)
     }
@@ -509,6 +534,27 @@ fn positive(name: &str, v: f64) -> Result<f64> {
     }
 }
 
+/// The preset of `[model]`: the built-in `name`, or the model `file` (relative to `base_dir`).
+fn model_preset(model: &ModelSpec, base_dir: Option<&Path>) -> Result<Preset> {
+    match (&model.file, model.name.is_empty()) {
+        (Some(_), false) => {
+            Err(invalid("model", "give either `name` (a built-in model) or `file`, not both"))
+        }
+        (None, true) => Err(invalid("model", "give `name` (a built-in model) or `file` (a model file)")),
+        (None, false) => library::preset(&model.name).map_err(|e| invalid("model.name", e.to_string())),
+        (Some(file), true) => {
+            let path = match base_dir {
+                Some(dir) if file.is_relative() => dir.join(file),
+                _ => file.clone(),
+            };
+            Preset::from_path(&path).map_err(|e| match e {
+                e @ Error::ModelFile { .. } => e,
+                other => invalid("model.file", other.to_string()),
+            })
+        }
+    }
+}
+
 fn parse_noise(spec: &str, p: &Preset, key: &str) -> Result<Noise> {
     Noise::parse(spec, &p.model.param_names()).map_err(|e| match e {
         Error::InvalidOption { reason, .. } => invalid(key, reason),
@@ -529,11 +575,16 @@ fn parse_state_priors(map: &BTreeMap<String, String>, p: &Preset, key: &str) -> 
 }
 
 impl Scenario {
-    fn resolve(name: String, vars: Vec<(String, String)>, spec: ExperimentSpec) -> Result<Scenario> {
+    fn resolve(
+        name: String,
+        vars: Vec<(String, String)>,
+        spec: ExperimentSpec,
+        base_dir: Option<&Path>,
+    ) -> Result<Scenario> {
         if spec.replicates == 0 {
             return Err(invalid("replicates", "must be at least 1"));
         }
-        let mut p = library::preset(&spec.model.name).map_err(|e| invalid("model.name", e.to_string()))?;
+        let mut p = model_preset(&spec.model, base_dir)?;
         for (k, &v) in &spec.model.params {
             p.set_param(k, v).map_err(|e| invalid(format!("model.params.{k}"), e.to_string()))?;
         }

@@ -14,6 +14,7 @@
 //! diffusion matrix is D = ½ G Gᵀ (`003_d2fc48a470e528fc.txt`).
 
 pub mod ad;
+pub mod expression;
 pub mod library;
 pub mod observation;
 pub mod prior;

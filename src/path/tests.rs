@@ -521,7 +521,7 @@ fn kept_kkt_solver_reuses_its_analysis() {
 /// A built-in model without its closed-form `drift_derivatives`: the transcription then
 /// differentiates the drifts automatically. (A wrapper for the one comparison below, not a
 /// model, so not in `test_models`.)
-struct WithoutClosedForm<'a>(&'a crate::model::library::BuiltinModel);
+struct WithoutClosedForm<'a>(&'a crate::model::library::Model);
 
 impl crate::model::Sde for WithoutClosedForm<'_> {
     fn dims(&self) -> crate::model::Dims {

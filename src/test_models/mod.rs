@@ -28,11 +28,42 @@
 //! | [`van_der_pol_student_t`] | the Van der Pol problem of `001_8aefdf0570c96f51.txt` Sec. 9 | convergence of the MAP paths |
 //! | [`cosine_data`] | y(t) = a cos(1.3 t) + b, deterministic | identities that hold for any data |
 //!
+//! Model files ([`MODEL_FILES`]): the files of `examples/models/`, one twin per built-in model
+//! (the same model, priors, measurements and defaults, so the same numbers), each with the name
+//! it declares.
+//!
 //! Every simulated record draws all its random numbers from one seeded `StdRng`, so its numbers
 //! are fixed for a given version of `rand`.
 
 mod models;
 mod records;
+
+/// The model files of `examples/models/` as (declared name, text): a twin of every built-in model
+/// (same name, model and defaults as [`preset`](crate::model::library::preset) of that name), in
+/// the order of [`NAMES`](crate::model::library::NAMES).
+pub const MODEL_FILES: &[(&str, &str)] = &[
+    ("ou", include_str!("../../examples/models/ou.toml")),
+    ("tanh", include_str!("../../examples/models/tanh.toml")),
+    ("van-der-pol", include_str!("../../examples/models/van-der-pol.toml")),
+    ("duffing", include_str!("../../examples/models/duffing.toml")),
+    ("holmes-rand", include_str!("../../examples/models/holmes-rand.toml")),
+    ("double-well", include_str!("../../examples/models/double-well.toml")),
+    ("lorenz63", include_str!("../../examples/models/lorenz63.toml")),
+    ("lorenz96", include_str!("../../examples/models/lorenz96.toml")),
+];
+
+/// The preset of the model file called `name` in [`MODEL_FILES`]. Errors:
+/// [`Error::UnknownName`](crate::Error::UnknownName) for another name, and those of
+/// [`Preset::from_toml_str`](crate::model::library::Preset::from_toml_str).
+pub fn model_file(name: &str) -> crate::Result<crate::model::library::Preset> {
+    let (_, text) =
+        MODEL_FILES.iter().find(|(n, _)| *n == name).ok_or_else(|| crate::Error::UnknownName {
+            kind: "model file".into(),
+            name: name.into(),
+            known: MODEL_FILES.iter().map(|(n, _)| n.to_string()).collect(),
+        })?;
+    crate::model::library::Preset::from_toml_str(text, &format!("examples/models/{name}.toml"))
+}
 
 pub use models::{
     CubicDampedDuffing, DampedRotation, LinearOscillator, RotationWithPosition, TwoNoisyOneClean,

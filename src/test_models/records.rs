@@ -9,7 +9,7 @@ use super::models::LinearOscillator;
 use crate::data::{Dataset, StatePath};
 use crate::estimate::EstimationProblem;
 use crate::kalman::linear::{kalman_rts, KalmanSmoothing, LinearGaussianModel};
-use crate::model::library::{BuiltinModel, DoubleWell, Ou, Preset};
+use crate::model::library::{DoubleWell, Model, Ou, Preset};
 use crate::model::observation::{Noise, Param, StateMeasurement};
 use crate::model::prior::Prior;
 use crate::model::Sde;
@@ -322,10 +322,7 @@ impl PresetRecord {
 
     /// The preset's estimation problem on the record ([`Preset::problem`]: t0 from
     /// [`default_initial_time`](crate::estimate::default_initial_time), here 0, and seed 0).
-    pub fn problem<'a>(
-        &'a self,
-        estimate: &'a [usize],
-    ) -> EstimationProblem<'a, BuiltinModel, StateMeasurement> {
+    pub fn problem<'a>(&'a self, estimate: &'a [usize]) -> EstimationProblem<'a, Model, StateMeasurement> {
         self.preset.problem(&self.data, estimate)
     }
 }

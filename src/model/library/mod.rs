@@ -40,6 +40,9 @@ pub use van_der_pol::VanDerPol;
 
 use super::observation::{Noise, StateMeasurement};
 use super::prior::Prior;
+use std::sync::Arc;
+
+use super::expression::ExpressionModel;
 use super::{check_len, Dims, DriftDerivatives, Param, Scalar, Sde};
 use crate::data::Dataset;
 use crate::estimate::EstimationProblem;
@@ -54,10 +57,11 @@ fn names(list: &[&str]) -> Vec<String> {
 pub const NAMES: &[&str] =
     &["ou", "tanh", "van-der-pol", "duffing", "holmes-rand", "double-well", "lorenz63", "lorenz96"];
 
-/// One of the built-in models, chosen at run time. Implements [`Sde`] by delegating to the
-/// model it holds.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum BuiltinModel {
+/// A model chosen at run time: one of the built-in models, or a model read from a file
+/// ([`ExpressionModel`], [`Preset::from_path`]). Implements [`Sde`] by delegating to the model
+/// it holds.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Model {
     /// [`Ou`], `ou`.
     Ou(Ou),
     /// [`Tanh`], `tanh`.
@@ -74,41 +78,45 @@ pub enum BuiltinModel {
     Lorenz63(Lorenz63),
     /// [`Lorenz96`], `lorenz96`.
     Lorenz96(Lorenz96),
+    /// A model given by expressions, read from a model file.
+    Expression(Arc<ExpressionModel>),
 }
 
-/// Runs `$body` with `$m` bound to the model inside a [`BuiltinModel`].
+/// Runs `$body` with `$m` bound to the model inside a [`Model`].
 macro_rules! delegate {
     ($self:expr, $m:ident => $body:expr) => {
         match $self {
-            BuiltinModel::Ou($m) => $body,
-            BuiltinModel::Tanh($m) => $body,
-            BuiltinModel::VanDerPol($m) => $body,
-            BuiltinModel::Duffing($m) => $body,
-            BuiltinModel::HolmesRand($m) => $body,
-            BuiltinModel::DoubleWell($m) => $body,
-            BuiltinModel::Lorenz63($m) => $body,
-            BuiltinModel::Lorenz96($m) => $body,
+            Model::Ou($m) => $body,
+            Model::Tanh($m) => $body,
+            Model::VanDerPol($m) => $body,
+            Model::Duffing($m) => $body,
+            Model::HolmesRand($m) => $body,
+            Model::DoubleWell($m) => $body,
+            Model::Lorenz63($m) => $body,
+            Model::Lorenz96($m) => $body,
+            Model::Expression($m) => $body,
         }
     };
 }
 
-impl BuiltinModel {
-    /// The model's registry name (one of [`NAMES`]).
-    pub fn name(&self) -> &'static str {
-        match self {
-            BuiltinModel::Ou(_) => "ou",
-            BuiltinModel::Tanh(_) => "tanh",
-            BuiltinModel::VanDerPol(_) => "van-der-pol",
-            BuiltinModel::Duffing(_) => "duffing",
-            BuiltinModel::HolmesRand(_) => "holmes-rand",
-            BuiltinModel::DoubleWell(_) => "double-well",
-            BuiltinModel::Lorenz63(_) => "lorenz63",
-            BuiltinModel::Lorenz96(_) => "lorenz96",
-        }
+impl Model {
+    /// The model's registry name (one of [`NAMES`]), `None` for a model from a file.
+    pub fn builtin_name(&self) -> Option<&'static str> {
+        Some(match self {
+            Model::Ou(_) => "ou",
+            Model::Tanh(_) => "tanh",
+            Model::VanDerPol(_) => "van-der-pol",
+            Model::Duffing(_) => "duffing",
+            Model::HolmesRand(_) => "holmes-rand",
+            Model::DoubleWell(_) => "double-well",
+            Model::Lorenz63(_) => "lorenz63",
+            Model::Lorenz96(_) => "lorenz96",
+            Model::Expression(_) => return None,
+        })
     }
 }
 
-impl Sde for BuiltinModel {
+impl Sde for Model {
     fn dims(&self) -> Dims {
         delegate!(self, m => m.dims())
     }
@@ -169,14 +177,14 @@ impl Sde for BuiltinModel {
 /// (up to rounding); the state path starts at t = 0.
 #[derive(Debug, Clone)]
 pub struct Preset {
-    /// Registry name (one of [`NAMES`]).
-    pub name: &'static str,
+    /// Registry name (one of [`NAMES`]), or the name a model file declares.
+    pub name: String,
     /// One-line description.
-    pub description: &'static str,
+    pub description: String,
     /// Where the model and its defaults come from (paper file and section/equation/table).
-    pub source: &'static str,
+    pub source: String,
     /// The dynamics.
-    pub model: BuiltinModel,
+    pub model: Model,
     /// Nominal parameter vector θ (dynamics and measurement parameters), in the order of
     /// [`Sde::param_names`].
     pub theta: Vec<f64>,
@@ -263,7 +271,7 @@ impl Preset {
         &'a self,
         data: &'a Dataset,
         estimate: &'a [usize],
-    ) -> EstimationProblem<'a, BuiltinModel, StateMeasurement> {
+    ) -> EstimationProblem<'a, Model, StateMeasurement> {
         EstimationProblem {
             sde: &self.model,
             observation: &self.observation,
@@ -381,10 +389,11 @@ pub fn preset(name: &str) -> Result<Preset> {
     let unknown = || Error::UnknownName { kind: "model".into(), name: name.into(), known: names(NAMES) };
     let p = match name {
         "ou" => Preset {
-            name: "ou",
-            description: "Ornstein-Uhlenbeck process dX = -theta X dt + sigma dW, Gaussian measurements of x",
-            source: "closed-form reference model; defaults are our choice",
-            model: BuiltinModel::Ou(Ou),
+            name: "ou".into(),
+            description: "Ornstein-Uhlenbeck process dX = -theta X dt + sigma dW, Gaussian measurements of x"
+                .into(),
+            source: "closed-form reference model; defaults are our choice".into(),
+            model: Model::Ou(Ou),
             theta: Ou::NOMINAL.to_vec(),
             theta_prior: vec![Prior::flat(), positive()],
             estimate: vec![false; 2],
@@ -397,10 +406,10 @@ pub fn preset(name: &str) -> Result<Preset> {
             sample_every: 0.1,
         },
         "tanh" => Preset {
-            name: "tanh",
-            description: "dX = tanh(X) dt + sigma dW with one measurement at t = 5",
-            source: "001_8aefdf0570c96f51.txt Sec. 2 (motivating example, Fig. 1)",
-            model: BuiltinModel::Tanh(Tanh),
+            name: "tanh".into(),
+            description: "dX = tanh(X) dt + sigma dW with one measurement at t = 5".into(),
+            source: "001_8aefdf0570c96f51.txt Sec. 2 (motivating example, Fig. 1)".into(),
+            model: Model::Tanh(Tanh),
             theta: Tanh::NOMINAL.to_vec(),
             theta_prior: vec![positive()],
             estimate: vec![false],
@@ -415,10 +424,11 @@ pub fn preset(name: &str) -> Result<Preset> {
             sample_every: 5.0,
         },
         "van-der-pol" => Preset {
-            name: "van-der-pol",
-            description: "stochastic Van der Pol oscillator, u measured with Gaussian-mixture outliers",
-            source: "001_8aefdf0570c96f51.txt Sec. 9 (Figs. 3-4)",
-            model: BuiltinModel::VanDerPol(VanDerPol),
+            name: "van-der-pol".into(),
+            description: "stochastic Van der Pol oscillator, u measured with Gaussian-mixture outliers"
+                .into(),
+            source: "001_8aefdf0570c96f51.txt Sec. 9 (Figs. 3-4)".into(),
+            model: Model::VanDerPol(VanDerPol),
             theta: VanDerPol::NOMINAL.to_vec(),
             theta_prior: vec![Prior::flat(), positive()],
             estimate: vec![false; 2],
@@ -440,10 +450,11 @@ pub fn preset(name: &str) -> Result<Preset> {
             sample_every: 0.1,
         },
         "duffing" => Preset {
-            name: "duffing",
-            description: "forced stochastic Duffing oscillator, noisy velocity x, clean position z measured",
-            source: "000_74b95e149527c64e.txt Sec. 4.1.1, eqs. (4.2)-(4.7), Table 4.1",
-            model: BuiltinModel::Duffing(Duffing),
+            name: "duffing".into(),
+            description: "forced stochastic Duffing oscillator, noisy velocity x, clean position z measured"
+                .into(),
+            source: "000_74b95e149527c64e.txt Sec. 4.1.1, eqs. (4.2)-(4.7), Table 4.1".into(),
+            model: Model::Duffing(Duffing),
             theta: Duffing::NOMINAL.to_vec(),
             // (4.4): N(0, sigma_theta^2), sigma_theta = 10; (4.5): Gamma(r = 1.1, s = 10).
             theta_prior: vec![
@@ -464,11 +475,11 @@ pub fn preset(name: &str) -> Result<Preset> {
             sample_every: 0.1,
         },
         "holmes-rand" => Preset {
-            name: "holmes-rand",
+            name: "holmes-rand".into(),
             description:
-                "forced stochastic Holmes-Rand oscillator, clean position z measured with quantization",
-            source: "000_74b95e149527c64e.txt Sec. 4.1.3, eq. (4.8), Table 4.3",
-            model: BuiltinModel::HolmesRand(HolmesRand),
+                "forced stochastic Holmes-Rand oscillator, clean position z measured with quantization".into(),
+            source: "000_74b95e149527c64e.txt Sec. 4.1.3, eq. (4.8), Table 4.3".into(),
+            model: Model::HolmesRand(HolmesRand),
             theta: HolmesRand::NOMINAL.to_vec(),
             // N(0, sigma_theta^2), sigma_theta = 10; Sigma_y ~ Gamma(r = 4, l_b / 3).
             theta_prior: vec![
@@ -494,11 +505,11 @@ pub fn preset(name: &str) -> Result<Preset> {
             sample_every: 0.1,
         },
         "double-well" => Preset {
-            name: "double-well",
+            name: "double-well".into(),
             description:
-                "double-well diffusion dX = (4X - 4X^3) dt + sqrt(2D) dW, Gaussian measurements of x",
-            source: "notation of 003_d2fc48a470e528fc.txt (0.1); defaults are our choice",
-            model: BuiltinModel::DoubleWell(DoubleWell),
+                "double-well diffusion dX = (4X - 4X^3) dt + sqrt(2D) dW, Gaussian measurements of x".into(),
+            source: "notation of 003_d2fc48a470e528fc.txt (0.1); defaults are our choice".into(),
+            model: Model::DoubleWell(DoubleWell),
             theta: DoubleWell::NOMINAL.to_vec(),
             theta_prior: vec![positive()],
             estimate: vec![false],
@@ -511,10 +522,10 @@ pub fn preset(name: &str) -> Result<Preset> {
             sample_every: 0.5,
         },
         "lorenz63" => Preset {
-            name: "lorenz63",
-            description: "Lorenz-63 system with additive noise sigma_w I, all three states measured",
-            source: "Lorenz (1963) drift; noise and sampling defaults are our choice",
-            model: BuiltinModel::Lorenz63(Lorenz63),
+            name: "lorenz63".into(),
+            description: "Lorenz-63 system with additive noise sigma_w I, all three states measured".into(),
+            source: "Lorenz (1963) drift; noise and sampling defaults are our choice".into(),
+            model: Model::Lorenz63(Lorenz63),
             theta: Lorenz63::NOMINAL.to_vec(),
             theta_prior: vec![Prior::flat(), Prior::flat(), Prior::flat(), positive()],
             estimate: vec![false; 4],
@@ -534,10 +545,10 @@ pub fn preset(name: &str) -> Result<Preset> {
             let model = Lorenz96::default();
             let n = model.states();
             Preset {
-                name: "lorenz96",
-                description: "Lorenz-96 system with 10 states, forcing F and additive noise sigma_w I, all states measured",
-                source: "Lorenz (1996) drift; noise and sampling defaults are our choice",
-                model: BuiltinModel::Lorenz96(model),
+                name: "lorenz96".into(),
+                description: "Lorenz-96 system with 10 states, forcing F and additive noise sigma_w I, all states measured".into(),
+                source: "Lorenz (1996) drift; noise and sampling defaults are our choice".into(),
+                model: Model::Lorenz96(model),
                 theta: Lorenz96::NOMINAL.to_vec(),
                 theta_prior: vec![Prior::flat(), positive()],
                 estimate: vec![false; 2],

@@ -75,7 +75,11 @@ fn uniform<R: Rng + ?Sized>(rng: &mut R, lo: f64, hi: f64) -> f64 {
 /// and G invertible); ẋ = f + G u with u uniform in ±3, a plausible local velocity.
 fn random_point<R: Rng + ?Sized>(p: &Preset, rng: &mut R) -> Point {
     let d = p.dims();
-    let scale = if p.name == "lorenz63" { 15.0 } else { 2.0 };
+    let scale = match p.name.as_str() {
+        "lorenz63" => 15.0,
+        "lorenz96" => 8.0,
+        _ => 2.0,
+    };
     let t = uniform(rng, 0.0, 10.0);
     let x: Vec<f64> = (0..d.noisy).map(|_| uniform(rng, -scale, scale)).collect();
     let z: Vec<f64> = (0..d.clean).map(|_| uniform(rng, -scale, scale)).collect();
@@ -89,14 +93,29 @@ fn random_point<R: Rng + ?Sized>(p: &Preset, rng: &mut R) -> Point {
     Point { t, x, z, theta, xdot }
 }
 
-/// Runs `check` on N_POINTS random points of every preset's model, with a fixed seed per model.
+/// Every preset: each built-in model followed by its twin from a model file (an expression
+/// model, `crate::test_models::MODEL_FILES`), then the model files without a built-in twin.
+fn every_preset() -> Vec<Preset> {
+    let files = crate::test_models::MODEL_FILES;
+    let mut presets = Vec::new();
+    for name in NAMES {
+        presets.push(preset(name).unwrap());
+        presets.push(crate::test_models::model_file(name).unwrap());
+    }
+    for (name, _) in files.iter().filter(|(n, _)| !NAMES.contains(n)) {
+        presets.push(crate::test_models::model_file(name).unwrap());
+    }
+    presets
+}
+
+/// Runs `check` on N_POINTS random points of every preset's model (built-in and from a file),
+/// with a fixed seed per model.
 fn for_every_model(check: impl Fn(&Preset, &Point)) {
-    for (k, name) in NAMES.iter().enumerate() {
-        let p = preset(name).unwrap();
+    for (k, p) in every_preset().iter().enumerate() {
         let mut rng = StdRng::seed_from_u64(0x5eed + k as u64);
         for _ in 0..N_POINTS {
-            let pt = random_point(&p, &mut rng);
-            check(&p, &pt);
+            let pt = random_point(p, &mut rng);
+            check(p, &pt);
         }
     }
 }
@@ -247,21 +266,26 @@ fn noise_energy_derivatives_match_central_differences() {
 fn divergence_closed_form(p: &Preset, x: &[f64], z: &[f64], th: &[f64]) -> f64 {
     match p.model {
         // f = −θx.
-        BuiltinModel::Ou(_) => -th[Ou::THETA],
+        Model::Ou(_) => -th[Ou::THETA],
         // f = tanh x: d/dx tanh x = 1 − tanh² x.
-        BuiltinModel::Tanh(_) => 1.0 - x[0].tanh().powi(2),
+        Model::Tanh(_) => 1.0 - x[0].tanh().powi(2),
         // 001_8aefdf0570c96f51.txt Sec. 9: div f = μ(1 − u²) (= 2(1 − u²) at μ = 2).
-        BuiltinModel::VanDerPol(_) => th[VanDerPol::MU] * (1.0 - x[0] * x[0]),
+        Model::VanDerPol(_) => th[VanDerPol::MU] * (1.0 - x[0] * x[0]),
         // 000_74b95e149527c64e.txt (4.6): ∂f/∂x = −d.
-        BuiltinModel::Duffing(_) => -th[Duffing::D],
+        Model::Duffing(_) => -th[Duffing::D],
         // 000_74b95e149527c64e.txt (4.8a): ∂f/∂x = −(a + γz²).
-        BuiltinModel::HolmesRand(_) => -(th[HolmesRand::A] + th[HolmesRand::GAMMA] * z[0] * z[0]),
+        Model::HolmesRand(_) => -(th[HolmesRand::A] + th[HolmesRand::GAMMA] * z[0] * z[0]),
         // f = 4x − 4x³: f' = 4 − 12x².
-        BuiltinModel::DoubleWell(_) => 4.0 - 12.0 * x[0] * x[0],
+        Model::DoubleWell(_) => 4.0 - 12.0 * x[0] * x[0],
         // Lorenz: −s − 1 − b.
-        BuiltinModel::Lorenz63(_) => -(th[Lorenz63::SIGMA] + 1.0 + th[Lorenz63::BETA]),
+        Model::Lorenz63(_) => -(th[Lorenz63::SIGMA] + 1.0 + th[Lorenz63::BETA]),
         // Lorenz-96: ∂f_i/∂x_i = −1.
-        BuiltinModel::Lorenz96(m) => -(m.states() as f64),
+        Model::Lorenz96(m) => -(m.states() as f64),
+        // A model file: the twin's closed form; Lorenz-96: Σ ∂f_i/∂x_i = −n.
+        Model::Expression(_) => match preset(&p.name) {
+            Ok(twin) => divergence_closed_form(&twin, x, z, th),
+            Err(_) => -(p.dims().noisy as f64),
+        },
     }
 }
 
@@ -366,7 +390,7 @@ fn every_preset_is_consistent() {
         let p = preset(name).unwrap();
         let d = p.dims();
         assert_eq!(p.name, *name);
-        assert_eq!(p.model.name(), *name);
+        assert_eq!(p.model.builtin_name(), Some(*name));
         assert_eq!(p.model.noisy_names().len(), d.noisy, "{name}: noisy names");
         assert_eq!(p.model.clean_names().len(), d.clean, "{name}: clean names");
         assert_eq!(p.model.state_names().len(), d.states(), "{name}: state names");
@@ -592,7 +616,7 @@ fn forward_difference(g: &dyn Fn(f64) -> Vec<f64>, order: usize, h: f64) -> (Vec
 /// [f; h] of degree exactly d along random lines s0 + τu of the state (t and θ random): the
 /// (d + 1)-th finite difference vanishes to round-off at every point, the d-th does not
 /// (so d is not an overstatement) on some. `tanh` is not a polynomial and declares nothing;
-/// `BuiltinModel` forwards the declaration.
+/// `Model` forwards the declaration.
 #[test]
 fn declared_drift_polynomial_degrees_are_exact() {
     let declared = std::cell::RefCell::new(Vec::new());
@@ -602,7 +626,7 @@ fn declared_drift_polynomial_degrees_are_exact() {
             assert_eq!(p.name, "tanh", "a polynomial model without a declared degree");
             return;
         };
-        declared.borrow_mut().push(p.name);
+        declared.borrow_mut().push(p.name.clone());
         let ns = p.dims().states();
         let s0 = concat(&[&pt.x, &pt.z]);
         // A direction from the point's velocity and state, of length ~1.
@@ -620,12 +644,12 @@ fn declared_drift_polynomial_degrees_are_exact() {
         }
         let (top, scale) = forward_difference(&g, d, h);
         if top.iter().any(|v| v.abs() > 1e-6 * scale) {
-            leading.borrow_mut().push(p.name);
+            leading.borrow_mut().push(p.name.clone());
         }
     });
     let (mut declared, mut leading) = (declared.into_inner(), leading.into_inner());
     declared.dedup();
     leading.dedup();
     assert_eq!(declared, leading, "models whose declared degree is never reached");
-    assert_eq!(declared.len(), NAMES.len() - 1);
+    assert_eq!(declared.len(), crate::test_models::MODEL_FILES.len() - 1);
 }
