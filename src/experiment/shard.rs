@@ -557,12 +557,12 @@ mod tests {
         for (scenarios, replicates, count) in cases.into_iter().chain(more) {
             let shards: Vec<Shard> = (0..count).map(|i| Shard::try_new(i, count).unwrap()).collect();
             let mut sizes = vec![vec![0usize; count]; scenarios];
-            for s in 0..scenarios {
+            for (s, per_shard) in sizes.iter_mut().enumerate() {
                 for r in 0..replicates {
                     let owners: Vec<usize> =
                         shards.iter().filter(|sh| sh.owns(s, r, scenarios)).map(|sh| sh.index()).collect();
                     assert_eq!(owners, [Shard::assigned(s, r, scenarios, count)]);
-                    sizes[s][owners[0]] += 1;
+                    per_shard[owners[0]] += 1;
                 }
             }
             let spread = |v: &[usize]| v.iter().max().unwrap() - v.iter().min().unwrap();
