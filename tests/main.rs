@@ -7,4 +7,5 @@ mod closure;
 mod estimators;
 mod experiment;
 mod golden;
+mod models;
 mod path;
