@@ -7,5 +7,6 @@ mod closure;
 mod estimators;
 mod experiment;
 mod golden;
+mod models;
 mod path;
 mod shard;

@@ -1,5 +1,6 @@
 //! Expressions as a hash-consed graph: equal subexpressions are one node, constants are
-//! folded on construction, and derivatives are nodes of the same graph (so that the values, the
+//! folded on construction (operands keep the order they are written in: with dual numbers,
+//! a·b and b·a round differently), and derivatives are nodes of the same graph (so that the values, the
 //! divergence and every first and second derivative of a model share their common parts when
 //! compiled into one [`Tape`](super::tape::Tape)).
 
@@ -146,7 +147,7 @@ impl Graph {
             (_, Some(z)) if z == 0.0 => a,
             _ => match self.node(b) {
                 Node::Neg(c) => self.sub(a, c),
-                _ => self.intern(Node::Add(a.min(b), a.max(b))),
+                _ => self.intern(Node::Add(a, b)),
             },
         }
     }
@@ -172,7 +173,7 @@ impl Graph {
             (_, Some(o)) if o == 1.0 => a,
             (Some(m), _) if m == -1.0 => self.neg(b),
             (_, Some(m)) if m == -1.0 => self.neg(a),
-            _ => self.intern(Node::Mul(a.min(b), a.max(b))),
+            _ => self.intern(Node::Mul(a, b)),
         }
     }
 

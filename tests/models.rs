@@ -1,0 +1,173 @@
+//! Model files against the built-in models they declare again (`examples/models/`): the same
+//! seed gives the same simulated path and data, and the same estimates from the MAP paths
+//! (jme, mee, with the parameters each preset estimates), the unscented filter and smoother,
+//! the Gaussian closure and, for one-state models, the exact KSP smoother and mean-optimal
+//! estimator, to round-off (the same status, and the same numbers whether or not the method
+//! converged). The command line takes `--model-file` and `models --check`.
+
+use std::process::Command;
+
+use onsager::estimator::Estimator;
+use onsager::model::library::{preset, Preset, NAMES};
+use onsager::model::observation::{Noise, Param};
+use onsager::test_models::{model_file, PresetRecord};
+
+/// Round-off: the two models compute the same formulas in a different order (and the built-in
+/// models' derivatives in closed form, the files' symbolically), so estimates agree to a few
+/// ulp of the solvers' own precision, far below their tolerances.
+fn same(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-9 * (1.0 + a.abs().max(b.abs())) || (a.is_nan() && b.is_nan())
+}
+
+/// A short record of each model: a few seconds with at least ten measurements, from t = 0.
+fn shorten(mut p: Preset) -> Preset {
+    let (t_end, every) = match p.name.as_str() {
+        "lorenz63" => (1.0, 0.1),
+        "double-well" => (5.0, 0.5),
+        "tanh" => (3.0, 0.5),
+        _ => (2.0, 0.1),
+    };
+    p.t_end = t_end;
+    p.sample_every = every;
+    p.first_sample = 0.0;
+    p
+}
+
+/// Gaussian measurements of the same sd (or its parameter), for the methods that need them.
+fn gaussian(mut p: Preset) -> Preset {
+    let sigma = match p.observation.noise {
+        Noise::Gaussian { sigma } => sigma,
+        Noise::Quantized { sigma, .. } | Noise::Mixture { sigma, .. } => sigma,
+        _ => Param::Fixed(0.5),
+    };
+    p.observation.noise = Noise::Gaussian { sigma };
+    p
+}
+
+fn assert_same_numbers(what: &str, a: &[f64], b: &[f64]) {
+    assert_eq!(a.len(), b.len(), "{what}: lengths");
+    for (k, (x, y)) in a.iter().zip(b).enumerate() {
+        assert!(same(*x, *y), "{what}: entry {k}: built-in {x}, file {y}");
+    }
+}
+
+fn flat(rows: &[Vec<f64>]) -> Vec<f64> {
+    rows.iter().flatten().copied().collect()
+}
+
+/// Runs `method` on the built-in record and the file record and compares the estimates.
+fn compare_method(name: &str, method: &str, builtin: &PresetRecord, file: &PresetRecord) {
+    let estimator = Estimator::parse(method).unwrap();
+    let method = method.split(':').next().unwrap_or(method);
+    let estimate: Vec<usize> = if matches!(method, "jme" | "mee") {
+        (0..builtin.preset.theta.len()).filter(|&i| builtin.preset.estimate[i]).collect()
+    } else {
+        Vec::new()
+    };
+    let a = estimator.run(&builtin.problem(&estimate)).unwrap().estimate;
+    let b = estimator.run(&file.problem(&estimate)).unwrap().estimate;
+    let what = format!("{name} {method}");
+    assert_eq!(a.status, b.status, "{what}: status");
+    assert_same_numbers(&format!("{what} times"), &a.path.times, &b.path.times);
+    assert_same_numbers(&format!("{what} path"), &flat(&a.path.values), &flat(&b.path.values));
+    if let (Some(sa), Some(sb)) = (&a.path.sd, &b.path.sd) {
+        assert_same_numbers(&format!("{what} sd"), &flat(sa), &flat(sb));
+    }
+    assert_same_numbers(&format!("{what} theta"), &a.theta, &b.theta);
+}
+
+/// The built-in model `name` and its model file give the same data and estimates.
+fn twins(name: &str) {
+    {
+        let seed = 11 + NAMES.iter().position(|n| *n == name).unwrap() as u64;
+        let builtin = PresetRecord::simulate(shorten(preset(name).unwrap()), seed).unwrap();
+        let file = PresetRecord::simulate(shorten(model_file(name).unwrap()), seed).unwrap();
+        assert_same_numbers(
+            &format!("{name} truth"),
+            &flat(&builtin.truth.values),
+            &flat(&file.truth.values),
+        );
+        assert_same_numbers(&format!("{name} data"), &flat(&builtin.data.values), &flat(&file.data.values));
+        for method in ["jme", "mee"] {
+            compare_method(name, method, &builtin, &file);
+        }
+        let g = |r: &PresetRecord| PresetRecord { preset: gaussian(r.preset.clone()), ..r.clone() };
+        let (gb, gf) = (g(&builtin), g(&file));
+        // the Gaussian closure's dual takes seconds to converge on the models with several
+        // states: a few of its iterations are as good a comparison
+        let mut methods = vec!["ukf", "uks", "gaussian-closure:dual.max_iterations=2"];
+        if builtin.preset.dims().states() == 1 {
+            methods[2] = "gaussian-closure";
+            methods.extend(["ksp", "mean-optimal"]);
+        }
+        for method in methods {
+            compare_method(name, method, &gb, &gf);
+        }
+    }
+}
+
+macro_rules! twin_tests {
+    ($($test:ident => $name:literal),* $(,)?) => {
+        $(
+            #[test]
+            fn $test() {
+                twins($name);
+            }
+        )*
+        #[test]
+        fn every_built_in_model_has_a_twin_test() {
+            assert_eq!(NAMES, [$($name),*]);
+        }
+    };
+}
+
+twin_tests! {
+    ou_file_equals_built_in => "ou",
+    tanh_file_equals_built_in => "tanh",
+    van_der_pol_file_equals_built_in => "van-der-pol",
+    duffing_file_equals_built_in => "duffing",
+    holmes_rand_file_equals_built_in => "holmes-rand",
+    double_well_file_equals_built_in => "double-well",
+    lorenz63_file_equals_built_in => "lorenz63",
+}
+
+fn onsager() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_onsager"))
+}
+
+fn example(name: &str) -> String {
+    format!("{}/examples/models/{name}.toml", env!("CARGO_MANIFEST_DIR"))
+}
+
+#[test]
+fn the_command_line_takes_model_files() {
+    let dir = std::env::temp_dir().join(format!("onsager-models-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let data = dir.join("l96.csv");
+    let out = onsager()
+        .args(["simulate", "--model-file", &example("lorenz96"), "--t-end", "1", "--seed", "2", "--out"])
+        .arg(&data)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = onsager()
+        .args(["estimate", "--model-file", &example("lorenz96"), "--method", "uks", "--data"])
+        .arg(&data)
+        .arg("--out")
+        .arg(dir.join("est.csv"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = onsager().args(["models", "--check", &example("duffing")]).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success());
+    assert!(text.contains("clean states: z") && text.contains("polynomial of degree 3"), "{text}");
+    // a bad file: exit code 1, the file, line and column, no panic
+    let bad = dir.join("bad.toml");
+    std::fs::write(&bad, "[states]\nnoisy = [\"x\"]\n[parameters]\ns = 1\n[dynamics]\ndrift = [\"-x + q\"]\ndiffusion = \"s\"\n")
+        .unwrap();
+    let out = onsager().args(["models", "--check"]).arg(&bad).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("bad.toml:6:16: drift component 1: unknown symbol `q`"), "{err}");
+}
