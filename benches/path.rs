@@ -7,7 +7,10 @@
 //! solver (the variable-band LDLᵀ, `onsager::nlp::BandLdlt`), `jme_hermite_simpson_faer` faer's
 //! sparse LDLᵀ, `jme_hermite_simpson_kept_solver` the band solver kept across the iterations
 //! (`estimate_path_with`: the KKT pattern is analysed once, as in a Monte Carlo run), in the
-//! same run. Target: median ≤ 35 ms on 2 cores.
+//! same run. Target: median ≤ 35 ms on 2 cores. `jme_hermite_simpson_model_file` solves the same
+//! problem with the model read from `examples/models/van-der-pol.toml` (an expression model:
+//! compiled tapes, symbolic derivatives) instead of the built-in one; target: at most 1.5 times
+//! `jme_hermite_simpson` in the same run.
 //!
 //! `path_duffing_joint_36k/jme_hermite_simpson`: Duffing joint JME (000_74b95e149527c64e.txt
 //! Sec. 4.1.1, θ = (a, b, d, σ_y) estimated), Hermite–Simpson with 36 pieces per measurement
@@ -28,7 +31,7 @@ use onsager::path::{
     estimate_path, estimate_path_with, regression_theta_guess, spline_guess, Merit, PathOptions,
     Transcription,
 };
-use onsager::test_models::{van_der_pol_student_t, PresetRecord};
+use onsager::test_models::{model_file, van_der_pol_student_t, PresetRecord};
 
 fn van_der_pol(c: &mut Criterion) {
     let record = van_der_pol_student_t(1).unwrap();
@@ -51,6 +54,19 @@ fn van_der_pol(c: &mut Criterion) {
             })
         });
     }
+    // the same problem with the model of the model file
+    let mut from_file = record.clone();
+    from_file.preset.model = model_file("van-der-pol").unwrap().model;
+    let file_problem = from_file.problem(&[]);
+    group.bench_function("jme_hermite_simpson_model_file", |b| {
+        b.iter(|| {
+            let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson)
+                .with_step(0.005)
+                .with_laplace(false)
+                .with_initial_path(guess.clone());
+            black_box(estimate_path(&file_problem, options).unwrap())
+        })
+    });
     // one band solver kept across the iterations, as a Monte Carlo run can keep it: the KKT
     // pattern is analysed once (`onsager::path::estimate_path_with`)
     let mut kept = AutoLdlt::new();

@@ -179,3 +179,68 @@ fn the_command_line_takes_model_files() {
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("bad.toml:6:16: drift component 1: unknown symbol `q`"), "{err}");
 }
+
+/// dx = log(x) dt + 0.1 dW with data near −1: the model is NaN wherever the estimators look.
+const NOT_REAL: &str = r#"
+[states]
+noisy = ["x"]
+[parameters]
+s = 0.1
+[dynamics]
+drift = ["log(x)"]
+diffusion = "s"
+[initial]
+x = "normal:-1,0.1"
+[measurements]
+states = ["x"]
+likelihood = "gaussian:sigma=0.1"
+every = 0.1
+[simulation]
+t_end = 1
+dt = 0.01
+"#;
+
+#[test]
+fn a_model_that_returns_nan_is_a_status_not_a_converged_nan() {
+    let p = Preset::from_toml_str(NOT_REAL, "not-real.toml").unwrap();
+    let times: Vec<f64> = (0..=10).map(|k| k as f64 * 0.1).collect();
+    let data = onsager::data::Dataset {
+        names: vec!["y".into()],
+        values: times.iter().map(|_| vec![-1.0]).collect(),
+        times,
+    };
+    for method in ["jme", "mee", "ukf", "uks", "ekf", "gaussian-closure", "particle"] {
+        let estimator = Estimator::parse(method).unwrap();
+        match estimator.run(&p.problem(&data, &[])) {
+            Ok(run) => assert!(!run.estimate.status.is_success(), "{method}: {}", run.estimate.status),
+            Err(e) => panic!("{method}: an error instead of a status: {e}"),
+        }
+    }
+}
+
+#[test]
+fn experiment_specs_name_model_files() {
+    let spec = |model: &str| {
+        format!(
+            "name = \"from-file\"\n[model]\n{model}\n[simulation]\nt_end = 2.0\n\
+             [[estimators]]\nmethod = \"uks\"\n"
+        )
+    };
+    let file = example("double-well");
+    let e = onsager::experiment::Experiment::from_toml(&spec(&format!(
+        "file = {file:?}\nparams = {{ D = 0.3 }}"
+    )))
+    .unwrap();
+    let s = e.scenarios(false).unwrap();
+    assert_eq!(s[0].truth.name, "double-well");
+    assert_eq!(s[0].truth.theta, [0.3]);
+    // relative to the spec's folder
+    let dir = std::env::temp_dir().join(format!("onsager-spec-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::copy(&file, dir.join("dw.toml")).unwrap();
+    std::fs::write(dir.join("spec.toml"), spec("file = \"dw.toml\"")).unwrap();
+    let e = onsager::experiment::Experiment::from_path(&dir.join("spec.toml")).unwrap();
+    assert_eq!(e.scenarios(false).unwrap()[0].truth.name, "double-well");
+    let both = onsager::experiment::Experiment::from_toml(&spec(&format!("name = \"ou\"\nfile = {file:?}")));
+    assert!(both.unwrap_err().to_string().contains("not both"));
+}

@@ -278,7 +278,10 @@ impl Estimator {
     /// Errors: bad options (as [`Estimator::validate`]); parameters to estimate for a method
     /// that takes θ as given; those of the method (a grid that does not cover the data, a
     /// non-Gaussian likelihood for the mean-optimal estimator and the closures, …). A numerical
-    /// failure is not an error: it is the estimate's status.
+    /// failure is not an error: it is the estimate's status. An estimate whose path or θ is not
+    /// finite (a model that returned NaN or ∞ on the way) never has a successful status: it is
+    /// reported as [`Status::EvaluationError`](crate::status::Status::EvaluationError), with a
+    /// note.
     pub fn run<S: Sde + ?Sized>(
         &self,
         problem: &EstimationProblem<'_, S, StateMeasurement>,
@@ -291,7 +294,18 @@ impl Estimator {
                 reason: format!("`{method}` takes the parameters as given; jme, mee and pem estimate them"),
             });
         }
-        self.dispatch(problem)
+        let mut run = self.dispatch(problem)?;
+        let e = &mut run.estimate;
+        let finite = e.path.values.iter().flatten().chain(&e.theta).all(|v| v.is_finite());
+        if e.status.is_success() && !finite {
+            e.status = crate::status::Status::EvaluationError;
+            run.notes.push(format!(
+                "`{method}` ended as converged, but its path or parameters are not finite (the model \
+                 returned NaN or infinity): reported as {}",
+                e.status
+            ));
+        }
+        Ok(run)
     }
 }
 

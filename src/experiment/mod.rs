@@ -1,7 +1,9 @@
 //! Monte Carlo experiments: the papers' comparisons as TOML specs, run in parallel with
 //! resumable results, summaries and plots.
 //!
-//! An [`Experiment`] (a TOML document; [`ExperimentSpec`] per scenario) names a built-in model with parameter overrides, how the true path is
+//! An [`Experiment`] (a TOML document; [`ExperimentSpec`] per scenario) names a model — a
+//! built-in one (`[model] name = "duffing"`) or a model file (`[model] file = "my-model.toml"`,
+//! relative to the spec's folder) — with parameter overrides, how the true path is
 //! simulated (scheme, step, horizon, initial law), how it is measured (times, the likelihood
 //! that generates the data and the one the estimators use), the estimators (any
 //! [`Estimator`](crate::estimator::Estimator): a method with its options, run through

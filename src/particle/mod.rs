@@ -289,7 +289,8 @@ impl<S: Sde + ?Sized> Model<'_, S> {
     /// From the node at `prev_t` (stored in `prev`) to `node`: systematic resampling when the
     /// ESS is below `ess_threshold` · N, the mean of the first Euler step out of each particle
     /// at the previous node (into `prev`), then Euler–Maruyama substeps. Returns the parents and
-    /// G⁻¹ times the first Euler point of each particle.
+    /// G⁻¹ times the first Euler point of each particle, or `None` when a particle is no longer
+    /// finite (the model returned NaN or infinity: the smoother then stops with a failed status).
     fn advance<R: Rng + ?Sized>(
         &self,
         swarm: &mut Swarm,
@@ -297,7 +298,7 @@ impl<S: Sde + ?Sized> Model<'_, S> {
         node: &Node,
         ess_threshold: f64,
         rng: &mut R,
-    ) -> Result<(Vec<usize>, Vec<f64>)> {
+    ) -> Option<(Vec<usize>, Vec<f64>)> {
         let (n, dim, n_noisy) = (swarm.w.len(), self.dim, self.n_noisy);
         let mut parent: Vec<usize> = (0..n).collect();
         let mut first = vec![0.0; n * n_noisy];
@@ -352,9 +353,9 @@ impl<S: Sde + ?Sized> Model<'_, S> {
         }
         swarm.states = new_states;
         if swarm.states.iter().any(|v| !v.is_finite()) {
-            return Err(Error::NonFinite { what: format!("particles at t = {}", node.t) });
+            return None;
         }
-        Ok((parent, first))
+        Some((parent, first))
     }
 }
 
@@ -450,7 +451,13 @@ where
     for (k, node) in nodes.iter().enumerate() {
         let (parent, first) = if k > 0 {
             let prev = store.last_mut().expect("a previous node");
-            model.advance(&mut swarm, (prev, nodes[k - 1].t), node, options.ess_threshold, rng)?
+            match model.advance(&mut swarm, (prev, nodes[k - 1].t), node, options.ess_threshold, rng) {
+                Some(advanced) => advanced,
+                None => {
+                    failed_at = Some(node.t);
+                    break;
+                }
+            }
         } else {
             ((0..n).collect(), vec![0.0; n * n_noisy])
         };

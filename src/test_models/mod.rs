@@ -29,8 +29,8 @@
 //! | [`cosine_data`] | y(t) = a cos(1.3 t) + b, deterministic | identities that hold for any data |
 //!
 //! Model files ([`MODEL_FILES`]): the files of `examples/models/`, one twin per built-in model
-//! (the same model, priors, measurements and defaults, so the same numbers), each with the name
-//! it declares.
+//! (the same model, priors, measurements and defaults, so the same numbers) and the pendulum
+//! of `docs/models.md`, each with the name it declares.
 //!
 //! Every simulated record draws all its random numbers from one seeded `StdRng`, so its numbers
 //! are fixed for a given version of `rand`.
@@ -40,7 +40,8 @@ mod records;
 
 /// The model files of `examples/models/` as (declared name, text): a twin of every built-in model
 /// (same name, model and defaults as [`preset`](crate::model::library::preset) of that name), in
-/// the order of [`NAMES`](crate::model::library::NAMES).
+/// the order of [`NAMES`](crate::model::library::NAMES), then `pendulum` (no built-in
+/// twin).
 pub const MODEL_FILES: &[(&str, &str)] = &[
     ("ou", include_str!("../../examples/models/ou.toml")),
     ("tanh", include_str!("../../examples/models/tanh.toml")),
@@ -50,6 +51,7 @@ pub const MODEL_FILES: &[(&str, &str)] = &[
     ("double-well", include_str!("../../examples/models/double-well.toml")),
     ("lorenz63", include_str!("../../examples/models/lorenz63.toml")),
     ("lorenz96", include_str!("../../examples/models/lorenz96.toml")),
+    ("pendulum", include_str!("../../examples/models/pendulum.toml")),
 ];
 
 /// The preset of the model file called `name` in [`MODEL_FILES`]. Errors:

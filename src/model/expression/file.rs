@@ -14,6 +14,7 @@ use std::sync::Arc;
 use toml::de::{DeTable, DeValue};
 use toml::Spanned;
 
+use super::graph::Id;
 use super::{name_problem, Builder, Names, Part};
 use crate::model::library::{Model, Preset};
 use crate::model::observation::{Noise, StateMeasurement};
@@ -301,7 +302,7 @@ impl Doc<'_> {
     }
 
     /// Parses an expression of `part` into the builder; errors at the offending character.
-    fn parse(&self, b: &mut Builder, part: Part, e: &Expr) -> Result<super::graph::Id> {
+    fn parse(&self, b: &mut Builder, part: Part, e: &Expr) -> Result<Id> {
         b.parse(part, &e.text).map_err(|err| {
             let at = if e.quoted { self.inside(e.span.clone(), &e.text, err.offset) } else { e.span.start };
             self.error(at, format!("{part}: {}", err.message))
@@ -309,42 +310,47 @@ impl Doc<'_> {
     }
 }
 
-/// The expressions of `[dynamics]`: f, h and the entries of G (column-major, `None` where zero).
+/// The parsed `[dynamics]`: the roots of f, h and G (column-major), and where G is written.
+struct Dynamics {
+    f: Vec<Id>,
+    h: Vec<Id>,
+    g: Vec<Id>,
+    g_span: Range<usize>,
+}
+
+/// The expressions of `[dynamics]`.
 fn dynamics(
     doc: &Doc<'_>,
     top: &Section<'_, '_>,
     b: &mut Builder,
     dims: Dims,
     states: &[Spanned<String>],
-) -> Result<(Vec<super::graph::Id>, Vec<super::graph::Id>, Vec<super::graph::Id>, Range<usize>)> {
+) -> Result<Dynamics> {
     let sec = section(doc, top, "dynamics", "the drift, the clean drift and the diffusion")?;
     sec.only(doc, &["drift", "clean_drift", "diffusion"])?;
     let (noisy, clean) = states.split_at(dims.noisy);
     let list = |n: &[Spanned<String>]| n.iter().map(|s| s.get_ref().as_str()).collect::<Vec<_>>().join(", ");
-    let components = |key: &str,
-                      names: &[Spanned<String>],
-                      part: fn(usize) -> Part,
-                      b: &mut Builder|
-     -> Result<Vec<super::graph::Id>> {
-        let what = format!(
-            "one expression per {} state ({})",
-            if key == "drift" { "noisy" } else { "clean" },
-            list(names)
-        );
-        let items: &[Value<'_>] = match sec.get(key) {
-            Some(v) => array(doc, v, &format!("`{key}`"))?,
-            None if names.is_empty() => &[],
-            None => return Err(doc.at(sec.span.clone(), format!("[dynamics] needs `{key}`: {what}"))),
+    let components =
+        |key: &str, names: &[Spanned<String>], part: fn(usize) -> Part, b: &mut Builder| -> Result<Vec<Id>> {
+            let what = format!(
+                "one expression per {} state ({})",
+                if key == "drift" { "noisy" } else { "clean" },
+                list(names)
+            );
+            let items: &[Value<'_>] = match sec.get(key) {
+                Some(v) => array(doc, v, &format!("`{key}`"))?,
+                None if names.is_empty() => &[],
+                None => return Err(doc.at(sec.span.clone(), format!("[dynamics] needs `{key}`: {what}"))),
+            };
+            if items.len() != names.len() {
+                let at = sec.get(key).map_or(sec.span.clone(), |v| v.span());
+                return Err(doc.at(
+                    at,
+                    format!("`{key}` has {} components, expected {}: {what}", items.len(), names.len()),
+                ));
+            }
+            items.iter().enumerate().map(|(i, v)| doc.parse(b, part(i), &expression(doc, v, key)?)).collect()
         };
-        if items.len() != names.len() {
-            let at = sec.get(key).map_or(sec.span.clone(), |v| v.span());
-            return Err(doc.at(
-                at,
-                format!("`{key}` has {} components, expected {}: {what}", items.len(), names.len()),
-            ));
-        }
-        items.iter().enumerate().map(|(i, v)| doc.parse(b, part(i), &expression(doc, v, key)?)).collect()
-    };
     let f = components("drift", noisy, Part::Drift, b)?;
     let h = components("clean_drift", clean, Part::CleanDrift, b)?;
     let gv = sec.required(
@@ -354,7 +360,7 @@ fn dynamics(
     )?;
     let n = dims.noisy;
     let shape = format!("G must be square, {n} × {n} (one row and column per noisy state {})", list(noisy));
-    let mut g: Vec<Option<super::graph::Id>> = vec![None; n * n];
+    let mut g: Vec<Option<Id>> = vec![None; n * n];
     match gv.get_ref() {
         DeValue::Array(rows) if rows.iter().any(|r| r.get_ref().as_array().is_some()) => {
             if rows.len() != n {
@@ -388,7 +394,7 @@ fn dynamics(
         }
     }
     let zero = b.zero();
-    Ok((f, h, g.into_iter().map(|e| e.unwrap_or(zero)).collect(), gv.span()))
+    Ok(Dynamics { f, h, g: g.into_iter().map(|e| e.unwrap_or(zero)).collect(), g_span: gv.span() })
 }
 
 /// The prior of each initial state, from `[initial]`.
@@ -508,7 +514,7 @@ pub fn read(text: &str, file: &str) -> Result<Preset> {
     let param_names: Vec<String> = params.iter().map(|p| p.name.get_ref().clone()).collect();
     let const_values: Vec<(String, f64)> = consts.iter().map(|(n, v)| (n.get_ref().clone(), *v)).collect();
     let mut b = Builder::new(Names::new(&own(&noisy), &own(&clean), &param_names, &const_values), dims);
-    let (f, h, g, g_span) = dynamics(&doc, &top, &mut b, dims, &states)?;
+    let Dynamics { f, h, g, g_span } = dynamics(&doc, &top, &mut b, dims, &states)?;
     let model = b.finish(&f, &h, &g);
     let priors = initial(&doc, &top, &states)?;
     let (observation, every, first) = measurements(&doc, &top, &states, &param_names)?;
@@ -528,7 +534,7 @@ pub fn read(text: &str, file: &str) -> Result<Preset> {
         source,
         model: Model::Expression(Arc::new(model)),
         theta,
-        theta_prior: params.iter().map(|p| p.prior.clone()).collect(),
+        theta_prior: params.iter().map(|p| p.prior).collect(),
         estimate: params.iter().map(|p| p.estimate).collect(),
         x0_prior,
         z0_prior,

@@ -143,8 +143,8 @@ impl Graph {
     pub(crate) fn add(&mut self, a: Id, b: Id) -> Id {
         match (self.constant(a), self.constant(b)) {
             (Some(x), Some(y)) => self.num(x + y),
-            (Some(z), _) if z == 0.0 => b,
-            (_, Some(z)) if z == 0.0 => a,
+            (Some(0.0), _) => b,
+            (_, Some(0.0)) => a,
             _ => match self.node(b) {
                 Node::Neg(c) => self.sub(a, c),
                 _ => self.intern(Node::Add(a, b)),
@@ -155,8 +155,8 @@ impl Graph {
     pub(crate) fn sub(&mut self, a: Id, b: Id) -> Id {
         match (self.constant(a), self.constant(b)) {
             (Some(x), Some(y)) => self.num(x - y),
-            (Some(z), _) if z == 0.0 => self.neg(b),
-            (_, Some(z)) if z == 0.0 => a,
+            (Some(0.0), _) => self.neg(b),
+            (_, Some(0.0)) => a,
             _ if a == b => self.num(0.0),
             _ => match self.node(b) {
                 Node::Neg(c) => self.add(a, c),
@@ -168,11 +168,11 @@ impl Graph {
     pub(crate) fn mul(&mut self, a: Id, b: Id) -> Id {
         match (self.constant(a), self.constant(b)) {
             (Some(x), Some(y)) => self.num(x * y),
-            (Some(z), _) | (_, Some(z)) if z == 0.0 => self.num(0.0),
-            (Some(o), _) if o == 1.0 => b,
-            (_, Some(o)) if o == 1.0 => a,
-            (Some(m), _) if m == -1.0 => self.neg(b),
-            (_, Some(m)) if m == -1.0 => self.neg(a),
+            (Some(0.0), _) | (_, Some(0.0)) => self.num(0.0),
+            (Some(1.0), _) => b,
+            (_, Some(1.0)) => a,
+            (Some(-1.0), _) => self.neg(b),
+            (_, Some(-1.0)) => self.neg(a),
             _ => self.intern(Node::Mul(a, b)),
         }
     }
@@ -180,8 +180,8 @@ impl Graph {
     pub(crate) fn div(&mut self, a: Id, b: Id) -> Id {
         match (self.constant(a), self.constant(b)) {
             (Some(x), Some(y)) => self.num(x / y),
-            (Some(z), _) if z == 0.0 => self.num(0.0),
-            (_, Some(o)) if o == 1.0 => a,
+            (Some(0.0), _) => self.num(0.0),
+            (_, Some(1.0)) => a,
             _ => self.intern(Node::Div(a, b)),
         }
     }

@@ -223,6 +223,23 @@ fn the_example_files_load() {
 }
 
 #[test]
+fn models_md_shows_the_example_file() {
+    let doc = include_str!("../../../docs/models.md");
+    let example = include_str!("../../../examples/models/pendulum.toml");
+    assert!(
+        doc.contains(example.trim_end()),
+        "docs/models.md is out of date with examples/models/pendulum.toml"
+    );
+    let p = crate::test_models::model_file("pendulum").unwrap();
+    assert_eq!(p.estimate, [true, true, false, true]);
+    assert_eq!(p.observation.names, ["angle"]);
+    // the forcing with a zero amplitude is folded away: −g/l·sin φ − c·ω is g/l, φ, sin φ,
+    // the product, c, ω, the product, the difference and its negated first term
+    let crate::model::library::Model::Expression(m) = &p.model else { panic!("an expression model") };
+    assert!(m.tape_lengths()[0] <= 9, "{:?}", m.tape_lengths());
+}
+
+#[test]
 fn malformed_files_name_line_column_and_what_was_expected() {
     let cases: Vec<(String, &str)> = vec![
         // an empty file

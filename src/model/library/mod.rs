@@ -330,6 +330,17 @@ impl Preset {
     }
 }
 
+/// The Van der Pol measurements of u, `001_8aefdf0570c96f51.txt` Sec. 9 (Fig. 4): the mixture
+/// (1 − p_o) N(u, 0.5²) + p_o N(u, σ_o²) with p_o = 0.25, σ_o = 3.
+fn van_der_pol_outliers() -> StateMeasurement {
+    let noise = Noise::Mixture {
+        p_outlier: Param::Fixed(0.25),
+        sigma: Param::Fixed(0.5),
+        sigma_outlier: Param::Fixed(3.0),
+    };
+    StateMeasurement::new(vec![0], names(&["y"]), noise)
+}
+
 /// A prior N(mean, sd²).
 fn normal(mean: f64, sd: f64) -> Prior {
     Prior::gaussian(mean, sd)
@@ -435,15 +446,7 @@ pub fn preset(name: &str) -> Result<Preset> {
             // N([0, 0], I/100): sd 0.1 each.
             x0_prior: vec![normal(0.0, 0.1), normal(0.0, 0.1)],
             z0_prior: vec![],
-            observation: StateMeasurement::new(
-                vec![0],
-                names(&["y"]),
-                Noise::Mixture {
-                    p_outlier: Param::Fixed(0.25),
-                    sigma: Param::Fixed(0.5),
-                    sigma_outlier: Param::Fixed(3.0),
-                },
-            ),
+            observation: van_der_pol_outliers(),
             t_end: 16.0,
             dt: 5e-4,
             first_sample: 0.0,
