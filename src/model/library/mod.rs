@@ -544,33 +544,38 @@ pub fn preset(name: &str) -> Result<Preset> {
             first_sample: 0.0,
             sample_every: 0.1,
         },
-        "lorenz96" => {
-            let model = Lorenz96::default();
-            let n = model.states();
-            Preset {
-                name: "lorenz96".into(),
-                description: "Lorenz-96 system with 10 states, forcing F and additive noise sigma_w I, all states measured".into(),
-                source: "Lorenz (1996) drift; noise and sampling defaults are our choice".into(),
-                model: Model::Lorenz96(model),
-                theta: Lorenz96::NOMINAL.to_vec(),
-                theta_prior: vec![Prior::flat(), positive()],
-                estimate: vec![false; 2],
-                x0_prior: vec![normal(2.3, 3.6); n],
-                z0_prior: vec![],
-                observation: StateMeasurement::new(
-                    (0..n).collect(),
-                    (1..=n).map(|i| format!("y{i}")).collect(),
-                    Noise::Gaussian { sigma: Param::Fixed(1.0) },
-                ),
-                t_end: 5.0,
-                dt: 0.001,
-                first_sample: 0.0,
-                sample_every: 0.1,
-            }
-        }
+        "lorenz96" => lorenz96_preset(),
         _ => return Err(unknown()),
     };
     Ok(p)
+}
+
+/// The `lorenz96` preset of [`preset`]: [`Lorenz96`] with 10 states, every state measured.
+fn lorenz96_preset() -> Preset {
+    let model = Lorenz96::default();
+    let n = model.states();
+    Preset {
+        name: "lorenz96".into(),
+        description:
+            "Lorenz-96 system with 10 states, forcing F and additive noise sigma_w I, all states measured"
+                .into(),
+        source: "Lorenz (1996) drift; noise and sampling defaults are our choice".into(),
+        model: Model::Lorenz96(model),
+        theta: Lorenz96::NOMINAL.to_vec(),
+        theta_prior: vec![Prior::flat(), positive()],
+        estimate: vec![false; 2],
+        x0_prior: vec![normal(2.3, 3.6); n],
+        z0_prior: vec![],
+        observation: StateMeasurement::new(
+            (0..n).collect(),
+            (1..=n).map(|i| format!("y{i}")).collect(),
+            Noise::Gaussian { sigma: Param::Fixed(1.0) },
+        ),
+        t_end: 5.0,
+        dt: 0.001,
+        first_sample: 0.0,
+        sample_every: 0.1,
+    }
 }
 
 /// Bit length l_b of the Holmes–Rand quantized measurements, `000_74b95e149527c64e.txt`
