@@ -665,9 +665,9 @@ fn three_state_closure_error(rtol: f64) -> f64 {
     let mut max_err: f64 = 0.0;
     for (i, &t) in est.path.times.iter().enumerate() {
         let j = kf.index_of(t).unwrap();
-        for s in 0..3 {
-            max_err = max_err.max((est.path.values[i][s] - kf.smoothed_mean[j][s]).abs());
-            max_err = max_err.max((sd[i][s] - kf.smoothed_cov[j][(s, s)].sqrt()).abs());
+        for (s, (value, sd)) in est.path.values[i].iter().zip(&sd[i]).enumerate() {
+            max_err = max_err.max((value - kf.smoothed_mean[j][s]).abs());
+            max_err = max_err.max((sd - kf.smoothed_cov[j][(s, s)].sqrt()).abs());
         }
     }
     max_err
