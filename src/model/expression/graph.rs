@@ -48,25 +48,9 @@ impl Func {
         ("Phi", Func::Phi),
     ];
 
-    /// The value in `f64` (for constant folding).
+    /// The value in `f64` (for constant folding): the tape's evaluation, for one scalar type.
     pub(crate) fn apply(self, a: f64) -> f64 {
-        use crate::model::special;
-        match self {
-            Func::Exp => a.exp(),
-            Func::Ln => a.ln(),
-            Func::Sqrt => a.sqrt(),
-            Func::Sin => a.sin(),
-            Func::Cos => a.cos(),
-            Func::Tan => a.tan(),
-            Func::Sinh => a.sinh(),
-            Func::Cosh => a.cosh(),
-            Func::Tanh => a.tanh(),
-            Func::Atan => a.atan(),
-            Func::Ln1p => a.ln_1p(),
-            Func::ExpM1 => a.exp_m1(),
-            Func::Erf => special::erf(a),
-            Func::Phi => special::ndtr(a),
-        }
+        super::tape::apply(self, a)
     }
 }
 

@@ -117,7 +117,7 @@ impl Tape {
 
 /// f(a) for a scalar of any kind.
 #[inline]
-fn apply<D: Scalar>(f: Func, a: D) -> D {
+pub(crate) fn apply<D: Scalar>(f: Func, a: D) -> D {
     match f {
         Func::Exp => a.exp(),
         Func::Ln => a.ln(),
