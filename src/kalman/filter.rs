@@ -20,6 +20,10 @@ use crate::{Error, Result};
 /// ln(2π).
 const LN_2PI: f64 = 1.837_877_066_409_345_5;
 
+/// The most halvings of one integration step ([`MomentDynamics::refined_step`]): steps down to
+/// 1/1024 of the grid's.
+const MAX_HALVINGS: u32 = 10;
+
 /// How the mean and covariance ODEs are approximated.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) enum Rule {
@@ -329,6 +333,45 @@ impl<S: Sde + ?Sized, D: Scalar> MomentDynamics<'_, S, D> {
         }
     }
 
+    /// A step of size h by [`Self::rk4_step`], split in two halves (recursively, at most
+    /// [`MAX_HALVINGS`] times) when it fails or leaves a covariance that is not positive
+    /// definite: a fixed step that is stable on most of a record can be unstable where an update
+    /// has moved the moments into a stiff region of the drift (the Van der Pol oscillator after
+    /// an outlier, say). Φ of the step is the product of the halves' (Φ₂ Φ₁). At the deepest
+    /// level the plain step is taken, so the refinement never fails where the fixed step does not.
+    fn refined_step(
+        &self,
+        t: f64,
+        h: f64,
+        m: &mut [D],
+        p: &mut [D],
+        phi: Option<&mut Vec<D>>,
+        depth: u32,
+    ) -> Option<()> {
+        let n = m.len();
+        if depth == MAX_HALVINGS {
+            return self.rk4_step(t, h, m, p, phi);
+        }
+        let (m0, p0) = (m.to_vec(), p.to_vec());
+        let mut phi_step: Option<Vec<D>> = phi.as_ref().map(|_| Vec::new());
+        if self.rk4_step(t, h, m, p, phi_step.as_mut()).is_some() && cholesky(p, n).is_some() {
+            if let (Some(phi), Some(step)) = (phi, phi_step) {
+                *phi = step;
+            }
+            return Some(());
+        }
+        m.copy_from_slice(&m0);
+        p.copy_from_slice(&p0);
+        let (mut first, mut second): (Option<Vec<D>>, Option<Vec<D>>) =
+            (phi.as_ref().map(|_| Vec::new()), phi.as_ref().map(|_| Vec::new()));
+        self.refined_step(t, 0.5 * h, m, p, first.as_mut(), depth + 1)?;
+        self.refined_step(t + 0.5 * h, 0.5 * h, m, p, second.as_mut(), depth + 1)?;
+        if let (Some(phi), Some(first), Some(second)) = (phi, first, second) {
+            *phi = matmul(&second, &first, n, n, n);
+        }
+        Some(())
+    }
+
     /// One classical Runge–Kutta step of size h for (m, P) and, when `phi` is given, Φ̇ = F Φ.
     fn rk4_step(&self, t: f64, h: f64, m: &mut [D], p: &mut [D], phi: Option<&mut Vec<D>>) -> Option<()> {
         let n = m.len();
@@ -478,7 +521,7 @@ pub(crate) fn run<S: Sde + ?Sized, D: Scalar>(
         for s in 0..node.steps {
             let t = t_prev + s as f64 * h;
             let phi_arg = store.is_some().then_some(&mut phi);
-            dynamics.rk4_step(t, h, &mut m, &mut p, phi_arg).ok_or(t)?;
+            dynamics.refined_step(t, h, &mut m, &mut p, phi_arg, 0).ok_or(t)?;
             if let Some(st) = store.as_deref_mut() {
                 st.phi.push(DMatrix::from_iterator(n, n, phi.iter().map(|v| v.re())));
                 if s + 1 < node.steps {
