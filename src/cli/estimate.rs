@@ -147,6 +147,11 @@ impl EstimateArgs {
     }
 }
 
+/// The indices of the parameters named by `--estimate`.
+pub fn parameter_indices(preset: &Preset, names: &[String]) -> Result<Vec<usize>> {
+    names.iter().filter(|s| !s.trim().is_empty()).map(|name| preset.param_index(name.trim())).collect()
+}
+
 /// The estimation problem of the command line: a built-in model with the flags applied.
 pub type CliProblem<'a> = EstimationProblem<'a, Model, StateMeasurement>;
 
@@ -165,12 +170,7 @@ impl Setup {
     pub fn new(args: &EstimateArgs) -> Result<Setup> {
         let preset = args.model.preset()?;
         let data = Dataset::read_csv_for(&args.data, &preset.observation.output_names())?;
-        let estimate = args
-            .estimate
-            .iter()
-            .filter(|s| !s.trim().is_empty())
-            .map(|name| preset.param_index(name.trim()))
-            .collect::<Result<Vec<usize>>>()?;
+        let estimate = parameter_indices(&preset, &args.estimate)?;
         Ok(Setup { preset, data, estimate })
     }
 
