@@ -137,8 +137,11 @@ pub fn compare<S: Sde + ?Sized>(
             .map_err(|why| why.to_string())
             .and_then(|()| e.estimator.run(problem).map_err(|err| err.to_string()));
         let (status, error, seconds, notes, estimate) = match ran {
-            Ok(run) => {
+            Ok(mut run) => {
                 let est = run.estimate;
+                if let Some(why) = est.partial() {
+                    run.notes.push(format!("partial: {why}"));
+                }
                 (RowStatus::Finished(est.status), None, est.solve_seconds, run.notes, Some(est))
             }
             Err(err) => (RowStatus::Error, Some(err), 0.0, Vec::new(), None),

@@ -6,10 +6,10 @@ use clap::Args;
 
 use onsager::action::GridSpec;
 use onsager::compare::{compare, default_estimators, CompareOptions, Comparison};
-use onsager::data::{Dataset, StatePath};
+use onsager::data::StatePath;
 use onsager::estimate::{EstimationProblem, RowStatus};
 use onsager::estimator::{parse_list, read_list, Estimator, Labelled, NotApplicable};
-use onsager::model::{Observation, Sde};
+use onsager::model::Sde;
 use onsager::{Error, Result};
 
 use super::{create_parent, ModelArgs};
@@ -155,8 +155,11 @@ pub fn print_table(c: &Comparison, with_truth: bool, bistable: bool) {
 /// numerically; an error (after writing the table and files) when an estimator could not run.
 pub fn run(args: &CompareArgs) -> Result<bool> {
     let preset = args.model.preset()?;
-    let data = Dataset::read_csv_for(&args.data, &preset.observation.output_names())?;
+    let data = super::read_data(&args.data, &preset)?;
     let truth = args.truth.as_ref().map(StatePath::read_csv).transpose()?;
+    if let (Some(t), Some(file)) = (&truth, &args.truth) {
+        super::warn_if_truth_short(t, file, &data);
+    }
     let estimate = super::estimate::parameter_indices(&preset, &args.estimate)?;
     let problem = EstimationProblem { seed: args.seed, ..preset.problem(&data, &estimate) };
     problem.validate()?;
