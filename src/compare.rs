@@ -12,7 +12,7 @@ use serde::Serialize;
 
 use crate::data::{Dataset, StatePath};
 use crate::estimate::{EstimationProblem, PathEstimate, RowStatus};
-use crate::estimator::{Estimator, Labelled, Method};
+use crate::estimator::{Estimator, Labelled, Method, NotApplicable};
 use crate::figures::{EstimatorLooks, Outcome, PathFigure};
 use crate::metrics::{self, Metric};
 use crate::model::observation::StateMeasurement;
@@ -62,25 +62,39 @@ pub struct Comparison {
     pub rows: Vec<CompareRow>,
     /// The estimates (`None` where the estimator failed to run).
     pub estimates: Vec<Option<PathEstimate>>,
+    /// The estimators left out because they do not apply (filled by the caller, e.g. from
+    /// [`default_estimators`]); listed under the table and in `summary.json`.
+    pub skipped: Vec<NotApplicable>,
 }
 
-/// The estimators compared by default, with their default options: the exact grid methods
-/// where the model has at most two states, the closures where it has one (Gaussian, quartic
-/// exponential, double-exponential and KSP; in 2-D ask for them explicitly), then JME, MEE and
-/// the UKS.
+/// The candidates of [`default_estimators`], in the order of the table.
+pub const DEFAULT_METHODS: [Method; 9] = [
+    Method::Ksp,
+    Method::MeanOptimal,
+    Method::GaussianClosure,
+    Method::ExpClosure,
+    Method::DoubleExpClosure,
+    Method::KspClosure,
+    Method::Jme,
+    Method::Mee,
+    Method::Uks,
+];
+
+/// The estimators compared by default, with their default options: those of
+/// [`DEFAULT_METHODS`] (the exact grid methods, the four closures, JME, MEE and the UKS) that
+/// apply to the problem ([`Estimator::applies_to`]), and the others with the reason they do not.
 pub fn default_estimators<S: Sde + ?Sized>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
-) -> Vec<Labelled> {
-    let mut m = Vec::new();
-    let states = problem.sde.dims().states();
-    if states <= 2 {
-        m.extend([Method::Ksp, Method::MeanOptimal]);
+) -> (Vec<Labelled>, Vec<NotApplicable>) {
+    let (mut chosen, mut skipped) = (Vec::new(), Vec::new());
+    for m in DEFAULT_METHODS {
+        let e = Estimator::new(m);
+        match e.applies_to(problem) {
+            Ok(()) => chosen.push(Labelled::new(e)),
+            Err(why) => skipped.push(why),
+        }
     }
-    if states == 1 {
-        m.extend([Method::GaussianClosure, Method::ExpClosure, Method::DoubleExpClosure, Method::KspClosure]);
-    }
-    m.extend([Method::Jme, Method::Mee, Method::Uks]);
-    m.into_iter().map(|m| Labelled::new(Estimator::new(m))).collect()
+    (chosen, skipped)
 }
 
 /// The value of `metric` where it can be computed.
@@ -95,8 +109,8 @@ fn value_of(
 
 /// Runs `estimators` on `problem` and measures them with [`metrics::measure`] against the
 /// truth (when given), the first successful `ksp` and `mean-optimal` estimates among them.
-/// An estimator that fails is a row with status `error` and its message; the comparison goes
-/// on.
+/// An estimator that does not apply ([`Estimator::applies_to`]) or fails is a row with status
+/// `error` and its message; the comparison goes on.
 ///
 /// Errors: none from the estimators; a `truth` whose state names differ from the model's.
 pub fn compare<S: Sde + ?Sized>(
@@ -117,12 +131,20 @@ pub fn compare<S: Sde + ?Sized>(
     let mut rows = Vec::with_capacity(estimators.len());
     let mut estimates = Vec::with_capacity(estimators.len());
     for e in estimators {
-        let (status, error, seconds, notes, estimate) = match e.estimator.run(problem) {
-            Ok(run) => {
+        let ran = e
+            .estimator
+            .applies_to(problem)
+            .map_err(|why| why.to_string())
+            .and_then(|()| e.estimator.run(problem).map_err(|err| err.to_string()));
+        let (status, error, seconds, notes, estimate) = match ran {
+            Ok(mut run) => {
                 let est = run.estimate;
+                if let Some(why) = est.partial() {
+                    run.notes.push(format!("partial: {why}"));
+                }
                 (RowStatus::Finished(est.status), None, est.solve_seconds, run.notes, Some(est))
             }
-            Err(err) => (RowStatus::Error, Some(err.to_string()), 0.0, Vec::new(), None),
+            Err(err) => (RowStatus::Error, Some(err), 0.0, Vec::new(), None),
         };
         rows.push(CompareRow {
             label: e.label.clone(),
@@ -159,7 +181,7 @@ pub fn compare<S: Sde + ?Sized>(
             row.rmse_mean_optimal = value_of(&Metric::RmseTo("mean-optimal".into()), est, truth, &refs);
         }
     }
-    Ok(Comparison { rows, estimates })
+    Ok(Comparison { rows, estimates, skipped: Vec::new() })
 }
 
 /// One row of `summary.json`.
@@ -178,10 +200,18 @@ struct SummaryRow<'a> {
     notes: &'a [String],
 }
 
-/// `summary.json`: the rows in order.
+/// One estimator left out of the comparison, in `summary.json`.
+#[derive(Debug, Serialize)]
+struct SkippedRow {
+    method: Method,
+    reason: String,
+}
+
+/// `summary.json`: the rows in order, then the estimators left out with their reasons.
 #[derive(Debug, Serialize)]
 pub struct Summary<'a> {
     methods: Vec<SummaryRow<'a>>,
+    skipped: Vec<SkippedRow>,
 }
 
 impl Comparison {
@@ -207,7 +237,9 @@ impl Comparison {
                 notes: &r.notes,
             })
             .collect();
-        Summary { methods }
+        let skipped =
+            self.skipped.iter().map(|s| SkippedRow { method: s.method, reason: s.reason.clone() }).collect();
+        Summary { methods, skipped }
     }
 
     /// The estimates with their labels.

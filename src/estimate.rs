@@ -245,6 +245,9 @@ pub struct Report<'a> {
     pub theta: BTreeMap<&'a str, ThetaReport>,
     /// The method's own entries.
     pub details: &'a Details,
+    /// Why the path is partial ([`PathEstimate::partial`]); absent when it is complete.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub partial: Option<String>,
 }
 
 impl PathEstimate {
@@ -268,7 +271,25 @@ impl PathEstimate {
             solve_seconds: self.solve_seconds,
             theta,
             details: &self.details,
+            partial: self.partial(),
         }
+    }
+
+    /// Why the path is partial, when it is: a filter that failed at a time (its details'
+    /// `failed_at`: the path stops there), or a smoother that failed (`smoother`: the path is the
+    /// filtered one, not the smoothed one). `None` for a complete path.
+    pub fn partial(&self) -> Option<String> {
+        let d = &self.details;
+        if let Some(t) = d["failed_at"].as_f64() {
+            return Some(format!("`{}` failed at t = {t}: the path stops before it", self.method));
+        }
+        if !d["smoother"].is_null() {
+            return Some(format!(
+                "the smoother of `{}` failed ({}): the path is the filtered one, not smoothed",
+                self.method, d["smoother"]
+            ));
+        }
+        None
     }
 
     /// Writes [`PathEstimate::report`] to a file as pretty-printed JSON.

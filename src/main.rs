@@ -22,8 +22,19 @@ mod cli;
 
 use cli::{compare::CompareArgs, estimate::EstimateArgs, experiment::ExperimentArgs, simulate::SimulateArgs};
 
+/// The exit codes and the statuses, under `--help`.
+fn after_help() -> String {
+    format!(
+        "Exit codes:\n  0  success (every estimate converged or acceptable)\n  1  bad input or configuration \
+         (the message names the flag, or the file and line)\n  2  an estimator ran and did not converge or \
+         failed numerically (its status says how)\n\nStatuses of an estimate (reports, tables):\n{}",
+        onsager::Status::glossary()
+    )
+}
+
 #[derive(Parser)]
 #[command(name = "onsager", version, about = "State-path and parameter estimation in nonlinear SDEs")]
+#[command(after_help = after_help())]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
@@ -35,13 +46,17 @@ enum Command {
     /// file and print what it declares (`--check FILE.toml`).
     Models(cli::ModelsArgs),
     /// Simulate a model and write its measurements (and optionally the true path) as CSV.
+    #[command(allow_negative_numbers = true, after_help = after_help())]
     Simulate(SimulateArgs),
     /// Estimate the state path (and parameters) of a model from measurements.
+    #[command(allow_negative_numbers = true, after_help = after_help())]
     Estimate(EstimateArgs),
     /// Run several estimators on the same data: one table (RMSE against the truth, the exact KSP
     /// mean and the exact mean-optimal estimate), the paths and a plot.
+    #[command(allow_negative_numbers = true, after_help = after_help())]
     Compare(CompareArgs),
     /// Run Monte Carlo experiments (built-in reproductions of the papers or TOML specs).
+    #[command(allow_negative_numbers = true, after_help = after_help())]
     Experiment(ExperimentArgs),
 }
 

@@ -55,6 +55,34 @@ impl Status {
         matches!(self, Status::Converged | Status::Acceptable)
     }
 
+    /// What the status means, in one sentence for users (`onsager --help`, README).
+    pub fn description(self) -> &'static str {
+        match self {
+            Status::Converged => "converged to the requested tolerance",
+            Status::Acceptable => {
+                "converged to a looser, acceptable tolerance (the solver stalled close to the requested one); \
+                 usable, counted as a success"
+            }
+            Status::MaxIterations => "stopped at the iteration limit before converging",
+            Status::TimeLimit => "stopped at the time limit before converging",
+            Status::Infeasible => "the problem was found (locally) infeasible",
+            Status::Unbounded => "the objective was found unbounded below",
+            Status::NumericalFailure => {
+                "a numerical failure (singular system, failed line search, unrealizable moments, …) \
+                 from which no recovery worked; a path, if written, is partial or unreliable"
+            }
+            Status::EvaluationError => "the model returned non-finite values where no fallback was possible",
+            Status::UserStop => "stopped by a user callback",
+        }
+    }
+
+    /// The statuses with their descriptions, one per line (`  name  description`), for help
+    /// texts.
+    pub fn glossary() -> String {
+        let width = Status::ALL.iter().map(|s| s.name().len()).max().unwrap_or(0);
+        Status::ALL.iter().map(|s| format!("  {:<width$}  {}\n", s.name(), s.description())).collect()
+    }
+
     /// The status's name as written in reports and tables.
     pub fn name(self) -> &'static str {
         match self {
@@ -86,6 +114,9 @@ mod tests {
         for s in Status::ALL {
             assert_eq!(serde_json::to_string(&s).unwrap(), format!("\"{}\"", s.name()));
             assert_eq!(s.is_success(), matches!(s, Status::Converged | Status::Acceptable));
+            let line =
+                Status::glossary().lines().find(|l| l.trim_start().starts_with(s.name())).map(String::from);
+            assert!(line.unwrap().ends_with(s.description()), "{s} in the glossary");
         }
     }
 }

@@ -155,3 +155,80 @@ fn compare_prints_the_table_and_writes_the_four_files() {
     assert!(String::from_utf8_lossy(&bad.stderr).contains("kalman"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Runs the binary; (exit code, stdout, stderr).
+fn run(args: &[&str], dir: &std::path::Path) -> (i32, String, String) {
+    let out = onsager().args(args).current_dir(dir).output().unwrap();
+    let text = |b: Vec<u8>| String::from_utf8_lossy(&b).into_owned();
+    (out.status.code().unwrap_or(-1), text(out.stdout), text(out.stderr))
+}
+
+#[test]
+fn the_cli_keeps_its_promises() {
+    let dir = scratch("promises");
+    let sim = ["simulate", "--t-end", "3", "--seed", "3"];
+    let (code, _, err) = run(&[&sim[..], &["--model", "duffing", "--out", "d.csv"]].concat(), &dir);
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = run(&[&sim[..], &["--out", "w.csv", "--truth", "wt.csv"]].concat(), &dir);
+    assert_eq!(code, 0, "{err}");
+    // compare: ksp on two states without a grid does not apply (skipped by default, see
+    // `compare_skips`), ...
+    let (code, out, err) = run(
+        &["compare", "--model", "duffing", "--data", "d.csv", "--methods", "ksp,uks", "--out-dir", "c"],
+        &dir,
+    );
+    // ... and refused (exit 1, not 2) when asked for, with a two-state grid as the way out.
+    assert_eq!(code, 1, "{out}{err}");
+    assert!(err.contains("--methods") && err.contains("lo=L1;L2"), "{err}");
+    // A non-Gaussian likelihood: the methods that need Gaussian errors are listed as skipped.
+    let (code, out, err) = run(
+        &["compare", "--data", "w.csv", "--likelihood", "student-t:nu=4,scale=0.2", "--methods", "uks"],
+        &dir,
+    );
+    assert_eq!(code, 1, "{out}{err}");
+    assert!(err.contains("Gaussian measurement errors"), "{err}");
+    // pem runs in compare with --estimate.
+    let (code, out, err) = run(
+        &["compare", "--model", "duffing", "--data", "d.csv", "--methods", "pem", "--estimate", "d"],
+        &dir,
+    );
+    assert!(code == 0 || code == 2, "{out}{err}");
+    assert!(out.contains("pem ") && !out.contains("error"), "{out}");
+    // Negative numbers as flag values: the domain error, naming the flag.
+    let (code, _, err) = run(&["estimate", "--data", "w.csv", "--method", "jme", "--step", "-0.1"], &dir);
+    assert_eq!(code, 1);
+    assert!(err.contains("step") && err.contains("-0.1"), "{err}");
+    let (code, _, err) = run(&["simulate", "--t-end", "-1"], &dir);
+    assert_eq!(code, 1);
+    assert!(err.contains("`--t-end`"), "{err}");
+    // --param D=-1 says what D must be.
+    let (code, _, err) = run(&["simulate", "--param", "D=-1"], &dir);
+    assert_eq!(code, 1);
+    assert!(err.contains("--param") && err.contains("`D=-1`") && err.contains("positive"), "{err}");
+    // --x0-prior names the flag, not `prior.sd`.
+    let (code, _, err) = run(&["simulate", "--x0-prior", "x=normal:0,0"], &dir);
+    assert_eq!(code, 1);
+    assert!(err.contains("`--x0-prior`") && !err.contains("prior.sd"), "{err}");
+    // All-NaN data is refused, naming the file.
+    std::fs::write(dir.join("nan.csv"), "t,y\n0,\n1,NaN\n").unwrap();
+    let (code, _, err) = run(&["estimate", "--data", "nan.csv", "--method", "uks"], &dir);
+    assert_eq!(code, 1);
+    assert!(err.contains("--data") && err.contains("nan.csv"), "{err}");
+    // A truth that does not cover the data: a warning on stderr.
+    let truth = std::fs::read_to_string(dir.join("wt.csv")).unwrap();
+    let short: Vec<&str> = truth.lines().take(50).collect();
+    std::fs::write(dir.join("short.csv"), short.join("\n") + "\n").unwrap();
+    let (_, _, err) = run(
+        &["compare", "--data", "w.csv", "--truth", "short.csv", "--methods", "uks", "--out-dir", "c"],
+        &dir,
+    );
+    assert!(err.contains("warning: --truth short.csv covers"), "{err}");
+    // Statuses and exit codes are defined under --help, from one source.
+    let (code, out, _) = run(&["compare", "--help"], &dir);
+    assert_eq!(code, 0);
+    for s in onsager::Status::ALL {
+        assert!(out.contains(s.name()) && out.contains(s.description()), "{s} in --help");
+    }
+    assert!(out.contains("Exit codes"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

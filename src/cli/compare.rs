@@ -6,10 +6,10 @@ use clap::Args;
 
 use onsager::action::GridSpec;
 use onsager::compare::{compare, default_estimators, CompareOptions, Comparison};
-use onsager::data::{Dataset, StatePath};
-use onsager::estimate::EstimationProblem;
-use onsager::estimator::{parse_list, read_list, Estimator, Labelled};
-use onsager::model::{Observation, Sde};
+use onsager::data::StatePath;
+use onsager::estimate::{EstimationProblem, RowStatus};
+use onsager::estimator::{parse_list, read_list, Estimator, Labelled, NotApplicable};
+use onsager::model::Sde;
 use onsager::{Error, Result};
 
 use super::{create_parent, ModelArgs};
@@ -42,14 +42,21 @@ pub struct CompareArgs {
     pub truth: Option<PathBuf>,
     /// Estimators to compare, each with its own options:
     /// `METHOD[:NAME=VALUE,…],METHOD…`, e.g. `exp-closure:moments=6,jme:transcription=trapezoidal,uks`
-    /// (a value with commas in double quotes; `label=…` names a row). Default: ksp and
-    /// mean-optimal for one or two states, the four closures for one state, jme, mee, uks.
+    /// (a value with commas in double quotes; `label=…` names a row). Default: those of ksp,
+    /// mean-optimal, the four closures, jme, mee and uks that apply to the model, its likelihood
+    /// and `--estimate`; the others are listed under the table with the reason. A method named
+    /// here that does not apply is an error.
     #[arg(long, value_name = "LIST", value_parser = parse_methods)]
     pub methods: Option<EstimatorList>,
     /// The estimators from a file instead: TOML `[[estimators]]` tables with `method`, `label`
     /// and `options = { … }` (as in experiment specs), or JSON `{"estimators": [...]}`.
     #[arg(long, value_name = "FILE", conflicts_with = "methods")]
     pub estimators: Option<PathBuf>,
+    /// Parameters to estimate, comma-separated names: given to the methods that estimate
+    /// parameters (jme, mee, pem); the others do not apply and are skipped (or refused when
+    /// asked for by name).
+    #[arg(long, value_delimiter = ',')]
+    pub estimate: Vec<String>,
     /// Grid of the exact methods that do not set their own (default: the data range with
     /// margins).
     #[arg(long, value_parser = parse_grid)]
@@ -68,11 +75,14 @@ impl CompareArgs {
     fn estimators(
         &self,
         problem: &EstimationProblem<'_, impl Sde, onsager::model::observation::StateMeasurement>,
-    ) -> Result<Vec<Labelled>> {
-        let mut list = match (&self.methods, &self.estimators) {
-            (Some(list), _) => list.0.clone(),
-            (None, Some(file)) => read_list(file)?,
-            (None, None) => default_estimators(problem),
+    ) -> Result<(Vec<Labelled>, Vec<NotApplicable>)> {
+        let (mut list, skipped, flag) = match (&self.methods, &self.estimators) {
+            (Some(list), _) => (list.0.clone(), Vec::new(), "--methods"),
+            (None, Some(file)) => (read_list(file)?, Vec::new(), "--estimators"),
+            (None, None) => {
+                let (chosen, skipped) = default_estimators(problem);
+                (chosen, skipped, "")
+            }
         };
         if let Some(grid) = &self.grid {
             for e in &mut list {
@@ -83,7 +93,15 @@ impl CompareArgs {
                 }
             }
         }
-        Ok(list)
+        if !flag.is_empty() {
+            for e in &list {
+                e.estimator.applies_to(problem).map_err(|why| Error::InvalidOption {
+                    name: flag.into(),
+                    reason: format!("`{}`: {}", e.label, why.reason),
+                })?;
+            }
+        }
+        Ok((list, skipped))
     }
 }
 
@@ -125,16 +143,27 @@ pub fn print_table(c: &Comparison, with_truth: bool, bistable: bool) {
             outln!("  {}: note: {n}", r.label);
         }
     }
+    if !c.skipped.is_empty() {
+        outln!("not compared (they do not apply):");
+        for s in &c.skipped {
+            outln!("  {}: {}", s.method, s.reason);
+        }
+    }
 }
 
-/// Runs `onsager compare`; `Ok(false)` when an estimator failed or did not converge.
+/// Runs `onsager compare`; `Ok(false)` when an estimator did not converge or failed
+/// numerically; an error (after writing the table and files) when an estimator could not run.
 pub fn run(args: &CompareArgs) -> Result<bool> {
     let preset = args.model.preset()?;
-    let data = Dataset::read_csv_for(&args.data, &preset.observation.output_names())?;
+    let data = super::read_data(&args.data, &preset)?;
     let truth = args.truth.as_ref().map(StatePath::read_csv).transpose()?;
-    let problem = EstimationProblem { seed: args.seed, ..preset.problem(&data, &[]) };
+    if let (Some(t), Some(file)) = (&truth, &args.truth) {
+        super::warn_if_truth_short(t, file, &data);
+    }
+    let estimate = super::estimate::parameter_indices(&preset, &args.estimate)?;
+    let problem = EstimationProblem { seed: args.seed, ..preset.problem(&data, &estimate) };
     problem.validate()?;
-    let estimators = args.estimators(&problem)?;
+    let (estimators, skipped) = args.estimators(&problem)?;
     let mut options = CompareOptions::default();
     options.barrier = preset.well_barrier();
     let names = preset.model.state_names();
@@ -158,7 +187,8 @@ pub fn run(args: &CompareArgs) -> Result<bool> {
         data.len(),
         data.names.join(", ")
     );
-    let c = compare(&problem, &estimators, truth.as_ref(), &options)?;
+    let mut c = compare(&problem, &estimators, truth.as_ref(), &options)?;
+    c.skipped = skipped;
     print_table(&c, truth.is_some(), options.barrier.is_some());
     let dir = &args.out_dir;
     create_parent(&dir.join("x"))?;
@@ -170,5 +200,13 @@ pub fn run(args: &CompareArgs) -> Result<bool> {
     let title = format!("{}: {} measurements", preset.name, data.len());
     c.figure(&names, &data, &preset.observation, truth.as_ref(), &title).write(&dir.join("compare"))?;
     outln!("wrote {0}/paths.csv, {0}/summary.json, {0}/compare.svg and {0}/compare.png", dir.display());
+    let failed: Vec<&str> =
+        c.rows.iter().filter(|r| r.status == RowStatus::Error).map(|r| r.label.as_str()).collect();
+    if !failed.is_empty() {
+        return Err(Error::InvalidOption {
+            name: if args.estimators.is_some() { "--estimators" } else { "--methods" }.into(),
+            reason: format!("{} could not run (see the messages under the table)", failed.join(", ")),
+        });
+    }
     Ok(c.rows.iter().all(|r| r.status.is_success()))
 }

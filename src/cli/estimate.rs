@@ -11,7 +11,7 @@ use onsager::estimate::{EstimationProblem, PathEstimate};
 use onsager::estimator::{options_from_pairs, Estimator, Method};
 use onsager::model::library::{Model, Preset};
 use onsager::model::observation::StateMeasurement;
-use onsager::model::{Observation, Sde};
+use onsager::model::Sde;
 use onsager::path::Transcription;
 use onsager::Result;
 
@@ -147,6 +147,11 @@ impl EstimateArgs {
     }
 }
 
+/// The indices of the parameters named by `--estimate`.
+pub fn parameter_indices(preset: &Preset, names: &[String]) -> Result<Vec<usize>> {
+    names.iter().filter(|s| !s.trim().is_empty()).map(|name| preset.param_index(name.trim())).collect()
+}
+
 /// The estimation problem of the command line: a built-in model with the flags applied.
 pub type CliProblem<'a> = EstimationProblem<'a, Model, StateMeasurement>;
 
@@ -164,13 +169,8 @@ impl Setup {
     /// Reads the data and resolves the flags.
     pub fn new(args: &EstimateArgs) -> Result<Setup> {
         let preset = args.model.preset()?;
-        let data = Dataset::read_csv_for(&args.data, &preset.observation.output_names())?;
-        let estimate = args
-            .estimate
-            .iter()
-            .filter(|s| !s.trim().is_empty())
-            .map(|name| preset.param_index(name.trim()))
-            .collect::<Result<Vec<usize>>>()?;
+        let data = super::read_data(&args.data, &preset)?;
+        let estimate = parameter_indices(&preset, &args.estimate)?;
         Ok(Setup { preset, data, estimate })
     }
 
@@ -193,9 +193,21 @@ pub fn run(args: &EstimateArgs) -> Result<bool> {
     }
     let est = run.estimate;
     print_summary(&est, &problem);
-    create_parent(&args.out)?;
-    est.path.write_csv(&args.out)?;
-    outln!("wrote the estimated path to {}", args.out.display());
+    let partial = est.partial();
+    let out = match &partial {
+        // A partial path is not written where a complete one is expected.
+        Some(why) => {
+            outln!("partial: {why}");
+            args.out.with_extension("partial.csv")
+        }
+        None => args.out.clone(),
+    };
+    create_parent(&out)?;
+    est.path.write_csv(&out)?;
+    match partial {
+        Some(_) => outln!("wrote the partial path to {} (not to {})", out.display(), args.out.display()),
+        None => outln!("wrote the estimated path to {}", out.display()),
+    }
     if let Some(report) = &args.report {
         create_parent(report)?;
         est.write_report(report)?;

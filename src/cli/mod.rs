@@ -9,10 +9,11 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 
+use onsager::data::{Dataset, StatePath};
 use onsager::model::library::{self, Preset};
 use onsager::model::observation::Noise;
 use onsager::model::prior::Prior;
-use onsager::model::Sde;
+use onsager::model::{Observation, Sde};
 use onsager::{Error, Result};
 
 /// The model flags every subcommand takes (DESIGN.md, "Data formats").
@@ -61,6 +62,18 @@ fn parse_number(v: &str, flag: &str, what: &str) -> Result<f64> {
     Ok(x)
 }
 
+/// An error of a prior's text or values as an error of `--x0-prior` (the prior's own field,
+/// e.g. `prior.sd`, in the reason).
+fn x0_flag(e: Error) -> Error {
+    match e {
+        Error::InvalidOption { name, reason } => {
+            let field = name.strip_prefix("prior.").unwrap_or(&name);
+            Error::InvalidOption { name: "--x0-prior".into(), reason: format!("{field} {reason}") }
+        }
+        other => other,
+    }
+}
+
 /// Parses one `--x0-prior` flag into (state index, prior) pairs for `names` (noisy then clean).
 fn parse_initial_prior(spec: &str, names: &[String]) -> Result<Vec<(usize, Prior)>> {
     let flag = "--x0-prior";
@@ -73,7 +86,7 @@ fn parse_initial_prior(spec: &str, names: &[String]) -> Result<Vec<(usize, Prior
             name: k.clone(),
             known: names.to_vec(),
         })?;
-        return Ok(vec![(i, Prior::parse(&v)?)]);
+        return Ok(vec![(i, Prior::parse(&v).and_then(|p| p.validate().map(|()| p)).map_err(x0_flag)?)]);
     }
     if spec.trim() == "flat" {
         return Ok((0..names.len()).map(|i| (i, Prior::flat())).collect());
@@ -120,7 +133,7 @@ fn parse_initial_prior(spec: &str, names: &[String]) -> Result<Vec<(usize, Prior
     };
     let priors = mean.iter().zip(&sd).map(|(&m, &s)| Prior::gaussian(m, s)).collect::<Vec<_>>();
     for p in &priors {
-        p.validate()?;
+        p.validate().map_err(x0_flag)?;
     }
     Ok(priors.into_iter().enumerate().collect())
 }
@@ -132,10 +145,16 @@ impl ModelArgs {
             Some(path) => Preset::from_path(path)?,
             None => library::preset(&self.model)?,
         };
+        let defaults = p.clone();
+        let mut set = Vec::new();
         for s in &self.params {
             let (k, v) = parse_assignment(s, "--param")?;
             let value = parse_number(&v, "--param", &format!("parameter `{k}`"))?;
             p.set_param(&k, value)?;
+            set.push((k, value));
+        }
+        if let Err(e) = p.model.diffusion_matrix(&p.theta) {
+            return Err(blame_param(&p, &defaults, &set, e));
         }
         if let Some(spec) = &self.likelihood {
             p.observation.noise = Noise::parse(spec, &p.model.param_names())?;
@@ -153,6 +172,77 @@ impl ModelArgs {
         }
         p.validate()?;
         Ok(p)
+    }
+}
+
+/// `e` with the library's option names replaced by the flags that set them (`table`: library
+/// name, flag), so that messages name what the user types.
+pub fn as_flags(e: Error, table: &[(&str, &str)]) -> Error {
+    match e {
+        Error::InvalidOption { name, reason } => {
+            let name = table.iter().find(|(n, _)| *n == name).map_or(name, |(_, flag)| (*flag).to_string());
+            Error::InvalidOption { name, reason }
+        }
+        other => other,
+    }
+}
+
+/// After a diffusion G(θ) that the `--param` values break: the parameter to blame (the first
+/// whose model default gives a valid G again), with what it must be.
+fn blame_param(p: &Preset, defaults: &Preset, set: &[(String, f64)], e: Error) -> Error {
+    if !matches!(e, Error::SingularDiffusion { .. }) {
+        return e;
+    }
+    for (name, value) in set {
+        let Ok(i) = p.param_index(name) else { continue };
+        let mut theta = p.theta.clone();
+        theta[i] = defaults.theta[i];
+        if p.model.diffusion_matrix(&theta).is_ok() {
+            return Error::InvalidOption {
+                name: "--param".into(),
+                reason: format!(
+                    "`{name}={value}` makes the diffusion G(θ) non-finite or singular ({e}); `{name}` \
+                     is a noise intensity here and must keep G defined, e.g. positive (default {})",
+                    defaults.theta[i]
+                ),
+            };
+        }
+    }
+    e
+}
+
+/// Reads `--data` for the outputs of `preset`. Errors: those of the reader; a file without a
+/// single measured value (every output missing on every line).
+pub fn read_data(file: &Path, preset: &Preset) -> Result<Dataset> {
+    let data = Dataset::read_csv_for(file, &preset.observation.output_names())?;
+    if data.values.iter().flatten().all(|v| v.is_nan()) {
+        return Err(Error::InvalidOption {
+            name: "--data".into(),
+            reason: format!(
+                "{} has no measured value: every output is missing (empty or NaN) on all its {} lines",
+                file.display(),
+                data.len()
+            ),
+        });
+    }
+    Ok(data)
+}
+
+/// A warning on stderr when the truth of `--truth` does not cover the data's time span (the
+/// distances to it are then measured on the overlap only).
+pub fn warn_if_truth_short(truth: &StatePath, file: &Path, data: &Dataset) {
+    let (Some(&t0), Some(&t1), Some(&d0), Some(&d1)) =
+        (truth.times.first(), truth.times.last(), data.times.first(), data.times.last())
+    else {
+        return;
+    };
+    let slack = 1e-9 * (d1 - d0).abs().max(1.0);
+    if t0 > d0 + slack || t1 < d1 - slack {
+        eprintln!(
+            "warning: --truth {} covers t in [{t0}, {t1}] but the data span [{d0}, {d1}]; the \
+             distances to the truth are measured where it is defined",
+            file.display()
+        );
     }
 }
 

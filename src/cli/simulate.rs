@@ -42,6 +42,10 @@ pub struct SimulateArgs {
 }
 
 /// Runs `onsager simulate`.
+/// The preset's settings and the flags of `onsager simulate` that set them.
+const SIMULATE_FLAGS: &[(&str, &str)] =
+    &[("t_end", "--t-end"), ("dt", "--dt"), ("sample_every", "--sample-every"), ("first_sample", "--t-end")];
+
 pub fn run(args: &SimulateArgs) -> Result<()> {
     let mut p = args.model.preset()?;
     if let Some(t) = args.t_end {
@@ -53,7 +57,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     if let Some(s) = args.sample_every {
         p.sample_every = s;
     }
-    p.validate()?;
+    p.validate().map_err(|e| super::as_flags(e, SIMULATE_FLAGS))?;
     let mut rng = StdRng::seed_from_u64(args.seed);
     let draw = |priors: &[Prior], rng: &mut StdRng| -> Result<Vec<f64>> {
         priors.iter().map(|pr| pr.sample(rng)).collect()

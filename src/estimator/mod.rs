@@ -26,6 +26,7 @@
 //! [`Estimator`]); an unknown option, a value of the wrong type or outside its domain is an
 //! [`Error::EstimatorOption`] naming the method, the option and what is allowed.
 
+mod applies;
 mod parse;
 
 use std::fmt;
@@ -46,6 +47,7 @@ use crate::particle::ParticleOptions;
 use crate::path::MapOptions;
 use crate::{Error, Result};
 
+pub use applies::NotApplicable;
 pub use parse::{options_from_pairs, parse_list, read_list};
 
 /// What every options type of an estimator provides: defaults, serde (the field names are the

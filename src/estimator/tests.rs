@@ -64,3 +64,35 @@ fn text_options_are_typed_and_nested() {
     assert!(matches!(Estimator::parse("jme,uks"), Err(Error::InvalidOption { .. })));
     assert!(matches!(parse_list("dt=1,uks"), Err(Error::InvalidOption { .. })));
 }
+
+#[test]
+fn applies_to_follows_the_model_the_likelihood_and_the_estimate() {
+    use crate::model::library::preset;
+    use crate::model::observation::Noise;
+    use crate::model::observation::Param;
+    let mut p = preset("duffing").unwrap();
+    (p.t_end, p.dt, p.sample_every) = (2.0, 0.01, 0.5);
+    let rec = crate::test_models::PresetRecord::simulate_from(p, 2, &[0.5], &[0.0]).unwrap();
+    let problem = rec.preset.problem(&rec.data, &[]);
+    let applies = |m: Method, pr: &EstimationProblem<'_, _, _>| Estimator::new(m).applies_to(pr);
+    // Two states, x not measured: no default grid; the one-state closures do not apply.
+    assert!(applies(Method::Ksp, &problem).unwrap_err().reason.contains("lo=L1;L2"));
+    assert!(applies(Method::KspClosure, &problem).is_err());
+    for m in [Method::GaussianClosure, Method::ExpClosure, Method::Jme, Method::Uks, Method::Particle] {
+        assert!(applies(m, &problem).is_ok(), "{m}");
+    }
+    // pem needs parameters to estimate; with them, only jme, mee and pem apply.
+    assert!(applies(Method::Pem, &problem).is_err());
+    let estimating = rec.preset.problem(&rec.data, &[0]);
+    for &m in Method::ALL {
+        assert_eq!(applies(m, &estimating).is_ok(), m.estimates_parameters(), "{m}");
+    }
+    // A Student-t likelihood: ksp, jme, mee and particle only.
+    let mut obs = rec.preset.observation.clone();
+    obs.noise = Noise::StudentT { nu: Param::Fixed(4.0), scale: Param::Fixed(0.2) };
+    let t = EstimationProblem { observation: &obs, ..problem };
+    for &m in Method::ALL {
+        let ok = matches!(m, Method::Jme | Method::Mee | Method::Particle);
+        assert_eq!(applies(m, &t).is_ok(), ok, "{m}");
+    }
+}
