@@ -46,7 +46,7 @@ use crate::particle::ParticleOptions;
 use crate::path::MapOptions;
 use crate::{Error, Result};
 
-pub use parse::{options_from_pairs, parse_list, read_list};
+pub use parse::{keep_set_parameters, list_from_json, options_from_pairs, parse_list, read_list};
 
 /// What every options type of an estimator provides: defaults, serde (the field names are the
 /// option names), a check of the values that names the field and the bad value, and the run.
