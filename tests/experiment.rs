@@ -210,3 +210,25 @@ fn cli_lists_runs_and_fails_with_exit_code_1() {
     assert!(String::from_utf8_lossy(&bad.stderr).contains("modle"));
     let _ = std::fs::remove_dir_all(&out);
 }
+
+/// A run whose cancel flag is set stops: after the first row here (set from the progress
+/// callback), no more rows are written, the run is incomplete without a summary, and `resume`
+/// finishes it with the rows of an uninterrupted run.
+#[test]
+fn a_cancelled_run_stops_and_resumes() {
+    let out = scratch("cancel");
+    let experiment = builtin("tanh-limits").unwrap();
+    let cancel = onsager::experiment::Cancel::new();
+    let mut o = options(&out, true, 1);
+    o.cancel = Some(cancel.clone());
+    let report = run(&experiment, &o, &|_| cancel.cancel()).unwrap();
+    assert_eq!(report.written, 1);
+    assert!(!report.complete && report.summary.is_none());
+    let mut o = options(&out, true, 1);
+    o.resume = true;
+    let resumed = run(&experiment, &o, &|_| {}).unwrap();
+    assert!(resumed.complete && resumed.resumed == 1);
+    let full = scratch("cancel-full");
+    run(&experiment, &options(&full, true, 1), &|_| {}).unwrap();
+    assert_eq!(row_set(&out), row_set(&full));
+}

@@ -8,7 +8,7 @@ use clap::Args;
 use onsager::action::GridSpec;
 use onsager::data::Dataset;
 use onsager::estimate::{EstimationProblem, PathEstimate};
-use onsager::estimator::{options_from_pairs, Estimator, Method};
+use onsager::estimator::{keep_set_parameters, options_from_pairs, Estimator, Method};
 use onsager::model::library::{Model, Preset};
 use onsager::model::observation::StateMeasurement;
 use onsager::model::Sde;
@@ -137,12 +137,7 @@ impl EstimateArgs {
             .filter_map(|s| s.split_once('='))
             .map(|(k, _)| k.trim().to_string())
             .collect();
-        if matches!(self.method, Method::Jme | Method::Mee)
-            && !kept.is_empty()
-            && !options.contains_key("keep_initial")
-        {
-            options.insert("keep_initial".into(), serde_json::json!(kept));
-        }
+        keep_set_parameters(self.method, &mut options, &kept);
         Estimator::from_options(self.method, &options)
     }
 }

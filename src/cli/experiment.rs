@@ -6,7 +6,6 @@ use std::sync::Mutex;
 
 use clap::{Args, Subcommand};
 
-use onsager::experiment::builtin::builtin_text;
 use onsager::experiment::slurm::{self, SlurmOptions};
 use onsager::experiment::{
     merge, run, Experiment, MergeOptions, MergeReport, MergeStatus, Missing, Progress, RunOptions, Shard,
@@ -116,29 +115,6 @@ pub enum Finished {
     Incomplete,
 }
 
-/// The default output folder of an experiment: `out/experiments/NAME[/quick]`.
-fn default_out(name: &str, quick: bool) -> PathBuf {
-    let dir = PathBuf::from("out/experiments").join(name);
-    if quick {
-        dir.join("quick")
-    } else {
-        dir
-    }
-}
-
-fn load(experiment: &str) -> Result<Experiment> {
-    if experiment.ends_with(".toml") || std::path::Path::new(experiment).is_file() {
-        Experiment::from_path(std::path::Path::new(experiment)).map_err(|e| match e {
-            Error::InvalidOption { name, reason } => {
-                Error::InvalidOption { name, reason: format!("in {experiment}: {reason}") }
-            }
-            other => other,
-        })
-    } else {
-        Experiment::from_toml(builtin_text(experiment)?)
-    }
-}
-
 fn duration(s: f64) -> String {
     let s = s.max(0.0).round() as u64;
     if s >= 3600 {
@@ -173,9 +149,9 @@ pub fn run_command(args: &ExperimentArgs) -> Result<Finished> {
 }
 
 fn run_experiment(a: &RunArgs) -> Result<()> {
-    let experiment = load(&a.experiment)?;
+    let experiment = onsager::experiment::load(&a.experiment)?;
     let spec = &experiment.spec;
-    let out = a.out.clone().unwrap_or_else(|| default_out(&spec.name, a.quick));
+    let out = a.out.clone().unwrap_or_else(|| onsager::experiment::default_out(&spec.name, a.quick));
     let mut options = RunOptions::new(out.clone());
     options.jobs = a.jobs;
     options.resume = a.resume;
@@ -360,14 +336,16 @@ fn absolute(path: &std::path::Path, flag: &str) -> Result<PathBuf> {
 }
 
 fn write_slurm(a: &SlurmArgs) -> Result<()> {
-    let experiment = load(&a.experiment)?;
+    let experiment = onsager::experiment::load(&a.experiment)?;
     let name = if std::path::Path::new(&a.experiment).is_file() {
         absolute(std::path::Path::new(&a.experiment), "EXPERIMENT")?.to_string_lossy().into_owned()
     } else {
         a.experiment.clone()
     };
-    let out =
-        absolute(&a.out.clone().unwrap_or_else(|| default_out(&experiment.spec.name, a.quick)), "--out")?;
+    let out = absolute(
+        &a.out.clone().unwrap_or_else(|| onsager::experiment::default_out(&experiment.spec.name, a.quick)),
+        "--out",
+    )?;
     let program = std::env::current_exe()
         .and_then(|p| p.canonicalize())
         .map_err(|source| Error::Io { path: PathBuf::from("onsager"), source })?;

@@ -6,9 +6,7 @@ use clap::Args;
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 
-use onsager::model::prior::Prior;
-use onsager::model::Sde;
-use onsager::simulate::{self, Scheme, SimulateOptions};
+use onsager::simulate::Scheme;
 use onsager::Result;
 
 use super::{create_parent, ModelArgs};
@@ -59,16 +57,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     }
     p.validate().map_err(|e| super::as_flags(e, SIMULATE_FLAGS))?;
     let mut rng = StdRng::seed_from_u64(args.seed);
-    let draw = |priors: &[Prior], rng: &mut StdRng| -> Result<Vec<f64>> {
-        priors.iter().map(|pr| pr.sample(rng)).collect()
-    };
-    let x0 = draw(&p.x0_prior, &mut rng)?;
-    let z0 = draw(&p.z0_prior, &mut rng)?;
-    let options = SimulateOptions::new(0.0, p.t_end, p.dt).with_scheme(args.scheme);
-    let path = simulate::simulate(&p.model, &p.theta, &x0, &z0, &options, &mut rng)?;
-    let n_noisy = p.model.dims().noisy;
-    let times = p.measurement_times();
-    let data = simulate::sample_measurements_at(&p.observation, &p.theta, &path, n_noisy, &times, &mut rng)?;
+    let (path, data) = p.simulate(args.scheme, &mut rng)?;
     create_parent(&args.out)?;
     data.write_csv(&args.out)?;
     outln!(

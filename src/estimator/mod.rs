@@ -48,7 +48,7 @@ use crate::path::MapOptions;
 use crate::{Error, Result};
 
 pub use applies::NotApplicable;
-pub use parse::{options_from_pairs, parse_list, read_list};
+pub use parse::{keep_set_parameters, list_from_json, options_from_pairs, parse_list, read_list};
 
 /// What every options type of an estimator provides: defaults, serde (the field names are the
 /// option names), a check of the values that names the field and the bad value, and the run.

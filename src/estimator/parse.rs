@@ -125,6 +125,17 @@ where
     Ok(map)
 }
 
+/// The rule of `onsager estimate` and the Python package for the initial guess of the
+/// path-space MAP methods: for `jme` and `mee`, the parameters whose values the user set
+/// (`set`, by name) are kept as the initial guess, i.e. `keep_initial = set`, unless the
+/// options already name `keep_initial`. Other methods' options are left unchanged.
+pub fn keep_set_parameters(method: Method, options: &mut Map<String, Value>, set: &[String]) {
+    if matches!(method, Method::Jme | Method::Mee) && !set.is_empty() && !options.contains_key("keep_initial")
+    {
+        options.insert("keep_initial".into(), Value::from(set.to_vec()));
+    }
+}
+
 /// Splits `text` at the commas outside double quotes, removing the quotes.
 fn split_top(text: &str) -> Result<Vec<String>> {
     let (mut parts, mut current, mut quoted) = (Vec::new(), String::new(), false);
@@ -265,6 +276,18 @@ pub fn read_list(path: &std::path::Path) -> Result<Vec<Labelled>> {
             toml::from_str(&text).map_err(|e| data_error(e.to_string().trim_end().to_string()))?;
         serde_json::to_value(table).map_err(|e| data_error(e.to_string()))?
     };
+    list_from_value(value, path)
+}
+
+/// A list of estimators from its JSON value, `{"estimators": [{"method": …, "label": …,
+/// "options": {…}}]}` (the form [`read_list`] reads; the Python package builds it from a list
+/// of dicts); `source` names it in error messages. Errors: as [`read_list`].
+pub fn list_from_json(value: Value, source: &str) -> Result<Vec<Labelled>> {
+    list_from_value(value, std::path::Path::new(source))
+}
+
+fn list_from_value(value: Value, path: &std::path::Path) -> Result<Vec<Labelled>> {
+    let data_error = |reason: String| Error::Data { path: path.to_path_buf(), line: 0, column: None, reason };
     let list: List = serde_json::from_value(value).map_err(|e| data_error(message(&e)))?;
     let mut out: Vec<Labelled> = Vec::with_capacity(list.estimators.len());
     for entry in list.estimators {

@@ -27,3 +27,20 @@ pub fn builtin_text(name: &str) -> Result<&'static str> {
 pub fn builtin(name: &str) -> Result<Experiment> {
     Experiment::from_toml(builtin_text(name)?)
 }
+
+/// A built-in experiment by name, or a spec file: `name_or_path` ending in `.toml` or naming
+/// an existing file is read as a file, anything else is a built-in name. Errors: an unknown
+/// name ([`Error::UnknownName`]), I/O, an invalid spec (naming the file and the key).
+pub fn load(name_or_path: &str) -> Result<Experiment> {
+    let path = std::path::Path::new(name_or_path);
+    if name_or_path.ends_with(".toml") || path.is_file() {
+        Experiment::from_path(path).map_err(|e| match e {
+            Error::InvalidOption { name, reason } => {
+                Error::InvalidOption { name, reason: format!("in {name_or_path}: {reason}") }
+            }
+            other => other,
+        })
+    } else {
+        builtin(name_or_path)
+    }
+}

@@ -37,7 +37,7 @@ pub mod spec;
 #[cfg(test)]
 mod tests;
 
-pub use builtin::{builtin, BUILTIN};
-pub use runner::{replicate_seed, run, Progress, Row, RunOptions, RunReport};
+pub use builtin::{builtin, load, BUILTIN};
+pub use runner::{default_out, replicate_seed, run, Cancel, Progress, Row, RunOptions, RunReport};
 pub use shard::{merge, MergeOptions, MergeReport, MergeStatus, Missing, Shard};
 pub use spec::{EstimatorSpec, Experiment, ExperimentSpec, Metric, Scenario, ScenarioEstimator};

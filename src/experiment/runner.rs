@@ -51,6 +51,38 @@ pub struct RunOptions {
     /// Run only this shard's replicates, into `out/shards/I-of-N` (see [`super::shard`]); no
     /// summary then (the merge writes it). Default: none, the whole experiment.
     pub shard: Option<Shard>,
+    /// A flag another thread sets to stop the run early (e.g. on Ctrl-C in a caller): rows
+    /// still being computed are not written, the run returns with `complete` false and no
+    /// summary, and `resume` continues it. Default: none.
+    pub cancel: Option<Cancel>,
+}
+
+/// A shared stop flag for [`RunOptions::cancel`]; clones share the flag.
+#[derive(Debug, Clone, Default)]
+pub struct Cancel(std::sync::Arc<AtomicBool>);
+
+impl Cancel {
+    /// A flag that is not set.
+    pub fn new() -> Cancel {
+        Cancel::default()
+    }
+
+    /// Sets the flag: the runs holding it stop.
+    pub fn cancel(&self) {
+        self.0.store(true, Ordering::SeqCst);
+    }
+
+    /// Whether the flag is set.
+    pub fn is_cancelled(&self) -> bool {
+        self.0.load(Ordering::SeqCst)
+    }
+}
+
+impl PartialEq for Cancel {
+    /// Two flags are equal when they are the same flag.
+    fn eq(&self, other: &Cancel) -> bool {
+        std::sync::Arc::ptr_eq(&self.0, &other.0)
+    }
 }
 
 impl RunOptions {
@@ -67,7 +99,19 @@ impl RunOptions {
             max_rows: None,
             plots: true,
             shard: None,
+            cancel: None,
         }
+    }
+}
+
+/// The default output folder of an experiment: `out/experiments/NAME`, and its `quick`
+/// subfolder for the quick version (`onsager experiment run` and the Python package).
+pub fn default_out(name: &str, quick: bool) -> PathBuf {
+    let dir = PathBuf::from("out/experiments").join(name);
+    if quick {
+        dir.join("quick")
+    } else {
+        dir
     }
 }
 
@@ -439,12 +483,20 @@ impl Shared<'_> {
         row
     }
 
+    /// Whether the run stops: `max_rows` reached or [`RunOptions::cancel`] set.
+    fn stopped(&self) -> bool {
+        self.stop.load(Ordering::SeqCst) || self.options.cancel.as_ref().is_some_and(Cancel::is_cancelled)
+    }
+
     /// Appends `row` to `results.csv` (flushed) and reports progress; `false` once `max_rows`
     /// rows are written (the run then stops).
     fn write(&self, row: Row, progress: &(dyn Fn(&Progress) + Sync)) -> Result<bool> {
         // A worker that panicked while holding the file propagates its panic through the pool;
         // the file itself is append-only, so its guard is still usable.
         let mut f = self.writer.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if self.stopped() {
+            return Ok(false);
+        }
         if let Some(max) = self.options.max_rows {
             if self.written.load(Ordering::SeqCst) >= max {
                 self.stop.store(true, Ordering::SeqCst);
@@ -469,7 +521,7 @@ impl Shared<'_> {
     /// their distances to each other; then the others, each row written as soon as its
     /// estimator finishes), and the path plot of replicate 0.
     fn unit(&self, si: usize, r: usize, progress: &(dyn Fn(&Progress) + Sync)) -> Result<()> {
-        if self.stop.load(Ordering::SeqCst) {
+        if self.stopped() {
             return Ok(());
         }
         let scenario = &self.scenarios[si];
@@ -492,7 +544,7 @@ impl Shared<'_> {
             if !is_ref && self.is_done(&scenario.name, r, &e.label) {
                 continue;
             }
-            if self.stop.load(Ordering::SeqCst) {
+            if self.stopped() {
                 return Ok(());
             }
             let outcome = self.estimate(e, &data, unit_seed);

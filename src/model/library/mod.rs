@@ -44,7 +44,7 @@ use std::sync::Arc;
 
 use super::expression::ExpressionModel;
 use super::{check_len, Dims, DriftDerivatives, Param, Scalar, Sde};
-use crate::data::Dataset;
+use crate::data::{Dataset, StatePath};
 use crate::estimate::EstimationProblem;
 use crate::{Error, Result};
 
@@ -327,6 +327,28 @@ impl Preset {
             });
         }
         Ok(())
+    }
+
+    /// Simulates the preset (what `onsager simulate` writes): the initial states drawn from
+    /// the initial-state priors (noisy then clean), the path from t = 0 to `t_end` with step
+    /// `dt` by `scheme`, and measurements at [`Preset::measurement_times`] drawn from the
+    /// measurement model, all from `rng` in this order. Returns the true path and the
+    /// measurements. Errors: as [`Preset::validate`] and [`crate::simulate::simulate`].
+    pub fn simulate<R: rand::Rng + ?Sized>(
+        &self,
+        scheme: crate::simulate::Scheme,
+        rng: &mut R,
+    ) -> Result<(StatePath, Dataset)> {
+        use crate::simulate::{sample_measurements_at, simulate, SimulateOptions};
+        self.validate()?;
+        let x0 = self.x0_prior.iter().map(|p| p.sample(rng)).collect::<Result<Vec<f64>>>()?;
+        let z0 = self.z0_prior.iter().map(|p| p.sample(rng)).collect::<Result<Vec<f64>>>()?;
+        let options = SimulateOptions::new(0.0, self.t_end, self.dt).with_scheme(scheme);
+        let path = simulate(&self.model, &self.theta, &x0, &z0, &options, rng)?;
+        let times = self.measurement_times();
+        let data =
+            sample_measurements_at(&self.observation, &self.theta, &path, self.dims().noisy, &times, rng)?;
+        Ok((path, data))
     }
 }
 
