@@ -55,6 +55,7 @@ pub fn method_look(m: Method) -> Look {
         Method::ExpClosure => (ROSE, Dash::Solid),
         Method::DoubleExpClosure => (SAND, Dash::Solid),
         Method::KspClosure => (PURPLE, Dash::Solid),
+        Method::GaussianKspClosure => (WINE, Dash::Dashed),
         Method::Jme => (GREEN, Dash::Solid),
         Method::Mee => (OLIVE, Dash::Solid),
         Method::Uks => (TEAL, Dash::Solid),

@@ -1,6 +1,8 @@
 //! Distances between paths, one rule for `onsager compare` and the experiments: the normalised
 //! integrated square error of `000_74b95e149527c64e.txt (4.1)`, the root-mean-square error, and
-//! the fraction of time an estimate is on the same side of a threshold (the well) as the truth.
+//! the fraction of time an estimate is on the same side of a threshold (the well) as the truth,
+//! and for estimates with standard deviations the mean posterior sd and the coverage of the
+//! truth by the ±2 sd band.
 //!
 //! **The rule.** Every metric compares an estimate with a reference path (the truth, or the
 //! estimate of another estimator) at the *reference's* times inside the estimate's time span,
@@ -33,11 +35,17 @@ pub enum Metric {
         /// The threshold between the wells.
         barrier: f64,
     },
+    /// Mean of the estimate's standard deviations over the truth's times and all states
+    /// (`mean_sd`).
+    MeanSd,
+    /// Fraction of the truth's (time, state) points inside the estimate's ±2 sd band
+    /// (`coverage`); about 0.95 for a calibrated Gaussian posterior.
+    Coverage,
 }
 
 impl Metric {
-    /// Parses `ise`, `rmse`, `rmse-to:LABEL` or `well-side[:STATE]` (barrier 0, the symmetric
-    /// double well).
+    /// Parses `ise`, `rmse`, `rmse-to:LABEL`, `well-side[:STATE]` (barrier 0, the symmetric
+    /// double well, or the lobes of Lorenz-63 for the state `x`), `mean-sd` or `coverage`.
     pub fn parse(s: &str) -> Result<Metric> {
         let s = s.trim();
         let side = |state: Option<String>| Metric::WellSide { state, barrier: 0.0 };
@@ -45,12 +53,15 @@ impl Metric {
             None if s == "ise" => Ok(Metric::Ise),
             None if s == "rmse" => Ok(Metric::Rmse),
             None if s == "well-side" => Ok(side(None)),
+            None if s == "mean-sd" => Ok(Metric::MeanSd),
+            None if s == "coverage" => Ok(Metric::Coverage),
             Some(("rmse-to", label)) if !label.trim().is_empty() => Ok(Metric::RmseTo(label.trim().into())),
             Some(("well-side", state)) if !state.trim().is_empty() => Ok(side(Some(state.trim().into()))),
             _ => Err(Error::InvalidOption {
                 name: "metrics".into(),
                 reason: format!(
-                    "unknown metric `{s}` (known: ise, rmse, rmse-to:LABEL, well-side, well-side:STATE)"
+                    "unknown metric `{s}` (known: ise, rmse, rmse-to:LABEL, well-side, well-side:STATE, \
+                     mean-sd, coverage)"
                 ),
             }),
         }
@@ -64,6 +75,8 @@ impl Metric {
             Metric::RmseTo(label) => format!("rmse_to_{label}"),
             Metric::WellSide { state: None, .. } => "well_side".into(),
             Metric::WellSide { state: Some(s), .. } => format!("well_side_{s}"),
+            Metric::MeanSd => "mean_sd".into(),
+            Metric::Coverage => "coverage".into(),
         }
     }
 }
@@ -97,7 +110,59 @@ pub fn measure(
             let state = state.clone().unwrap_or_else(|| truth.names[0].clone());
             same_side_fraction(estimate, truth, &state, *barrier)
         }
+        Metric::MeanSd => band(estimate, truth()?, 2.0).map(|b| b.mean_sd),
+        Metric::Coverage => band(estimate, truth()?, 2.0).map(|b| b.coverage),
     }
+}
+
+/// The estimate's standard deviations against a reference path: their mean and the coverage of
+/// the reference by the band mean ± k sd ([`band`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Band {
+    /// Mean sd over the reference's (time, state) points inside the estimate's span.
+    pub mean_sd: f64,
+    /// Fraction of those points with |reference − mean| ≤ k sd.
+    pub coverage: f64,
+}
+
+/// The mean sd of `estimate` and the fraction of the reference's (time, state) points inside
+/// the estimate's span that lie in the band mean ± `k` sd, mean and sd linearly interpolated
+/// at the reference's times (every state of the reference).
+///
+/// Errors: the estimate has no standard deviations ([`Error::InvalidOption`], name `sd`);
+/// those of [`ise`].
+pub fn band(estimate: &StatePath, reference: &StatePath, k: f64) -> Result<Band> {
+    let Some(sd) = &estimate.sd else {
+        return Err(Error::InvalidOption {
+            name: "sd".into(),
+            reason: "the estimate has no standard deviations".into(),
+        });
+    };
+    let cols = columns(estimate, reference, None)?;
+    let (mut inside, mut sum_sd, mut n) = (0usize, 0.0, 0usize);
+    for &(e, r) in &cols {
+        let mean: Vec<f64> = estimate.values.iter().map(|row| row[e]).collect();
+        let sds: Vec<f64> = sd.iter().map(|row| row[e]).collect();
+        for (i, &t) in reference.times.iter().enumerate() {
+            let (Some(m), Some(s)) =
+                (interpolate(&estimate.times, &mean, t), interpolate(&estimate.times, &sds, t))
+            else {
+                continue;
+            };
+            n += 1;
+            sum_sd += s;
+            if (reference.values[i][r] - m).abs() <= k * s {
+                inside += 1;
+            }
+        }
+    }
+    if n == 0 {
+        return Err(Error::InvalidOption {
+            name: "reference".into(),
+            reason: "no reference time lies inside the estimate's time span".into(),
+        });
+    }
+    Ok(Band { mean_sd: sum_sd / n as f64, coverage: inside as f64 / n as f64 })
 }
 
 /// Linear interpolation of `values` (one value per time of the increasing `times`) at `t`;
@@ -286,5 +351,22 @@ mod tests {
         assert!(matches!(rmse(&other, &truth, None), Err(Error::UnknownName { .. })));
         let late = path(vec![2.0, 3.0], |t| t);
         assert!(rmse(&late, &truth, None).is_err());
+    }
+
+    #[test]
+    fn band_closed_forms() {
+        // Truth t on [0, 1] (101 points), estimate 0 with sd 0.25: |t| ≤ 2 · 0.25 for t ≤ 0.5,
+        // 51 of 101 points; the mean sd is 0.25. Without sds the band is an error.
+        let times: Vec<f64> = (0..=100).map(|i| i as f64 / 100.0).collect();
+        let truth = path(times.clone(), |t| t);
+        let mut est = path(vec![0.0, 1.0], |_| 0.0);
+        assert!(matches!(band(&est, &truth, 2.0), Err(Error::InvalidOption { .. })));
+        est.sd = Some(vec![vec![0.25], vec![0.25]]);
+        let b = band(&est, &truth, 2.0).unwrap();
+        assert!((b.coverage - 51.0 / 101.0).abs() < 1e-12, "{b:?}");
+        assert!((b.mean_sd - 0.25).abs() < 1e-12);
+        assert_eq!(measure(&Metric::Coverage, &est, Some(&truth), &[]).unwrap(), b.coverage);
+        assert_eq!(Metric::parse("coverage").unwrap().column(), "coverage");
+        assert_eq!(Metric::parse("mean-sd").unwrap().column(), "mean_sd");
     }
 }

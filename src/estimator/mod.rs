@@ -40,7 +40,7 @@ use crate::action::closure::om::MomentPathOptions;
 use crate::action::closure::{Closure, ExponentialFamily, GaussianFamily};
 use crate::action::exact::{ExactOptions, MeanOptimalOptions};
 use crate::estimate::{EstimationProblem, MethodRun};
-use crate::kalman::{EnksOptions, ExtendedOptions, KalmanOptions, PemOptions};
+use crate::kalman::{EnksOptions, ExtendedOptions, GaussianKspOptions, KalmanOptions, PemOptions};
 use crate::model::observation::StateMeasurement;
 use crate::model::Sde;
 use crate::particle::ParticleOptions;
@@ -187,6 +187,12 @@ estimators! {
     /// Closure of the KSP smoother (`003 (II.64)–(II.65)`).
     KspClosure, "ksp-closure", MomentPathOptions,
         "closure of the KSP smoother (003 II.64-II.65)";
+    /// Gaussian closure of the KSP smoother in any number of states: moment equations by
+    /// Gauss–Hermite or cubature rules, the Gaussian Bayes update at the measurements and the
+    /// RTS backward pass (`003 (I.80)–(I.84)`, `(II.64)–(II.65)`;
+    /// [`crate::kalman::gaussian_ksp()`]).
+    GaussianKspClosure, "gaussian-ksp-closure", GaussianKspOptions,
+        "Gaussian closure of the KSP smoother in n states: moment ODEs by Gauss-Hermite/cubature, Bayes jumps, RTS (003 I.80-I.84, II.64-II.65)";
     /// Double-exponential closure (`003 (II.54)–(II.63)`).
     DoubleExpClosure, "double-exp-closure", MomentPathOptions,
         "double-exponential closure (003 II.54-II.63)";

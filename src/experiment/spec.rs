@@ -13,7 +13,10 @@
 //! spec equal to `"{name}"` is replaced by the value (keeping its type) and every other
 //! occurrence of `{name}` inside a string by the value's text, so that
 //! `generate = "mixture:p={p_o},sigma=0.5,sigma_outlier={sigma_o}"` spans a grid of
-//! likelihoods. The `[quick]` table holds dotted-key overrides applied before the grid when the
+//! likelihoods. A variable whose values are tables is a list of named settings: each table
+//! holds a `name` (the scenario's value of the variable) and dotted-key overrides applied
+//! together, e.g. `setting = [{ name = "dense", "measurements.every" = 0.2 }, { name = "sparse",
+//! "measurements.every" = 0.5, "measurements.states" = ["x"] }]`. The `[quick]` table holds dotted-key overrides applied before the grid when the
 //! experiment is run with `--quick` (fewer replicates, shorter horizons, a smaller grid).
 
 use std::collections::BTreeMap;
@@ -130,6 +133,9 @@ pub struct MeasurementSpec {
     /// Initial-state prior of the estimators, per state name (default: the preset's).
     #[serde(default)]
     pub x0_prior: BTreeMap<String, String>,
+    /// The measured states by name (default: the preset's); an output keeps the preset's name
+    /// when the preset measures that state, else it is named `y_STATE`.
+    pub states: Option<Vec<String>>,
 }
 
 /// One estimator of an experiment: an [`Estimator`] as written (`method` and `options`, the
@@ -326,8 +332,9 @@ impl Experiment {
         raw.remove("quick");
         // Every variable must be used somewhere.
         let text = toml::to_string(&raw).unwrap_or_default();
-        for (k, _) in &grid {
-            if !k.contains('.') && !text.contains(&format!("{{{k}}}")) {
+        for (k, values) in &grid {
+            let settings = values.iter().all(toml::Value::is_table);
+            if !k.contains('.') && !settings && !text.contains(&format!("{{{k}}}")) {
                 return Err(invalid(
                     format!("grid.{k}"),
                     format!("the variable `{{{k}}}` appears nowhere in the spec"),
@@ -348,6 +355,11 @@ impl Experiment {
             for (k, v) in &picks {
                 if k.contains('.') {
                     set_path(&mut table, k, v.clone()).map_err(|r| invalid(format!("grid.{k}"), r))?;
+                } else if let toml::Value::Table(setting) = v {
+                    for (key, value) in setting.iter().filter(|(key, _)| *key != "name") {
+                        set_path(&mut table, key, value.clone())
+                            .map_err(|r| invalid(format!("grid.{k}.{key}"), r))?;
+                    }
                 } else {
                     substitute_table(&mut table, k, v);
                 }
@@ -455,10 +467,11 @@ fn deserialize(table: &toml::Table) -> Result<ExperimentSpec> {
     Err(invalid(name, reason))
 }
 
-/// A value as text (strings without quotes).
+/// A value as text (strings without quotes; a setting of the grid by its `name`).
 fn value_text(v: &toml::Value) -> String {
     match v {
         toml::Value::String(s) => s.clone(),
+        toml::Value::Table(t) if t.contains_key("name") => value_text(&t["name"]),
         other => other.to_string(),
     }
 }
@@ -574,6 +587,34 @@ fn parse_state_priors(map: &BTreeMap<String, String>, p: &Preset, key: &str) -> 
     Ok(priors)
 }
 
+/// Measures the `states` (by name) of the preset `p` (`measurements.states`).
+fn measure_states(p: &mut Preset, states: &[String]) -> Result<()> {
+    let names = p.model.state_names();
+    if states.is_empty() {
+        return Err(invalid("measurements.states", "must name at least one state"));
+    }
+    let mut indices = Vec::with_capacity(states.len());
+    let mut outputs = Vec::with_capacity(states.len());
+    for state in states {
+        let i = names.iter().position(|n| n == state).ok_or_else(|| {
+            invalid("measurements.states", format!("unknown state `{state}` (known: {})", names.join(", ")))
+        })?;
+        if indices.contains(&i) {
+            return Err(invalid("measurements.states", format!("`{state}` is listed twice")));
+        }
+        let obs = &p.observation;
+        let output = match obs.states.iter().position(|&j| j == i) {
+            Some(k) => obs.names[k].clone(),
+            None => format!("y_{state}"),
+        };
+        indices.push(i);
+        outputs.push(output);
+    }
+    p.observation.states = indices;
+    p.observation.names = outputs;
+    Ok(())
+}
+
 impl Scenario {
     fn resolve(
         name: String,
@@ -629,6 +670,9 @@ impl Scenario {
             }
             None => p.measurement_times(),
         };
+        if let Some(states) = &m.states {
+            measure_states(&mut p, states)?;
+        }
         let initial = parse_state_priors(&sim.initial, &p, "simulation.initial")?;
         let estimator_x0 = parse_state_priors(&m.x0_prior, &p, "measurements.x0_prior")?;
         let generate = match &m.generate {

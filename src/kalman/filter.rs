@@ -5,8 +5,11 @@
 //! The filter is generic over the scalar so that the prediction-error log-likelihood can be
 //! differentiated with respect to θ by forward-mode automatic differentiation ([`super::pem`]).
 
+use std::sync::Arc;
+
 use nalgebra::DMatrix;
 use num_dual::Dual;
+use onsager_closures::quadrature::Rule as QuadratureRule;
 
 use super::dense::{cholesky, matmul, symmetrize_in_place, transpose};
 use super::{Gaussian, UnscentedParams};
@@ -25,12 +28,16 @@ const LN_2PI: f64 = 1.837_877_066_409_345_5;
 const MAX_HALVINGS: u32 = 10;
 
 /// How the mean and covariance ODEs are approximated.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub(crate) enum Rule {
     /// Linearisation about the mean (extended Kalman filter).
     Extended,
     /// Sigma points of N(m, P) (unscented / cubature Kalman filter).
     Unscented(UnscentedParams),
+    /// A quadrature rule (ξₖ, wₖ) for the standard normal N(0, I), mapped to N(m, P) by
+    /// Xₖ = m + L ξₖ (P = L Lᵀ): Gauss–Hermite tensor rules or spherical–radial cubature
+    /// ([`onsager_closures::GaussianRule`]), the expectations of the Gaussian KSP closure.
+    Quadrature(Arc<QuadratureRule>),
 }
 
 /// A time of the filter: the initial time or a measurement time, with the number of
@@ -236,7 +243,7 @@ type Rates<D> = (Vec<D>, Vec<D>, Option<Vec<D>>);
 /// θ and the diffusion Q = B Bᵀ of the full state (column-major), all fixed along the run.
 struct MomentDynamics<'a, S: Sde + ?Sized, D> {
     sde: &'a S,
-    rule: Rule,
+    rule: &'a Rule,
     theta: &'a [D],
     q: &'a [D],
 }
@@ -282,7 +289,7 @@ impl<S: Sde + ?Sized, D: Scalar> MomentDynamics<'_, S, D> {
                 }
                 Some((a, pdot, want_f.then_some(f)))
             }
-            Rule::Unscented(u) => {
+            &Rule::Unscented(u) => {
                 let l = cholesky(p, n)?;
                 let (wm0, wi, scale) = u.weights(n);
                 let mut mdot = vec![zero; n];
@@ -314,21 +321,38 @@ impl<S: Sde + ?Sized, D: Scalar> MomentDynamics<'_, S, D> {
                         }
                     }
                 }
-                let mut pdot = vec![zero; n * n];
-                for j in 0..n {
-                    for i in 0..n {
-                        pdot[i + j * n] = mm[i + j * n] + mm[j + i * n] + q[i + j * n];
+                Some(statistical_rates(mdot, &mm, &l, q, want_f))
+            }
+            Rule::Quadrature(rule) => {
+                let l = cholesky(p, n)?;
+                let mut mdot = vec![zero; n];
+                // M = Σₖ wₖ (Xₖ − m)(aₖ − ṁ)ᵀ = Σₖ wₖ (Xₖ − m) aₖᵀ − (Σₖ wₖ (Xₖ − m)) ṁᵀ, one pass.
+                let mut mm = vec![zero; n * n];
+                let mut mean_dev = vec![zero; n];
+                let mut dev = vec![zero; n];
+                let mut x = vec![zero; n];
+                let mut a = vec![zero; n];
+                for (xi, w) in rule.iter() {
+                    for r in 0..n {
+                        dev[r] = (0..=r).map(|j| l.entry(r, j) * xi[j]).sum();
+                        x[r] = m[r] + dev[r];
+                        mean_dev[r] += dev[r] * w;
+                    }
+                    sde.state_drift(t, &x, theta, &mut a);
+                    for c in 0..n {
+                        mdot[c] += a[c] * w;
+                        let ac = a[c] * w;
+                        for r in 0..n {
+                            mm[r + c * n] += dev[r] * ac;
+                        }
                     }
                 }
-                let f = if want_f {
-                    // F = Mᵀ P⁻¹ = (P⁻¹ M)ᵀ.
-                    let mut pm = mm.clone();
-                    l.solve_in_place(&mut pm);
-                    Some(transpose(&pm, n, n))
-                } else {
-                    None
-                };
-                Some((mdot, pdot, f))
+                for c in 0..n {
+                    for r in 0..n {
+                        mm[r + c * n] -= mean_dev[r] * mdot[c];
+                    }
+                }
+                Some(statistical_rates(mdot, &mm, &l, q, want_f))
             }
         }
     }
@@ -439,6 +463,32 @@ impl<S: Sde + ?Sized, D: Scalar> MomentDynamics<'_, S, D> {
     }
 }
 
+/// The moment rates of a statistical (sigma-point or quadrature) rule from ṁ and
+/// M = E[(S − m)(a(t, S) − ṁ)ᵀ]: Ṗ = M + Mᵀ + B Bᵀ and, when asked, the statistical
+/// linearisation F = Mᵀ P⁻¹ (P = L Lᵀ) of the smoother's cross-covariance (Särkkä 2008).
+fn statistical_rates<D: Scalar>(
+    mdot: Vec<D>,
+    mm: &[D],
+    l: &super::dense::CholeskyFactor<D>,
+    q: &[D],
+    want_f: bool,
+) -> Rates<D> {
+    let n = mdot.len();
+    let mut pdot = vec![D::from(0.0); n * n];
+    for j in 0..n {
+        for i in 0..n {
+            pdot[i + j * n] = mm[i + j * n] + mm[j + i * n] + q[i + j * n];
+        }
+    }
+    let f = want_f.then(|| {
+        // F = Mᵀ P⁻¹ = (P⁻¹ M)ᵀ.
+        let mut pm = mm.to_vec();
+        l.solve_in_place(&mut pm);
+        transpose(&pm, n, n)
+    });
+    (mdot, pdot, f)
+}
+
 /// The Kalman measurement update with the selection y = s[measured] + N(0, σ² I), skipping
 /// missing (NaN) components; returns the log-likelihood of the innovation,
 /// ln N(ν; 0, S) with S = H P Hᵀ + σ² I (the prediction-error decomposition, Kristensen et al.
@@ -494,7 +544,7 @@ pub(crate) fn run<S: Sde + ?Sized, D: Scalar>(
     sde: &S,
     setup: &Setup,
     data: &Dataset,
-    rule: Rule,
+    rule: &Rule,
     theta: &[D],
     mut store: Option<&mut Store>,
 ) -> std::result::Result<D, f64> {

@@ -49,6 +49,7 @@
 mod dense;
 mod enks;
 mod filter;
+pub mod gaussian_ksp;
 pub mod linear;
 pub mod pem;
 
@@ -68,6 +69,8 @@ use crate::model::Sde;
 use crate::{Error, Result};
 
 pub use enks::{enks, ensemble_smoother, EnksDetails, EnksOptions, EnksSmoothing};
+pub use gaussian_ksp::{gaussian_ksp, ExpectationRule, GaussianKspOptions};
+pub use onsager_closures::GaussianRule;
 pub use pem::{pem, PemDetails, PemOptions};
 
 pub(crate) use filter::{build_nodes, Node};
@@ -328,14 +331,29 @@ pub enum Approximation {
     Extended,
     /// Sigma points (UKF/UKS).
     Unscented(UnscentedParams),
+    /// Expectations over N(m, P) by a Gauss–Hermite tensor rule or a spherical–radial cubature
+    /// rule (the Gaussian KSP closure, [`gaussian_ksp`]).
+    Quadrature(GaussianRule),
 }
 
 impl Approximation {
-    fn rule(self) -> filter::Rule {
-        match self {
+    /// The filter's rule for an `n`-dimensional state. Errors: [`Error::InvalidOption`] (name
+    /// `gaussian_points`) for a Gauss–Hermite rule with no points or too many nodes.
+    fn rule(self, n: usize) -> Result<filter::Rule> {
+        Ok(match self {
             Approximation::Extended => filter::Rule::Extended,
             Approximation::Unscented(u) => filter::Rule::Unscented(u),
-        }
+            Approximation::Quadrature(rule) => {
+                let family =
+                    onsager_closures::Gaussian::try_new(n).and_then(|g| g.with_rule(rule)).map_err(|e| {
+                        Error::InvalidOption {
+                            name: "gaussian_points".into(),
+                            reason: format!("no quadrature rule {rule:?} for {n} states: {e}"),
+                        }
+                    })?;
+                filter::Rule::Quadrature(std::sync::Arc::new(family.standard_rule().clone()))
+            }
+        })
     }
 }
 
@@ -408,6 +426,7 @@ pub fn filter<S: Sde + ?Sized>(
     let name = match approximation {
         Approximation::Extended => "ekf",
         Approximation::Unscented(_) => "ukf",
+        Approximation::Quadrature(_) => "gaussian-ksp-closure",
     };
     filter_named(problem, theta, approximation, options, name)
 }
@@ -427,9 +446,9 @@ fn filter_named<S: Sde + ?Sized>(
         u.validate(problem.sde.dims().states())?;
     }
     let setup = setup(problem, &full, options, name)?;
+    let rule = approximation.rule(setup.states)?;
     let mut store = filter::Store::default();
-    let result =
-        filter::run(problem.sde, &setup, problem.data, approximation.rule(), &full, Some(&mut store));
+    let result = filter::run(problem.sde, &setup, problem.data, &rule, &full, Some(&mut store));
     let (log_likelihood, status, failed_at) = match result {
         Ok(ll) => (ll, Status::Converged, None),
         Err(t) => (f64::NAN, Status::NumericalFailure, Some(t)),
@@ -486,17 +505,29 @@ pub fn estimate<S: Sde + ?Sized>(
     method: KalmanMethod,
     options: &KalmanOptions,
 ) -> Result<PathEstimate> {
-    no_estimated_parameters(problem, method.name())?;
-    let start = Instant::now();
     let approximation = if method.is_unscented() {
         Approximation::Unscented(options.unscented)
     } else {
         Approximation::Extended
     };
+    estimate_with(problem, method.method(), approximation, options, method.is_smoother())
+}
+
+/// The filtered (or, when `smoother`, the RTS-smoothed) path of `approximation` at
+/// `problem.theta`, reported as `method`.
+fn estimate_with<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    method: Method,
+    approximation: Approximation,
+    options: &KalmanOptions,
+    smoother: bool,
+) -> Result<PathEstimate> {
+    no_estimated_parameters(problem, method.name())?;
+    let start = Instant::now();
     let run = filter_named(problem, problem.theta, approximation, options, method.name())?;
     let mut status = run.status;
     let mut details = run_details(&run, problem.t0);
-    let moments = if method.is_smoother() && run.failed_at.is_none() {
+    let moments = if smoother && run.failed_at.is_none() {
         match run.smooth() {
             Some(s) => s,
             None => {
@@ -509,7 +540,7 @@ pub fn estimate<S: Sde + ?Sized>(
         run.filtered.clone()
     };
     Ok(PathEstimate {
-        method: method.method(),
+        method,
         path: path_of(problem.sde.state_names(), &run.times, &moments),
         theta_names: problem.sde.param_names(),
         theta: problem.theta.to_vec(),

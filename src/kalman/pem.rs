@@ -165,7 +165,7 @@ impl<S: Sde + ?Sized> Objective<'_, S> {
             theta[i] = v;
             log_prior += prior.log_density(v);
         }
-        let ll = filter::run(self.sde, &self.setup, self.data, self.rule, &theta, None).ok()?;
+        let ll = filter::run(self.sde, &self.setup, self.data, &self.rule, &theta, None).ok()?;
         let value = -(ll + log_prior);
         value.re().is_finite().then_some(value)
     }
