@@ -57,6 +57,9 @@ pub struct CompareArgs {
     /// Seed of the methods that draw random numbers.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Memory limit of each estimator's structures (`4GiB`, `512MB`, `unlimited`).
+    #[arg(long, default_value = "4GiB", value_name = "SIZE")]
+    pub max_memory: onsager::estimate::MemoryLimit,
     /// Where to write paths.csv, summary.json, compare.svg and compare.png.
     #[arg(long, default_value = "out/compare")]
     pub out_dir: PathBuf,
@@ -132,7 +135,8 @@ pub fn run(args: &CompareArgs) -> Result<bool> {
     let preset = args.model.preset()?;
     let data = Dataset::read_csv_for(&args.data, &preset.observation.output_names())?;
     let truth = args.truth.as_ref().map(StatePath::read_csv).transpose()?;
-    let problem = EstimationProblem { seed: args.seed, ..preset.problem(&data, &[]) };
+    let problem =
+        EstimationProblem { seed: args.seed, max_memory: args.max_memory, ..preset.problem(&data, &[]) };
     problem.validate()?;
     let estimators = args.estimators(&problem)?;
     let mut options = CompareOptions::default();
