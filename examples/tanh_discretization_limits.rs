@@ -27,6 +27,7 @@ fn main() -> onsager::Result<()> {
         data: &data,
         t0: 0.0,
         seed: 0,
+        max_memory: Default::default(),
     };
     // Initial path: the straight line from the prior mean to the measurement.
     let guess = StatePath {

@@ -94,6 +94,24 @@ pub enum Error {
         /// What is wrong and what was expected.
         reason: String,
     },
+    /// A computation whose structures would need more memory than the limit allows
+    /// ([`MemoryLimit`](crate::estimate::MemoryLimit)); checked before anything is allocated.
+    #[error(
+        "{what}: {size} needs about {} of memory, above the limit of {} (raise it with \
+         `--max-memory`, e.g. `--max-memory {}`, or make the problem smaller)",
+        crate::estimate::format_bytes(*.estimate), crate::estimate::MemoryLimit::new(*.limit),
+        crate::estimate::MemoryLimit::new(crate::estimate::MemoryLimit::suggestion(*.estimate) as u64)
+    )]
+    MemoryLimit {
+        /// The estimator or reader that refused.
+        what: String,
+        /// The sizes that drive the estimate (e.g. `10⁹ grid cells × 40 output times`).
+        size: String,
+        /// The estimated bytes.
+        estimate: f64,
+        /// The limit in bytes.
+        limit: u64,
+    },
     /// An I/O error, with the path it concerns.
     #[error("{}: {source}", .path.display())]
     Io {

@@ -55,6 +55,139 @@ pub struct EstimationProblem<'a, S: Sde + ?Sized, O: Observation + ?Sized> {
     /// the same seed gives the same estimate. An experiment derives one per replicate and
     /// estimator.
     pub seed: u64,
+    /// The memory an estimator may allocate for its own structures: each estimator estimates
+    /// its needs from the problem's size before it allocates and refuses above this limit
+    /// ([`Error::MemoryLimit`]). Default [`MemoryLimit::DEFAULT`] (4 GiB).
+    pub max_memory: MemoryLimit,
+}
+
+/// An upper bound on the memory of an estimator's structures (grid densities, the NLP's
+/// unknowns and its sparse KKT system, particles, ensemble members, covariance paths), checked
+/// before they are allocated. Written `4GiB`, `512MiB`, `2GB`, `1e9` (bytes) or `unlimited`
+/// (command-line flag `--max-memory`, experiment spec key `max_memory`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MemoryLimit {
+    bytes: u64,
+}
+
+impl Default for MemoryLimit {
+    fn default() -> MemoryLimit {
+        MemoryLimit::DEFAULT
+    }
+}
+
+/// Bytes as text with a binary unit (`1.5 GiB`).
+pub fn format_bytes(bytes: f64) -> String {
+    const UNITS: [&str; 5] = ["B", "KiB", "MiB", "GiB", "TiB"];
+    let mut v = bytes;
+    let mut u = 0;
+    while v >= 1024.0 && u + 1 < UNITS.len() {
+        v /= 1024.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{v:.0} B")
+    } else {
+        format!("{v:.1} {}", UNITS[u])
+    }
+}
+
+impl MemoryLimit {
+    /// The default limit: 4 GiB.
+    pub const DEFAULT: MemoryLimit = MemoryLimit { bytes: 4 << 30 };
+
+    /// No limit.
+    pub const UNLIMITED: MemoryLimit = MemoryLimit { bytes: u64::MAX };
+
+    /// A limit of `bytes` bytes.
+    pub fn new(bytes: u64) -> MemoryLimit {
+        MemoryLimit { bytes }
+    }
+
+    /// The limit in bytes.
+    pub fn bytes(self) -> u64 {
+        self.bytes
+    }
+
+    /// A limit that would admit `estimate` bytes, rounded up to a power of two of GiB (for
+    /// messages).
+    pub fn suggestion(estimate: f64) -> f64 {
+        let gib = (estimate / f64::from(1u32 << 30)).max(1.0);
+        2f64.powi(gib.log2().ceil() as i32) * f64::from(1u32 << 30)
+    }
+
+    /// Parses `4GiB`, `512MiB`, `2GB`, `300kB`, `1e9` (bytes) or `unlimited`. Errors:
+    /// [`Error::InvalidOption`] named `--max-memory`.
+    pub fn parse(text: &str) -> Result<MemoryLimit> {
+        let t = text.trim();
+        if t.eq_ignore_ascii_case("unlimited") || t.eq_ignore_ascii_case("none") {
+            return Ok(MemoryLimit::UNLIMITED);
+        }
+        let split = t.find(|c: char| c.is_ascii_alphabetic() && c != 'e' && c != 'E').unwrap_or(t.len());
+        let (number, unit) = t.split_at(split);
+        let scale: f64 = match unit.trim().to_ascii_lowercase().as_str() {
+            "" | "b" => 1.0,
+            "k" | "kb" => 1e3,
+            "m" | "mb" => 1e6,
+            "g" | "gb" => 1e9,
+            "t" | "tb" => 1e12,
+            "kib" => 1024.0,
+            "mib" => 1024f64.powi(2),
+            "gib" => 1024f64.powi(3),
+            "tib" => 1024f64.powi(4),
+            other => {
+                return Err(Error::invalid(
+                    "--max-memory",
+                    format!(
+                        "unknown unit `{other}` in `{t}` (use B, kB, MB, GB, KiB, MiB, GiB or `unlimited`)"
+                    ),
+                ))
+            }
+        };
+        let value: f64 = number.trim().parse().map_err(|_| {
+            Error::invalid(
+                "--max-memory",
+                format!("cannot read `{t}` as a size (e.g. `4GiB`, `512MB`, `1e9`)"),
+            )
+        })?;
+        let bytes = value * scale;
+        if !(bytes.is_finite() && bytes >= 1.0) {
+            return Err(Error::invalid("--max-memory", format!("must be a positive size, got `{t}`")));
+        }
+        Ok(MemoryLimit { bytes: if bytes >= u64::MAX as f64 { u64::MAX } else { bytes as u64 } })
+    }
+
+    /// Checks that `estimate` bytes (for `what`, whose sizes are `size`) fit in the limit.
+    /// Errors: [`Error::MemoryLimit`] naming `what`, the size, the estimate and the limit.
+    pub fn check(self, what: &str, size: impl fmt::Display, estimate: f64) -> Result<()> {
+        if estimate.is_nan() || estimate > self.bytes as f64 {
+            return Err(Error::MemoryLimit {
+                what: what.to_string(),
+                size: size.to_string(),
+                estimate,
+                limit: self.bytes,
+            });
+        }
+        Ok(())
+    }
+}
+
+impl fmt::Display for MemoryLimit {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.bytes == u64::MAX {
+            f.write_str("unlimited")
+        } else {
+            f.write_str(&format_bytes(self.bytes as f64).replace(".0 ", "").replace(' ', ""))
+        }
+    }
+}
+
+impl std::str::FromStr for MemoryLimit {
+    type Err = Error;
+
+    fn from_str(s: &str) -> Result<MemoryLimit> {
+        MemoryLimit::parse(s)
+    }
 }
 
 impl<S: Sde + ?Sized, O: Observation + ?Sized> EstimationProblem<'_, S, O> {
@@ -357,6 +490,38 @@ impl Serialize for RowStatus {
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> std::result::Result<S::Ok, S::Error> {
         serializer.serialize_str(self.name())
     }
+}
+
+/// Marks `estimate` [`Status::Degenerate`] (when it ended as a success) if an estimated
+/// parameter sits on a bound of its prior (`theta_prior`; within 10⁻⁶ (1 + |bound|)) or its
+/// standard deviation is not finite or above 10⁴ max(1, |θᵢ|) (a near-singular Hessian at the
+/// solution), with one note per parameter naming it. Returns whether it did.
+pub fn flag_degenerate(estimate: &mut PathEstimate, theta_prior: &[Prior], notes: &mut Vec<String>) -> bool {
+    let mut reasons = Vec::new();
+    for (k, &i) in estimate.estimated.iter().enumerate() {
+        let (v, p, name) = (estimate.theta[i], &theta_prior[i], &estimate.theta_names[i]);
+        let near = |b: f64| b.is_finite() && (v - b).abs() <= 1e-6 * (1.0 + b.abs());
+        if near(p.lower) || near(p.upper) {
+            let bound = if near(p.lower) { p.lower } else { p.upper };
+            reasons.push(format!("`{name}` = {v} ran to the bound {bound} of its prior"));
+            continue;
+        }
+        if let Some(sd) = estimate.theta_sd.as_ref().map(|sd| sd[k]) {
+            if !(sd.is_finite() && sd <= 1e4 * v.abs().max(1.0)) {
+                reasons.push(format!(
+                    "`{name}` = {v} has standard deviation {sd} (the Hessian at the solution is near singular)"
+                ));
+            }
+        }
+    }
+    if reasons.is_empty() || !estimate.status.is_success() {
+        return false;
+    }
+    estimate.status = Status::Degenerate;
+    for r in reasons {
+        notes.push(format!("degenerate estimate: {r}"));
+    }
+    true
 }
 
 /// An estimate with the notes a user should read (what a transcription converges to, the

@@ -34,11 +34,22 @@ pub enum Status {
     EvaluationError,
     /// Stopped by a user callback.
     UserStop,
+    /// The estimator ended, but its estimate is degenerate: an estimated parameter ran to a
+    /// bound of its prior, its standard deviation is not finite or huge (the Hessian at the
+    /// solution is near singular), or a noise parameter was estimated jointly with the path by
+    /// the euler or trapezoidal transcription (a joint MAP that shrinks G(θ) towards zero). A
+    /// note names the parameter and the reason.
+    Degenerate,
+    /// The estimate's density reaches the edge of the grid of an exact grid method (more than
+    /// 10⁻³ of its mass in the outer cells at some time): the grid cuts the density off and
+    /// the estimate is not to be trusted. A note names the axis and the time; give a wider
+    /// `--grid`.
+    GridEdge,
 }
 
 impl Status {
     /// Every status.
-    pub const ALL: [Status; 9] = [
+    pub const ALL: [Status; 11] = [
         Status::Converged,
         Status::Acceptable,
         Status::MaxIterations,
@@ -48,6 +59,8 @@ impl Status {
         Status::NumericalFailure,
         Status::EvaluationError,
         Status::UserStop,
+        Status::Degenerate,
+        Status::GridEdge,
     ];
 
     /// Whether the result can be used as a converged one.
@@ -73,6 +86,15 @@ impl Status {
             }
             Status::EvaluationError => "the model returned non-finite values where no fallback was possible",
             Status::UserStop => "stopped by a user callback",
+            Status::Degenerate => {
+                "an estimated parameter ran to a bound of its prior or its sd is not finite, or a noise \
+                 parameter was estimated where the transcription cannot identify it; the report's notes \
+                 name it"
+            }
+            Status::GridEdge => {
+                "the density of a grid estimator reaches the grid's edge, so the estimate is cut off; \
+                 widen `--grid`"
+            }
         }
     }
 
@@ -95,6 +117,8 @@ impl Status {
             Status::NumericalFailure => "numerical-failure",
             Status::EvaluationError => "evaluation-error",
             Status::UserStop => "user-stop",
+            Status::Degenerate => "degenerate",
+            Status::GridEdge => "grid-edge",
         }
     }
 }

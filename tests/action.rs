@@ -84,6 +84,7 @@ fn discrete_identities_hold() {
         data: &data,
         t0: 0.0,
         seed: 0,
+        max_memory: Default::default(),
     };
     let options = ExactOptions::new(GridSpec::new_1d(-2.5, 2.5, 150)).with_dt(0.02).with_output_step(0.1);
     let mut action = ExactAction::try_new(&problem, &options).unwrap();
@@ -253,6 +254,7 @@ fn van_der_pol_runs_on_a_200_by_200_grid() {
         data: &data,
         t0: 0.0,
         seed: 0,
+        max_memory: Default::default(),
     };
     let options = ExactOptions::new(GridSpec::new_2d([-1.0, -1.0], [1.0, 1.0], [200, 200]))
         .with_dt(0.025)
@@ -305,6 +307,7 @@ fn bad_inputs_are_clear_errors() {
         data: &data2,
         t0: 0.0,
         seed: 0,
+        max_memory: Default::default(),
     };
     let err = ksp_smoother(&problem, &ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 50))).unwrap_err();
     assert!(err.to_string().contains("one or two noisy states"), "{err}");
@@ -371,7 +374,8 @@ fn cli_writes_the_path_and_the_report_and_rejects_bad_input() {
     // Without --grid the default grid (data range with margins) is used and reported.
     let out = run("ksp", &[]);
     assert!(out.status.success());
-    assert!(String::from_utf8_lossy(&out.stdout).contains("(the default: data range with margins)"));
+    assert!(String::from_utf8_lossy(&out.stdout)
+        .contains("(the default: data range with margins and the initial prior)"));
     fails("ksp", &["--step", "0.1"], "`step`");
     fails(
         "mean-optimal",
@@ -409,6 +413,7 @@ fn linear_two_state_model_matches_kalman_on_a_2d_grid() {
         data: &data,
         t0: 0.0,
         seed: 0,
+        max_memory: Default::default(),
     };
     let model = LinearGaussianModel::from_sde(
         &Duffing,

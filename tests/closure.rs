@@ -412,6 +412,7 @@ fn unsupported_combinations_are_clear_errors() {
         data: &d2,
         t0: 0.0,
         seed: 0,
+        max_memory: Default::default(),
     };
     // Measurement times must increase (direct construction of the action).
     let (drift, lambda0) = (
@@ -462,6 +463,7 @@ fn quadratic_exponential_closure_in_2d_is_the_gaussian_closure_on_a_linear_model
         data: &data,
         t0: 0.0,
         seed: 0,
+        max_memory: Default::default(),
     };
     let options = ClosureOptions::new().with_tolerances(1e-9, 1e-11).with_dispersion(false);
     let g = closure_estimate(&problem, &ClosureKind::Gaussian, &options).unwrap();
@@ -653,6 +655,7 @@ fn three_state_closure_error(rtol: f64) -> f64 {
         data: &data,
         t0: 0.0,
         seed: 0,
+        max_memory: Default::default(),
     };
     let options = ClosureOptions::new().with_tolerances(rtol, rtol * 1e-2).with_output_step(0.125);
     let est = closure_estimate(&problem, &ClosureKind::Gaussian, &options).unwrap();

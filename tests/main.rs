@@ -10,3 +10,4 @@ mod golden;
 mod models;
 mod path;
 mod shard;
+mod trust;

@@ -24,7 +24,7 @@ use crate::error::check_positive;
 use crate::estimate::{Details, EstimationProblem, Method, MethodRun, PathEstimate, Status};
 use crate::estimator::EstimatorOptions;
 use crate::model::observation::StateMeasurement;
-use crate::model::prior::Prior;
+use crate::model::prior::{Prior, PriorDensity};
 use crate::model::{Observation, Sde};
 use crate::{Error, Result};
 
@@ -160,8 +160,10 @@ impl EstimatorOptions for MeanOptimalOptions {
 
 /// The default grid of the exact methods for `problem`: every state must be measured
 /// directly; each axis spans the data range widened by a quarter of it and by four measurement
-/// sd on each side (and by at least 0.5), with 400 cells in one dimension and 120 per axis in
-/// two.
+/// sd on each side (and by at least 0.5), and the initial-state prior's mean ± 6 sd (a
+/// Gaussian prior, within its bounds; the bounds of another prior when both are finite). One
+/// dimension has 400 cells, or more (up to 4000) so that the cells are no wider than 400 cells
+/// on the data range alone would be; two dimensions 120 per axis (up to 360).
 ///
 /// Errors: [`Error::InvalidOption`] (name `grid`) when a state is not measured or the model has
 /// more than two states.
@@ -175,7 +177,10 @@ pub fn default_grid<S: Sde + ?Sized, O: Observation + ?Sized>(
     }
     let sd = problem.observation.gaussian_error_sd(problem.theta).unwrap_or(0.0);
     let (mut lo, mut hi) = (vec![0.0; n], vec![0.0; n]);
+    let base = if n == 1 { 400 } else { 120 };
+    let mut cells = vec![base; n];
     let outputs = problem.observation.output_dim();
+    let priors: Vec<&Prior> = problem.x0_prior.iter().chain(problem.z0_prior).collect();
     for a in 0..n {
         let column =
             (0..outputs).find(|&c| problem.observation.measured_state(c) == Some(a)).ok_or_else(|| {
@@ -189,9 +194,85 @@ pub fn default_grid<S: Sde + ?Sized, O: Observation + ?Sized>(
         let margin = (0.25 * (max - min) + 4.0 * sd).max(0.5);
         lo[a] = min - margin;
         hi[a] = max + margin;
+        let data_width = hi[a] - lo[a];
+        if let Some((l, h)) = priors.get(a).and_then(|p| prior_range(p)) {
+            lo[a] = lo[a].min(l);
+            hi[a] = hi[a].max(h);
+        }
+        let wider = ((hi[a] - lo[a]) / data_width * base as f64).ceil() as usize;
+        cells[a] = wider.clamp(base, if n == 1 { 10 * base } else { 3 * base });
     }
-    let cells = if n == 1 { vec![400] } else { vec![120; n] };
     Ok(GridSpec { lo, hi, cells })
+}
+
+/// The range a default grid gives a prior: mean ± 6 sd of a Gaussian (within its bounds), or
+/// the bounds when both are finite; `None` otherwise.
+fn prior_range(prior: &Prior) -> Option<(f64, f64)> {
+    let (l, u) = (prior.lower, prior.upper);
+    match prior.density {
+        PriorDensity::Gaussian { mean, sd } => {
+            let (a, b) = ((mean - 6.0 * sd).max(l), (mean + 6.0 * sd).min(u));
+            (a.is_finite() && b.is_finite() && a < b).then_some((a, b))
+        }
+        _ => (l.is_finite() && u.is_finite()).then_some((l, u)),
+    }
+}
+
+/// Where an estimate's density reaches the edge of its grid: the largest mass in the outer
+/// cells of an axis at any output time, above [`EDGE_MASS`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct GridEdge {
+    /// The axis (state index).
+    pub axis: usize,
+    /// The output time.
+    pub time: f64,
+    /// The mass in the outer cells of that axis (both ends).
+    pub mass: f64,
+}
+
+/// The mass in the outer cells (the outer max(1, n/100) cells at each end of an axis of n
+/// cells) above which a density reaches the grid's edge.
+pub const EDGE_MASS: f64 = 1e-3;
+
+/// The largest mass in the outer cells of each axis over `densities` (one per time in
+/// `times`), when one exceeds [`EDGE_MASS`].
+pub fn grid_edge(grid: &Grid, times: &[f64], densities: &[Vec<f64>]) -> Option<GridEdge> {
+    let cells = grid.cells();
+    let n0 = cells[0];
+    let mut worst: Option<GridEdge> = None;
+    for (&time, q) in times.iter().zip(densities) {
+        for (axis, &n) in cells.iter().enumerate() {
+            let band = (n / 100).max(1);
+            let mass: f64 = q
+                .iter()
+                .enumerate()
+                .filter(|&(c, _)| {
+                    let i = if axis == 0 { c % n0 } else { c / n0 };
+                    i < band || i >= n - band
+                })
+                .map(|(_, m)| m)
+                .sum();
+            if mass > EDGE_MASS && worst.is_none_or(|w| mass > w.mass) {
+                worst = Some(GridEdge { axis, time, mass });
+            }
+        }
+    }
+    worst
+}
+
+/// Marks an estimate whose density reaches the grid's edge [`Status::GridEdge`], with a note.
+fn flag_edge(estimate: &mut PathEstimate, edge: Option<GridEdge>, grid: &GridSpec, notes: &mut Vec<String>) {
+    if let Some(e) = edge {
+        let name = &estimate.path.names[e.axis];
+        notes.push(format!(
+            "the density reaches the edge of the grid {grid}: {:.1e} of its mass in the outer cells of `{name}` \
+             at t = {}; give a wider --grid",
+            e.mass, e.time
+        ));
+        if estimate.status.is_success() {
+            estimate.status = Status::GridEdge;
+        }
+    }
 }
 
 /// The grid of `options`, or the default one with a note saying so.
@@ -199,14 +280,84 @@ fn grid_of<S: Sde + ?Sized, O: Observation + ?Sized>(
     problem: &EstimationProblem<'_, S, O>,
     options: &ExactOptions,
 ) -> Result<(GridSpec, Option<String>)> {
-    match &options.grid {
-        Some(g) => Ok((g.clone(), None)),
+    let (g, note) = match &options.grid {
+        Some(g) => (g.clone(), None),
         None => {
             let g = default_grid(problem)?;
-            let note = format!("grid {g} (the default: data range with margins)");
-            Ok((g, Some(note)))
+            let note = format!("grid {g} (the default: data range with margins and the initial prior)");
+            (g, Some(note))
         }
+    };
+    check_grid_memory(problem, &g, options)?;
+    Ok((g, note))
+}
+
+/// The time discretisation of the exact methods: horizon, output step, implicit step, and the
+/// sorted extra output times.
+struct TimeSteps {
+    t_end: f64,
+    span: f64,
+    output_step: f64,
+    dt: f64,
+    extra: Vec<f64>,
+}
+
+impl TimeSteps {
+    /// The options' output step and `dt` (or their defaults) for `problem`. Errors:
+    /// [`Error::InvalidOption`] for extra times before `t0`, a non-positive step.
+    fn of<S: Sde + ?Sized, O: Observation + ?Sized>(
+        problem: &EstimationProblem<'_, S, O>,
+        options: &ExactOptions,
+    ) -> Result<TimeSteps> {
+        let data = problem.data;
+        let (t0, t_last) = (problem.t0, data.times.last().copied().unwrap_or(problem.t0));
+        if let Some(&t) = options.extra_times.iter().find(|&&t| !t.is_finite() || t < t0) {
+            return Err(invalid("output times", format!("must be finite and not before t0 = {t0}, got {t}")));
+        }
+        let mut extra = options.extra_times.clone();
+        extra.sort_by(f64::total_cmp);
+        let t_end = extra.iter().copied().fold(t_last.max(t0), f64::max);
+        let span = t_end - t0;
+        let output_step = match options.output_step {
+            Some(s) => s,
+            None if data.len() > 1 => (t_last - data.times[0]) / (data.len() - 1) as f64 / 10.0,
+            None if span > 0.0 => span / 10.0,
+            None => 1.0,
+        };
+        if !(output_step.is_finite() && output_step > 0.0) {
+            return Err(invalid("output step", format!("must be positive and finite, got {output_step}")));
+        }
+        let dt = options.dt.unwrap_or(output_step / 4.0);
+        if !(dt.is_finite() && dt > 0.0) {
+            return Err(invalid("dt", format!("must be positive and finite, got {dt}")));
+        }
+        Ok(TimeSteps { t_end, span, output_step, dt, extra })
     }
+}
+
+/// Bytes per cell and stored time of the exact methods (the densities P and A and their
+/// products at every output time, the log-likelihoods at the measurements): six `f64`.
+const GRID_BYTES_PER_CELL_TIME: f64 = 48.0;
+
+/// Bytes per cell independent of the times (coordinates, the operator and its factorisations).
+const GRID_BYTES_PER_CELL: f64 = 512.0;
+
+/// Checks the memory of the exact methods on `spec` against the problem's
+/// [`MemoryLimit`](crate::estimate::MemoryLimit), before anything of the grid is allocated:
+/// cells × (stored times × 48 B + 512 B). Errors: [`Error::MemoryLimit`].
+pub fn check_grid_memory<S: Sde + ?Sized, O: Observation + ?Sized>(
+    problem: &EstimationProblem<'_, S, O>,
+    spec: &GridSpec,
+    options: &ExactOptions,
+) -> Result<()> {
+    let cells: f64 = spec.cells.iter().map(|&c| c as f64).product();
+    let times = match TimeSteps::of(problem, options) {
+        Ok(ts) => ts.span / ts.output_step + (ts.extra.len() + problem.data.len() + 2) as f64,
+        Err(_) => return Ok(()), // reported with its own message by the discretisation
+    };
+    let bytes = cells * (times * GRID_BYTES_PER_CELL_TIME + GRID_BYTES_PER_CELL);
+    let size = format!("{cells:.0} grid cells × {:.0} stored times", times.ceil());
+    problem.max_memory.check("the grid", size, bytes)
 }
 
 fn invalid(name: &str, reason: impl Into<String>) -> Error {
@@ -302,27 +453,8 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
         }
         let grid = Grid::try_new(spec)?;
         let data = problem.data;
-        let (t0, t_last) = (problem.t0, *data.times.last().expect("validated non-empty"));
-        if let Some(&t) = options.extra_times.iter().find(|&&t| !t.is_finite() || t < t0) {
-            return Err(invalid("output times", format!("must be finite and not before t0 = {t0}, got {t}")));
-        }
-        let mut extra = options.extra_times.clone();
-        extra.sort_by(f64::total_cmp);
-        let t_end = extra.iter().copied().fold(t_last.max(t0), f64::max);
-        let span = t_end - t0;
-        let output_step = match options.output_step {
-            Some(s) => s,
-            None if data.len() > 1 => (t_last - data.times[0]) / (data.len() - 1) as f64 / 10.0,
-            None if span > 0.0 => span / 10.0,
-            None => 1.0,
-        };
-        if !(output_step.is_finite() && output_step > 0.0) {
-            return Err(invalid("output step", format!("must be positive and finite, got {output_step}")));
-        }
-        let dt = options.dt.unwrap_or(output_step / 4.0);
-        if !(dt.is_finite() && dt > 0.0) {
-            return Err(invalid("dt", format!("must be positive and finite, got {dt}")));
-        }
+        let TimeSteps { t_end, span, output_step, dt, extra } = TimeSteps::of(problem, options)?;
+        let t0 = problem.t0;
         let n_ratio = span / output_step + 1e-9;
         if n_ratio * grid.len() as f64 > 2.5e7 || span / dt > 1e8 {
             return Err(invalid(
@@ -887,6 +1019,8 @@ pub struct MeanOptimal {
     pub details: DualDetails,
     /// Seconds spent in the solve.
     pub solve_seconds: f64,
+    /// Where the KSP densities on the same grid reach its edge, if they do.
+    pub edge: Option<GridEdge>,
 }
 
 /// The exact mean-optimal (effective-action) estimator on a grid, `003_d2fc48a470e528fc.txt`
@@ -932,6 +1066,7 @@ pub fn mean_optimal<S: Sde + ?Sized>(
         status: sol.status,
         details,
         solve_seconds: start.elapsed().as_secs_f64(),
+        edge: ksp.edge,
     })
 }
 
@@ -956,6 +1091,8 @@ pub struct KspSmoothing {
     pub log_likelihood: f64,
     /// Seconds spent in the solve.
     pub solve_seconds: f64,
+    /// Where the smoothed densities reach the grid's edge, if they do.
+    pub edge: Option<GridEdge>,
 }
 
 /// The Kushner–Stratonovich–Pardoux smoother on a grid with any measurement likelihood
@@ -1001,6 +1138,7 @@ pub fn ksp_smoother<S: Sde + ?Sized, O: Observation + ?Sized>(
         smoothed_sd: Vec::new(),
         log_likelihood: fw.log_w.iter().sum(),
         solve_seconds: 0.0,
+        edge: None,
     };
     for (a_ev, p_ev) in a.iter().zip(&fw.p) {
         let q: Vec<f64> = a_ev.iter().zip(p_ev).map(|(x, y)| x * y).collect();
@@ -1013,6 +1151,7 @@ pub fn ksp_smoother<S: Sde + ?Sized, O: Observation + ?Sized>(
         out.filtered.push(p_ev.clone());
         out.smoothed.push(q);
     }
+    out.edge = grid_edge(&g.grid, &out.times, &out.smoothed);
     out.solve_seconds = start.elapsed().as_secs_f64();
     Ok(out)
 }
@@ -1097,8 +1236,11 @@ pub fn ksp_estimate<S: Sde + ?Sized>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
     options: &ExactOptions,
 ) -> Result<MethodRun> {
-    let (options, notes) = estimator_grid(problem, options)?;
-    Ok(MethodRun { estimate: ksp_path_estimate(problem, &ksp_smoother(problem, &options)?), notes })
+    let (options, mut notes) = estimator_grid(problem, options)?;
+    let ksp = ksp_smoother(problem, &options)?;
+    let mut estimate = ksp_path_estimate(problem, &ksp);
+    flag_edge(&mut estimate, ksp.edge, options.grid.as_ref().expect("set by estimator_grid"), &mut notes);
+    Ok(MethodRun { estimate, notes })
 }
 
 /// `mean-optimal` as an estimator: [`mean_optimal`] on the options' grid (as [`ksp_estimate`]).
@@ -1106,7 +1248,10 @@ pub fn mean_optimal_estimate<S: Sde + ?Sized>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
     options: &MeanOptimalOptions,
 ) -> Result<MethodRun> {
-    let (exact, notes) = estimator_grid(problem, &options.exact)?;
-    let options = MeanOptimalOptions { exact, dual: options.dual.clone() };
-    Ok(MethodRun { estimate: mean_optimal_path_estimate(problem, &mean_optimal(problem, options)?), notes })
+    let (exact, mut notes) = estimator_grid(problem, &options.exact)?;
+    let grid = exact.grid.clone().expect("set by estimator_grid");
+    let mo = mean_optimal(problem, MeanOptimalOptions { exact, dual: options.dual.clone() })?;
+    let mut estimate = mean_optimal_path_estimate(problem, &mo);
+    flag_edge(&mut estimate, mo.edge, &grid, &mut notes);
+    Ok(MethodRun { estimate, notes })
 }

@@ -64,6 +64,9 @@ pub struct CompareArgs {
     /// Seed of the methods that draw random numbers.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Memory limit of each estimator's structures (`4GiB`, `512MB`, `unlimited`).
+    #[arg(long, default_value = "4GiB", value_name = "SIZE")]
+    pub max_memory: onsager::estimate::MemoryLimit,
     /// Where to write paths.csv, summary.json, compare.svg and compare.png.
     #[arg(long, default_value = "out/compare")]
     pub out_dir: PathBuf,
@@ -161,7 +164,11 @@ pub fn run(args: &CompareArgs) -> Result<bool> {
         super::warn_if_truth_short(t, file, &data);
     }
     let estimate = super::estimate::parameter_indices(&preset, &args.estimate)?;
-    let problem = EstimationProblem { seed: args.seed, ..preset.problem(&data, &estimate) };
+    let problem = EstimationProblem {
+        seed: args.seed,
+        max_memory: args.max_memory,
+        ..preset.problem(&data, &estimate)
+    };
     problem.validate()?;
     let (estimators, skipped) = args.estimators(&problem)?;
     let mut options = CompareOptions::default();

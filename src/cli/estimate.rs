@@ -102,6 +102,10 @@ pub struct EstimateArgs {
     /// Seed of the methods that draw random numbers.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Memory limit of the estimator's structures (`4GiB`, `512MB`, `unlimited`): the estimator
+    /// estimates its memory from the problem's size and refuses above it.
+    #[arg(long, default_value = "4GiB", value_name = "SIZE")]
+    pub max_memory: onsager::estimate::MemoryLimit,
     /// Where to write the estimated path (`t,<states>,sd_<states>`).
     #[arg(long, default_value = "out/estimate.csv")]
     pub out: PathBuf,
@@ -180,7 +184,7 @@ impl Setup {
 pub fn run(args: &EstimateArgs) -> Result<bool> {
     let estimator = args.estimator()?;
     let setup = Setup::new(args)?;
-    let problem = EstimationProblem { seed: args.seed, ..setup.problem() };
+    let problem = EstimationProblem { seed: args.seed, max_memory: args.max_memory, ..setup.problem() };
     problem.validate()?;
     let run = estimator.run(&problem)?;
     for note in &run.notes {

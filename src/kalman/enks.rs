@@ -79,7 +79,7 @@ use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
-use super::filter::{gaussian_sigma, MAX_STORED_BYTES};
+use super::filter::gaussian_sigma;
 use super::{build_nodes, check_dt, default_step, no_estimated_parameters, Node};
 use crate::data::StatePath;
 use crate::estimate::{Details, EstimationProblem, Method, MethodRun, PathEstimate, Status};
@@ -455,19 +455,10 @@ fn plan<'a, S: Sde + ?Sized>(
     let g = sde.diffusion_matrix(theta)?;
     let dt = options.dt.unwrap_or_else(|| default_step(t0, &data.times));
     let nodes = build_nodes(&data.times, t0, dt)?;
-    let bytes = nodes.len() as f64 * options.members as f64 * d.states() as f64 * 8.0;
-    if bytes > MAX_STORED_BYTES {
-        return Err(Error::InvalidOption {
-            name: "members".into(),
-            reason: format!(
-                "{} members at {} times would store {:.1} GB of ensembles (limit {:.0} GB); use fewer members",
-                options.members,
-                nodes.len(),
-                bytes / 1e9,
-                MAX_STORED_BYTES / 1e9
-            ),
-        });
-    }
+    let bytes = nodes.len() as f64 * options.members as f64 * d.states() as f64 * 16.0;
+    let size =
+        format!("{} members (`members`) × {} times × {} states", options.members, nodes.len(), d.states());
+    problem.max_memory.check(&format!("`{}`", Method::Enks.name()), size, bytes)?;
     let dynamics = Dynamics { sde, theta, g, noisy: d.noisy, dim: d.states() };
     Ok(Plan { nodes, sigma, dynamics, dt })
 }

@@ -138,22 +138,16 @@ impl Setup {
             });
         }
         let nodes = build_nodes(&data.times, t0, dt)?;
-        // The smoothers keep the moments and Φ of every integration step: bound that memory.
+        // The smoothers keep the moments and Φ of every integration step (each a few small
+        // vectors and matrices on the heap): bound that memory.
         let total: usize = nodes.iter().map(|node| node.steps).sum();
-        let n = d.states();
-        let bytes = (total + nodes.len()) as f64 * (8 * (3 * n * n + 2 * n) + 128) as f64;
-        if bytes > MAX_STORED_BYTES {
-            return Err(Error::InvalidOption {
-                name: "dt".into(),
-                reason: format!(
-                    "the step {dt:e} (default: a tenth of the median measurement interval, at most \
-                     0.01) gives {total} integration steps whose stored moments would need {:.1} GB \
-                     (limit {:.0} GB); use a larger --dt or remove nearly coincident measurement times",
-                    bytes / 1e9,
-                    MAX_STORED_BYTES / 1e9
-                ),
-            });
-        }
+        let n = d.states() as f64;
+        let bytes = (total + nodes.len()) as f64 * (16.0 * (3.0 * n * n + 2.0 * n) + 800.0);
+        let size = format!(
+            "{total} integration steps of {dt:e} (set by --dt; default a tenth of the median measurement \
+             interval, at most 0.01) × {n} states"
+        );
+        problem.max_memory.check(&format!("`{method}`"), size, bytes)?;
         Ok(Setup {
             noisy: d.noisy,
             states: d.states(),
@@ -165,10 +159,6 @@ impl Setup {
         })
     }
 }
-
-/// The most memory the stored moments of one filter run (or the stored ensembles of one
-/// ensemble smoother run) may take, in bytes.
-pub(crate) const MAX_STORED_BYTES: f64 = 4e9;
 
 /// Nodes at `t0` and at every measurement time, with ⌈Δt / dt⌉ equal steps between
 /// consecutive nodes. Errors when `t0` is after the first measurement or the times are not

@@ -433,6 +433,12 @@ where
     let nodes = build_nodes(&data.times, t0, dt)?;
     let n = options.particles;
     let m_paths = options.backward_paths.unwrap_or(n.min(500));
+    // Stored per node: the particles, weights, parents and Euler points (`NodeStore`), and the
+    // backward paths.
+    let per_particle = 8.0 * dim as f64 + 16.0 + 16.0 * n_noisy as f64;
+    let bytes = nodes.len() as f64 * (n as f64 * per_particle + m_paths as f64 * 8.0 * dim as f64);
+    let size = format!("{n} particles (`particles`) × {} times × {dim} states", nodes.len());
+    problem.max_memory.check("`particle`", size, bytes)?;
     let smoother = if d.clean == 0 { Smoother::Ffbsi } else { Smoother::Ancestral };
 
     // Initial particles from the priors.

@@ -70,6 +70,7 @@ fn ancestral_smoother_with_a_clean_state_agrees_with_rts_within_monte_carlo_erro
         data: &data,
         t0: 0.0,
         seed: 0,
+        max_memory: Default::default(),
     };
     let p0 = DMatrix::from_diagonal(&DVector::from_vec(vec![0.25, 0.25]));
     let model =

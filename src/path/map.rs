@@ -8,7 +8,7 @@ use super::{
     default_step, estimate_path, regression_theta_guess, spline_guess, LaplaceSd, Merit, PathDetails,
     PathOptions, Transcription,
 };
-use crate::estimate::{Details, EstimationProblem, Method, MethodRun};
+use crate::estimate::{flag_degenerate, Details, EstimationProblem, Method, MethodRun, Status};
 use crate::estimator::EstimatorOptions;
 use crate::model::observation::StateMeasurement;
 use crate::model::Sde;
@@ -95,6 +95,7 @@ pub fn map_estimate<S: Sde + ?Sized>(
         convergence_note(options.transcription, merit).into_iter().map(String::from).collect();
     let t0 = problem.t0;
     let step = options.step.unwrap_or_else(|| default_step(t0, problem.data));
+    super::check_path_memory(problem, step)?;
     let t_end = problem.data.times.last().copied().unwrap_or(t0);
     let nodes = ((t_end - t0) / step).round().max(1.0) as usize;
     let times: Vec<f64> = (0..=nodes).map(|k| t0 + k as f64 * step).collect();
@@ -137,5 +138,23 @@ pub fn map_estimate<S: Sde + ?Sized>(
             estimate.details = Details::new(PathDetails { sd, ..details.clone() });
         }
     }
+    let names = problem.sde.param_names();
+    if options.transcription != Transcription::HermiteSimpson && estimate.status.is_success() {
+        // HS refuses these parameters before solving (`check_g_fixed`).
+        let noisy = super::noise_parameters(problem.sde, problem.theta, problem.estimate)?;
+        if !noisy.is_empty() {
+            estimate.status = Status::Degenerate;
+            for i in noisy {
+                notes.push(format!(
+                    "degenerate estimate: `{}` = {} changes the noise matrix G, and {}; estimate it with \
+                     `pem`, or fix it with `--param`",
+                    names[i],
+                    estimate.theta[i],
+                    super::NOISE_PARAMETER_REASON
+                ));
+            }
+        }
+    }
+    flag_degenerate(&mut estimate, problem.theta_prior, &mut notes);
     Ok(MethodRun { estimate, notes })
 }

@@ -342,24 +342,40 @@ fn path_on_times(path: &StatePath, times: &[f64]) -> Vec<Vec<f64>> {
     times.iter().map(|&t| columns.iter().map(|pts| interpolate(pts, t)).collect()).collect()
 }
 
-/// Checks that no estimated parameter changes G(θ) (Hermite–Simpson only).
-fn check_g_fixed<S: Sde + ?Sized>(sde: &S, theta: &[f64], estimate: &[usize]) -> Result<()> {
+/// The estimated parameters (of `estimate`) that change the noise matrix G(θ) (a relative
+/// change of G above 10⁻¹² for a step of 10⁻³ (1 + |θᵢ|)).
+pub fn noise_parameters<S: Sde + ?Sized>(sde: &S, theta: &[f64], estimate: &[usize]) -> Result<Vec<usize>> {
     let g0 = sde.diffusion_matrix(theta)?;
+    let mut found = Vec::new();
     for &i in estimate {
         let mut th = theta.to_vec();
         th[i] += 1e-3 * (1.0 + th[i].abs());
         let g1 = sde.diffusion_matrix(&th)?;
         if (g1 - &g0).amax() > 1e-12 * (1.0 + g0.amax()) {
-            return Err(Error::InvalidOption {
-                name: "estimate".into(),
-                reason: format!(
-                    "parameter `{}` changes the noise matrix G; its continuous-time path merit has no \
-                     normalisation in G, so it cannot be estimated with Hermite–Simpson (use the euler \
-                     or trapezoidal transcription)",
-                    sde.param_names()[i]
-                ),
-            });
+            found.push(i);
         }
+    }
+    Ok(found)
+}
+
+/// Why a parameter of G(θ) is not estimated with the path by any transcription.
+pub(crate) const NOISE_PARAMETER_REASON: &str = "the joint MAP of the path and the noise matrix G is \
+     degenerate: a smoother path with a smaller G always scores better, so the estimate of G runs \
+     towards zero as the step shrinks";
+
+/// Checks that no estimated parameter changes G(θ) (Hermite–Simpson only).
+fn check_g_fixed<S: Sde + ?Sized>(sde: &S, theta: &[f64], estimate: &[usize]) -> Result<()> {
+    if let Some(&i) = noise_parameters(sde, theta, estimate)?.first() {
+        return Err(Error::InvalidOption {
+            name: "--estimate".into(),
+            reason: format!(
+                "parameter `{}` changes the noise matrix G; its continuous-time path merit has no \
+                 normalisation in G, so it cannot be estimated with Hermite–Simpson, and with euler or \
+                 trapezoidal {NOISE_PARAMETER_REASON}: estimate it with `pem` (the filter's likelihood \
+                 integrates the path out), or fix it with `--param`",
+                sde.param_names()[i]
+            ),
+        });
     }
     Ok(())
 }
@@ -396,6 +412,7 @@ pub fn build_nlp<'a, S: Sde + ?Sized, O: Observation + ?Sized>(
     }
     let t0 = problem.t0;
     let step = options.step.unwrap_or_else(|| default_step(t0, problem.data));
+    check_path_memory(problem, step)?;
     let grid = Grid::try_new(t0, step, &problem.data.times)?;
     // the NLP's patterns index variables and constraints as `u32` (`nlp::NlpProblem`); the
     // Hermite–Simpson bound (nodes, midpoints, noise coefficients, θ) covers the other two
@@ -409,6 +426,30 @@ pub fn build_nlp<'a, S: Sde + ?Sized, O: Observation + ?Sized>(
     }
     let guess = guess_on_grid(options.initial_path.as_ref(), &grid, d.states())?;
     Ok(PathNlp::new(problem, options.merit, options.transcription, grid, &guess))
+}
+
+/// Bytes per unknown of the transcribed NLP: the iterates, multipliers and directions, the
+/// sparse KKT matrix and its banded factor (about 400 B measured on the double well with
+/// Hermite–Simpson, 8·10⁵ unknowns).
+const PATH_BYTES_PER_UNKNOWN: f64 = 400.0;
+
+/// Checks the memory of the transcription of `problem` with `step` against the problem's
+/// [`MemoryLimit`](crate::estimate::MemoryLimit) before anything is allocated: the
+/// Hermite–Simpson count of unknowns ((2n + 1)·states + 2n·noisy + parameters for n intervals)
+/// × 400 B. Errors: [`Error::MemoryLimit`]; a step that is not positive and finite
+/// ([`Error::InvalidOption`]).
+pub fn check_path_memory<S: Sde + ?Sized, O: Observation + ?Sized>(
+    problem: &EstimationProblem<'_, S, O>,
+    step: f64,
+) -> Result<()> {
+    crate::error::check_positive("step", step)?;
+    let d = problem.sde.dims();
+    let t_end = problem.data.times.last().copied().unwrap_or(problem.t0);
+    let n = ((t_end - problem.t0) / step).ceil().max(1.0);
+    let unknowns =
+        (2.0 * n + 1.0) * d.states() as f64 + 2.0 * n * d.noisy as f64 + problem.estimate.len() as f64;
+    let size = format!("{n:.0} intervals of step {step} × {} states ({unknowns:.0} unknowns)", d.states());
+    problem.max_memory.check("the path transcription", size, unknowns * PATH_BYTES_PER_UNKNOWN)
 }
 
 /// Estimates the MAP path (and the estimated parameters) of `problem` with `options`.

@@ -586,6 +586,7 @@ fn closed_form_point_derivatives_equal_automatic_ones() {
                 data: &data,
                 t0: 0.0,
                 seed: 0,
+                max_memory: Default::default(),
             };
             let options = PathOptions::new(merit, Transcription::HermiteSimpson).with_step(0.15);
             let mut a = build_nlp(&closed, &options).unwrap();

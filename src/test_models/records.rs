@@ -89,6 +89,7 @@ impl OscillatorRecord {
             data: &self.data,
             t0: 0.0,
             seed: 0,
+            max_memory: Default::default(),
         }
     }
 }
@@ -158,6 +159,7 @@ impl OuRecord {
             data: &self.data,
             t0: 0.0,
             seed: 0,
+            max_memory: Default::default(),
         }
     }
 
@@ -268,6 +270,7 @@ impl DoubleWellRecord {
             data: &self.data,
             t0: 0.0,
             seed: 0,
+            max_memory: Default::default(),
         }
     }
 }

@@ -535,6 +535,7 @@ mod tests {
             data: &data,
             t0: 0.0,
             seed: 0,
+            max_memory: Default::default(),
         };
         let est = moment_path_estimate(&problem, kind, &MomentPathOptions::new().with_step(step)).unwrap();
         assert!(est.status.is_success(), "{:?}", est.status);
@@ -594,6 +595,7 @@ mod tests {
             data,
             t0: 0.0,
             seed: 0,
+            max_memory: Default::default(),
         }
     }
 

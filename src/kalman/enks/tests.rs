@@ -320,6 +320,7 @@ fn a_non_finite_ensemble_is_a_numerical_failure_with_the_path_up_to_it() {
         data: &data,
         t0: 0.0,
         seed: 0,
+        max_memory: Default::default(),
     };
     let est =
         enks(&problem, &EnksOptions::default().with_members(10), &mut StdRng::seed_from_u64(1)).unwrap();

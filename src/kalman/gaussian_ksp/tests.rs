@@ -45,6 +45,7 @@ fn rts_error(dt: f64, rule: ExpectationRule) -> f64 {
         data: &data,
         t0: 0.0,
         seed: 0,
+        max_memory: Default::default(),
     };
     let options = GaussianKspOptions::default().with_dt(dt).with_rule(rule, None);
     let est = gaussian_ksp(&problem, &options).unwrap();

@@ -283,6 +283,7 @@ impl Preset {
             data,
             t0: crate::estimate::default_initial_time(data),
             seed: 0,
+            max_memory: Default::default(),
         }
     }
 
