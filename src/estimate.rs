@@ -416,7 +416,11 @@ impl PathEstimate {
         if let Some(t) = d["failed_at"].as_f64() {
             return Some(format!("`{}` failed at t = {t}: the path stops before it", self.method));
         }
-        if !d["smoother"].is_null() {
+        // The Kalman-type smoothers report why their backward pass failed under `smoother`
+        // ([`crate::kalman::SmootherFailure`]); the particle smoother names its algorithm there.
+        let kalman =
+            matches!(self.method, Method::Eks | Method::Uks | Method::Pem | Method::GaussianKspClosure);
+        if kalman && !d["smoother"].is_null() {
             return Some(format!(
                 "the smoother of `{}` failed ({}): the path is the filtered one, not smoothed",
                 self.method, d["smoother"]

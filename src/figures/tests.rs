@@ -175,7 +175,7 @@ fn titles_claim_bands_only_where_bands_are_drawn_and_say_why_there_are_none() {
     );
     // pem did not run and says why.
     let pem = title("pem");
-    assert!(pem.starts_with("pem no estimate: ") && pem.contains("needs parameters"), "{pem}");
+    assert!(pem.starts_with("pem no estimate: ") && pem.contains("--estimate"), "{pem}");
     let pem = fig.panels.iter().find(|p| p.title.starts_with("pem\n")).unwrap();
     assert!(pem.series.iter().all(|s| s.label == "truth" || s.label == "data"));
 }

@@ -218,7 +218,12 @@ fn measurement_off_the_grid_is_an_error() {
 fn a_grid_too_fine_for_u32_indices_is_an_error() {
     let p = preset("ou").unwrap();
     let data = data_for(&p, &[0.0, 1.0]);
+    // The memory guard refuses it first at any realistic limit.
     let prob = p.problem(&data, &[]);
+    let err = build_nlp(&prob, &PathOptions::default().with_step(1e-10)).err().unwrap();
+    assert!(err.to_string().contains("--max-memory"), "{err}");
+    let prob =
+        EstimationProblem { max_memory: crate::estimate::MemoryLimit::UNLIMITED, ..p.problem(&data, &[]) };
     let err = build_nlp(&prob, &PathOptions::default().with_step(1e-10)).err().unwrap();
     assert!(err.to_string().contains("2^32 - 1 unknowns"), "{err}");
 }
