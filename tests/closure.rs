@@ -627,43 +627,12 @@ fn a_coarse_stage_cut_short_is_continued_at_the_requested_tolerance() {
 /// measured every 0.25 on [0, 4] with sd 0.2, one datum missing) at Runge–Kutta tolerances
 /// (rtol, rtol/100).
 fn three_state_closure_error(rtol: f64) -> f64 {
-    use onsager::kalman::linear::{kalman_rts, LinearGaussianModel};
-    use onsager::model::observation::{Noise, Param};
-    use onsager::test_models::RotationWithPosition;
-    let sde = RotationWithPosition;
-    let obs = StateMeasurement::new(
-        vec![1, 2],
-        vec!["y2".into(), "yz".into()],
-        Noise::Gaussian { sigma: Param::Fixed(0.2) },
-    );
-    let mut rng = StdRng::seed_from_u64(5);
-    let path =
-        simulate(&sde, &[], &[0.8, -0.4], &[0.3], &SimulateOptions::new(0.0, 4.0, 0.01), &mut rng).unwrap();
-    let times: Vec<f64> = (1..=16).map(|k| 0.25 * k as f64).collect();
-    let mut data = sample_measurements_at(&obs, &[], &path, 2, &times, &mut rng).unwrap();
-    data.values[5][0] = f64::NAN;
-    let x0 = [Prior::gaussian(0.5, 0.5), Prior::gaussian(-0.2, 0.4)];
-    let z0 = [Prior::gaussian(0.0, 0.6)];
-    let problem = EstimationProblem {
-        sde: &sde,
-        observation: &obs,
-        theta: &[],
-        theta_prior: &[],
-        estimate: &[],
-        x0_prior: &x0,
-        z0_prior: &z0,
-        data: &data,
-        t0: 0.0,
-        seed: 0,
-        max_memory: Default::default(),
-    };
+    let record = onsager::test_models::RotationRecord::new().unwrap();
+    let problem = record.problem();
     let options = ClosureOptions::new().with_tolerances(rtol, rtol * 1e-2).with_output_step(0.125);
     let est = closure_estimate(&problem, &ClosureKind::Gaussian, &options).unwrap();
     assert_eq!(est.status, Status::Converged);
-    let m0 = nalgebra::DVector::from_vec(vec![0.5, -0.2, 0.0]);
-    let p0 = DMatrix::from_diagonal(&nalgebra::DVector::from_vec(vec![0.25, 0.16, 0.36]));
-    let model = LinearGaussianModel::from_sde(&sde, &[], &obs, 0.0, m0, p0).unwrap();
-    let kf = kalman_rts(&model, &data, &est.path.times).unwrap();
+    let kf = record.rts(&est.path.times).unwrap();
     let sd = est.path.sd.as_ref().unwrap();
     let mut max_err: f64 = 0.0;
     for (i, &t) in est.path.times.iter().enumerate() {

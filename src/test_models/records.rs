@@ -5,7 +5,7 @@ use nalgebra::{DMatrix, DVector};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 
-use super::models::LinearOscillator;
+use super::models::{LinearOscillator, RotationWithPosition};
 use crate::data::{Dataset, StatePath};
 use crate::estimate::EstimationProblem;
 use crate::kalman::linear::{kalman_rts, KalmanSmoothing, LinearGaussianModel};
@@ -340,4 +340,73 @@ pub fn van_der_pol_student_t(seed: u64) -> Result<PresetRecord> {
         PresetRecord::simulate_from(crate::model::library::preset("van-der-pol")?, seed, &[0.0, 0.0], &[])?;
     record.preset.observation.noise = Noise::StudentT { nu: Param::Fixed(4.0), scale: Param::Fixed(0.5) };
     Ok(record)
+}
+
+/// [`RotationWithPosition`] (three states, z clean) with x2 and z measured with N(0, 0.2²)
+/// errors every 0.25 on [0.25, 4], one datum missing; x(0) ~ N((0.5, −0.2), diag(0.5², 0.4²)),
+/// z(0) ~ N(0, 0.6²).
+///
+/// Known answer: the exact Kalman filter and RTS smoother ([`RotationRecord::rts`]).
+#[derive(Debug, Clone)]
+pub struct RotationRecord {
+    /// The measurement times.
+    pub times: Vec<f64>,
+    /// The initial priors of x1, x2.
+    pub x0_prior: Vec<Prior>,
+    /// The initial prior of z.
+    pub z0_prior: Vec<Prior>,
+    /// x2 and z measured with sd 0.2 (outputs `y2`, `yz`).
+    pub observation: StateMeasurement,
+    /// The measurements.
+    pub data: Dataset,
+}
+
+impl RotationRecord {
+    /// Simulates the record (seed 5).
+    pub fn new() -> Result<RotationRecord> {
+        let observation = StateMeasurement::new(
+            vec![1, 2],
+            vec!["y2".into(), "yz".into()],
+            Noise::Gaussian { sigma: Param::Fixed(0.2) },
+        );
+        let mut rng = StdRng::seed_from_u64(5);
+        let options = SimulateOptions::new(0.0, 4.0, 0.01);
+        let path = simulate(&RotationWithPosition, &[], &[0.8, -0.4], &[0.3], &options, &mut rng)?;
+        let times: Vec<f64> = (1..=16).map(|k| 0.25 * k as f64).collect();
+        let mut data = sample_measurements_at(&observation, &[], &path, 2, &times, &mut rng)?;
+        data.values[5][0] = f64::NAN;
+        Ok(RotationRecord {
+            times,
+            x0_prior: vec![Prior::gaussian(0.5, 0.5), Prior::gaussian(-0.2, 0.4)],
+            z0_prior: vec![Prior::gaussian(0.0, 0.6)],
+            observation,
+            data,
+        })
+    }
+
+    /// The estimation problem: t0 = 0, seed 0.
+    pub fn problem(&self) -> EstimationProblem<'_, RotationWithPosition, StateMeasurement> {
+        EstimationProblem {
+            sde: &RotationWithPosition,
+            observation: &self.observation,
+            theta: &[],
+            theta_prior: &[],
+            estimate: &[],
+            x0_prior: &self.x0_prior,
+            z0_prior: &self.z0_prior,
+            data: &self.data,
+            t0: 0.0,
+            seed: 0,
+            max_memory: Default::default(),
+        }
+    }
+
+    /// The exact Kalman filter and RTS smoother of the record, with `extra_times` in its grid.
+    pub fn rts(&self, extra_times: &[f64]) -> Result<KalmanSmoothing> {
+        let m0 = DVector::from_vec(vec![0.5, -0.2, 0.0]);
+        let p0 = DMatrix::from_diagonal(&DVector::from_vec(vec![0.25, 0.16, 0.36]));
+        let model =
+            LinearGaussianModel::from_sde(&RotationWithPosition, &[], &self.observation, 0.0, m0, p0)?;
+        kalman_rts(&model, &self.data, extra_times)
+    }
 }

@@ -1,63 +1,34 @@
 //! Tests of the Gaussian KSP closure against the exact RTS smoother, the polynomial exactness of
 //! its rules, and the particle smoother on a Lorenz-63 record.
 
-use nalgebra::{DMatrix, DVector};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 
 use super::*;
 use crate::data::{Dataset, StatePath};
 use crate::estimate::Status;
-use crate::kalman::linear::{kalman_rts, LinearGaussianModel};
 use crate::model::library::preset;
 use crate::model::observation::{Noise, Param};
 use crate::model::prior::Prior;
 use crate::particle::ParticleOptions;
 use crate::simulate::{sample_measurements_at, simulate, SimulateOptions};
-use crate::test_models::RotationWithPosition;
+use crate::test_models::RotationRecord;
 
 /// The largest |closure − RTS| of the smoothed means and sds at the measurement times on the
 /// three-state linear model with a clean state (`RotationWithPosition`: x2 and z measured every
 /// 0.25 on [0, 4] with sd 0.2, one datum missing) with the Runge–Kutta step `dt`.
 fn rts_error(dt: f64, rule: ExpectationRule) -> f64 {
-    let sde = RotationWithPosition;
-    let obs = StateMeasurement::new(
-        vec![1, 2],
-        vec!["y2".into(), "yz".into()],
-        Noise::Gaussian { sigma: Param::Fixed(0.2) },
-    );
-    let mut rng = StdRng::seed_from_u64(5);
-    let path =
-        simulate(&sde, &[], &[0.8, -0.4], &[0.3], &SimulateOptions::new(0.0, 4.0, 0.01), &mut rng).unwrap();
-    let times: Vec<f64> = (1..=16).map(|k| 0.25 * k as f64).collect();
-    let mut data = sample_measurements_at(&obs, &[], &path, 2, &times, &mut rng).unwrap();
-    data.values[5][0] = f64::NAN;
-    let x0 = [Prior::gaussian(0.5, 0.5), Prior::gaussian(-0.2, 0.4)];
-    let z0 = [Prior::gaussian(0.0, 0.6)];
-    let problem = EstimationProblem {
-        sde: &sde,
-        observation: &obs,
-        theta: &[],
-        theta_prior: &[],
-        estimate: &[],
-        x0_prior: &x0,
-        z0_prior: &z0,
-        data: &data,
-        t0: 0.0,
-        seed: 0,
-        max_memory: Default::default(),
-    };
+    let record = RotationRecord::new().unwrap();
+    let problem = record.problem();
+    let times = &record.times;
     let options = GaussianKspOptions::default().with_dt(dt).with_rule(rule, None);
     let est = gaussian_ksp(&problem, &options).unwrap();
     assert_eq!(est.status, Status::Converged);
     assert_eq!(est.method, Method::GaussianKspClosure);
-    let m0 = DVector::from_vec(vec![0.5, -0.2, 0.0]);
-    let p0 = DMatrix::from_diagonal(&DVector::from_vec(vec![0.25, 0.16, 0.36]));
-    let model = LinearGaussianModel::from_sde(&sde, &[], &obs, 0.0, m0, p0).unwrap();
-    let kf = kalman_rts(&model, &data, &times).unwrap();
+    let kf = record.rts(times).unwrap();
     let sd = est.path.sd.as_ref().unwrap();
     let mut max_err: f64 = 0.0;
-    for &t in &times {
+    for &t in times {
         let i = est.path.times.iter().position(|&s| (s - t).abs() < 1e-9).unwrap();
         let j = kf.index_of(t).unwrap();
         for (s, (value, sd)) in est.path.values[i].iter().zip(&sd[i]).enumerate() {
