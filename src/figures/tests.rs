@@ -102,17 +102,7 @@ fn the_looks_are_fixed_distinct_and_never_the_reserved_ones() {
         assert!(!all[..i].contains(a), "{:?} shares its look", Method::ALL[i]);
     }
     // The nine estimators of the default comparison are nine colours, solid.
-    let defaults = [
-        Method::Ksp,
-        Method::MeanOptimal,
-        Method::GaussianClosure,
-        Method::ExpClosure,
-        Method::DoubleExpClosure,
-        Method::KspClosure,
-        Method::Jme,
-        Method::Mee,
-        Method::Uks,
-    ];
+    let defaults = crate::compare::DEFAULT_METHODS;
     let colors: Vec<Color> = defaults.iter().map(|&m| method_look(m).color).collect();
     for (i, c) in colors.iter().enumerate() {
         assert!(!colors[..i].contains(c));
