@@ -275,7 +275,7 @@ pub fn simulate_replicate(scenario: &Scenario, seed: u64) -> Result<(StatePath, 
 /// The metrics of `estimate` against the truth and the other estimates of the replicate
 /// (`refs`: label → estimate), in the order of `metric_cols`, by [`metrics::measure`]; NaN (with
 /// a message) where a metric cannot be computed.
-fn metric_values(
+pub(super) fn metric_values(
     scenario: &Scenario,
     metric_cols: &[String],
     estimate: &StatePath,
@@ -285,6 +285,10 @@ fn metric_values(
 ) -> Vec<f64> {
     let others: Vec<(&str, &StatePath)> = refs.iter().map(|(l, e)| (l.as_str(), &e.path)).collect();
     let mut values = vec![f64::NAN; metric_cols.len()];
+    if estimate.times.is_empty() {
+        message.push("no metrics: the estimator returned no path".into());
+        return values;
+    }
     for m in &scenario.metrics {
         let col = metric_cols.iter().position(|c| *c == m.column()).expect("every metric has a column");
         match metrics::measure(m, estimate, Some(truth), &others) {

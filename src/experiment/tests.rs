@@ -1,7 +1,7 @@
 use std::path::Path;
 
 use super::report::parse_results;
-use super::runner::{replicate_seed, simulate_replicate};
+use super::runner::{metric_values, replicate_seed, simulate_replicate};
 use super::spec::{Experiment, Metric};
 use super::BUILTIN;
 use crate::estimate::RowStatus;
@@ -299,4 +299,24 @@ fn an_estimator_has_one_colour_in_every_figure_of_an_experiment_and_boxes_state_
         assert!(mine.len() >= 4, "{label}: {mine:?}");
         assert!(mine.iter().all(|c| *c == looks.look(label).color && *c != TRUTH && *c != DATA), "{label}");
     }
+}
+
+/// A failed estimate without a path gets one message saying so, not one confusing message per
+/// metric about reference times.
+#[test]
+fn an_estimate_without_a_path_gets_one_message_and_nan_metrics() {
+    let e = Experiment::from_toml(&spec("", "")).unwrap();
+    let scenario = &e.scenarios(true).unwrap()[0];
+    let cols: Vec<String> = scenario.metrics.iter().map(Metric::column).collect();
+    let empty = crate::data::StatePath { names: vec!["x".into()], times: vec![], values: vec![], sd: None };
+    let truth = crate::data::StatePath {
+        names: vec!["x".into()],
+        times: vec![0.0, 1.0],
+        values: vec![vec![0.0], vec![1.0]],
+        sd: None,
+    };
+    let mut messages = Vec::new();
+    let values = metric_values(scenario, &cols, &empty, &truth, &[], &mut messages);
+    assert!(values.iter().all(|v| v.is_nan()));
+    assert_eq!(messages, ["no metrics: the estimator returned no path"]);
 }
