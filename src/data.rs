@@ -183,6 +183,31 @@ impl Dataset {
 }
 
 impl StatePath {
+    /// The path at those of `times` that lie inside its span (the others are left out), every
+    /// state and sd interpolated linearly ([`crate::metrics::interpolate`]).
+    pub fn at_times(&self, times: &[f64]) -> StatePath {
+        let columns = |rows: &[Vec<f64>]| -> Vec<Vec<f64>> {
+            (0..self.names.len()).map(|k| rows.iter().map(|r| r[k]).collect()).collect()
+        };
+        let at = |cols: &[Vec<f64>], t: f64| -> Option<Vec<f64>> {
+            cols.iter().map(|c| crate::metrics::interpolate(&self.times, c, t)).collect()
+        };
+        let values = columns(&self.values);
+        let sds = self.sd.as_deref().map(columns);
+        let mut out = StatePath { names: self.names.clone(), times: vec![], values: vec![], sd: None };
+        let mut out_sd = Vec::new();
+        for &t in times {
+            let Some(v) = at(&values, t) else { continue };
+            out.times.push(t);
+            out.values.push(v);
+            if let Some(s) = &sds {
+                out_sd.push(at(s, t).expect("the sd has the values' times"));
+            }
+        }
+        out.sd = sds.map(|_| out_sd);
+        out
+    }
+
     /// Number of times.
     pub fn len(&self) -> usize {
         self.times.len()

@@ -22,7 +22,10 @@
 //!
 //! The metrics ([`Metric`]) are computed by [`crate::metrics`]: the normalised ISE of
 //! `000_74b95e149527c64e.txt (4.1)`, the RMSE to the truth over the estimate's times, the RMSE
-//! to another estimator of the same replicate, and the fraction of time on the true well's side.
+//! to another estimator of the same replicate, the fraction of time on the true well's side, the
+//! mean posterior sd and the ±2 sd coverage; against the truth they are evaluated on the
+//! simulation grid, or at the measurement times only (`metrics_at = "measurements"`,
+//! [`MetricsAt`]), where the particle and ensemble smoothers report their paths.
 //!
 //! The built-in experiments ([`builtin()`], [`BUILTIN`]) reproduce the papers' Monte Carlo
 //! studies; each has a quick version for tests.
@@ -40,4 +43,4 @@ mod tests;
 pub use builtin::{builtin, load, BUILTIN};
 pub use runner::{default_out, replicate_seed, run, Cancel, Progress, Row, RunOptions, RunReport};
 pub use shard::{merge, MergeOptions, MergeReport, MergeStatus, Missing, Shard};
-pub use spec::{EstimatorSpec, Experiment, ExperimentSpec, Metric, Scenario, ScenarioEstimator};
+pub use spec::{EstimatorSpec, Experiment, ExperimentSpec, Metric, MetricsAt, Scenario, ScenarioEstimator};

@@ -15,7 +15,7 @@ use rayon::prelude::*;
 
 use super::report::{self, Results};
 use super::shard::{self, Shard};
-use super::spec::{Experiment, ExperimentSpec, Metric, Scenario, ScenarioEstimator};
+use super::spec::{Experiment, ExperimentSpec, Metric, MetricsAt, Scenario, ScenarioEstimator};
 use crate::data::{Dataset, StatePath};
 use crate::estimate::{EstimationProblem, PathEstimate, RowStatus};
 use crate::estimator::Method;
@@ -531,6 +531,11 @@ impl Shared<'_> {
         let scenario = &self.scenarios[si];
         let unit_seed = replicate_seed(self.seed, &scenario.name, r);
         let (truth, data) = simulate_replicate(scenario, unit_seed)?;
+        let at_measurements = match scenario.spec.metrics_at {
+            MetricsAt::Truth => None,
+            MetricsAt::Measurements => Some(truth.at_times(&data.times)),
+        };
+        let judged = at_measurements.as_ref().unwrap_or(&truth);
         let refs: Vec<&str> = scenario
             .metrics
             .iter()
@@ -565,7 +570,7 @@ impl Shared<'_> {
                 if self.is_done(&scenario.name, r, &e.label) {
                     continue;
                 }
-                let row = self.row(scenario, r, e, outcome, &truth, &estimates);
+                let row = self.row(scenario, r, e, outcome, judged, &estimates);
                 if !self.write(row, progress)? {
                     return Ok(());
                 }

@@ -74,12 +74,38 @@ pub struct ExperimentSpec {
     /// `solve_seconds` are always recorded.
     #[serde(default)]
     pub metrics: Vec<String>,
+    /// Where the metrics against the truth are evaluated ([`MetricsAt`]; default `truth`, the
+    /// simulation grid).
+    #[serde(default, skip_serializing_if = "MetricsAt::is_default")]
+    pub metrics_at: MetricsAt,
     /// Scenario variables: key → list of values (see the module documentation).
     #[serde(default)]
     pub grid: toml::Table,
     /// Dotted-key overrides of the quick version (`--quick`).
     #[serde(default)]
     pub quick: toml::Table,
+}
+
+/// The times at which the metrics against the truth (`rmse`, `ise`, `mean-sd`, `coverage`,
+/// `well-side`) are evaluated; the estimate is interpolated linearly at them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MetricsAt {
+    /// Every time of the simulated true path (its integration grid): the error over the whole
+    /// window, including between the measurements.
+    #[default]
+    Truth,
+    /// The measurement times only: the only times at which the particle and ensemble smoothers
+    /// report their path, so on fast dynamics (Lorenz-63) it compares them with the Kalman
+    /// smoothers and the closures on equal terms, without the error of interpolating between
+    /// the measurements.
+    Measurements,
+}
+
+impl MetricsAt {
+    fn is_default(&self) -> bool {
+        *self == MetricsAt::Truth
+    }
 }
 
 /// The model of an experiment.
@@ -402,6 +428,7 @@ fn placeholder() -> ExperimentSpec {
         measurements: MeasurementSpec::default(),
         estimators: Vec::new(),
         metrics: Vec::new(),
+        metrics_at: MetricsAt::default(),
         grid: toml::Table::new(),
         quick: toml::Table::new(),
     }

@@ -320,3 +320,26 @@ fn an_estimate_without_a_path_gets_one_message_and_nan_metrics() {
     assert!(values.iter().all(|v| v.is_nan()));
     assert_eq!(messages, ["no metrics: the estimator returned no path"]);
 }
+
+/// `metrics_at = "measurements"` judges every estimate at the measurement times: the truth is
+/// cut down to those times (interpolated), and an unknown value names the key.
+#[test]
+fn metrics_at_the_measurement_times() {
+    let e = Experiment::from_toml(&spec("metrics_at = \"measurements\"", "")).unwrap();
+    assert_eq!(e.scenarios(true).unwrap()[0].spec.metrics_at, super::MetricsAt::Measurements);
+    let default = Experiment::from_toml(&spec("", "")).unwrap();
+    assert_eq!(default.scenarios(true).unwrap()[0].spec.metrics_at, super::MetricsAt::Truth);
+    let err = Experiment::from_toml(&spec("metrics_at = \"grid\"", "")).unwrap_err().to_string();
+    assert!(err.contains("metrics_at"), "{err}");
+
+    let path = crate::data::StatePath {
+        names: vec!["x".into(), "y".into()],
+        times: vec![0.0, 1.0, 2.0],
+        values: vec![vec![0.0, 10.0], vec![1.0, 20.0], vec![4.0, 30.0]],
+        sd: Some(vec![vec![1.0, 1.0], vec![2.0, 2.0], vec![3.0, 3.0]]),
+    };
+    let at = path.at_times(&[-1.0, 0.5, 1.5, 2.0, 3.0]);
+    assert_eq!(at.times, [0.5, 1.5, 2.0]);
+    assert_eq!(at.values, [vec![0.5, 15.0], vec![2.5, 25.0], vec![4.0, 30.0]]);
+    assert_eq!(at.sd.unwrap(), [vec![1.5, 1.5], vec![2.5, 2.5], vec![3.0, 3.0]]);
+}
