@@ -6,6 +6,7 @@ mod cli;
 mod closure;
 mod estimators;
 mod experiment;
+mod fuzz;
 mod golden;
 mod models;
 mod path;
