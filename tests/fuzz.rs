@@ -263,11 +263,48 @@ fn toml_value() -> impl Strategy<Value = toml::Value> {
 fn key() -> impl Strategy<Value = String> {
     prop_oneof![
         prop::sample::select(vec![
-            "name", "method", "estimate", "options", "params", "replicates", "seed", "metrics", "every",
-            "first", "generate", "t_end", "dt", "scheme", "file", "grid", "quick", "model", "simulation",
-            "measurements", "estimators", "states", "noisy", "clean", "parameters", "value", "prior",
-            "bounds", "dynamics", "drift", "clean_drift", "diffusion", "initial", "likelihood", "x", "z",
-            "D", "sigma_y", "step", "transcription", "grid.t_f", "estimators.jme.options.step",
+            "name",
+            "method",
+            "estimate",
+            "options",
+            "params",
+            "replicates",
+            "seed",
+            "metrics",
+            "every",
+            "first",
+            "generate",
+            "t_end",
+            "dt",
+            "scheme",
+            "file",
+            "grid",
+            "quick",
+            "model",
+            "simulation",
+            "measurements",
+            "estimators",
+            "states",
+            "noisy",
+            "clean",
+            "parameters",
+            "value",
+            "prior",
+            "bounds",
+            "dynamics",
+            "drift",
+            "clean_drift",
+            "diffusion",
+            "initial",
+            "likelihood",
+            "x",
+            "z",
+            "D",
+            "sigma_y",
+            "step",
+            "transcription",
+            "grid.t_f",
+            "estimators.jme.options.step",
         ])
         .prop_map(str::to_string),
         "[a-zA-Z_.]{1,16}",
@@ -415,8 +452,8 @@ const MODELS: [&str; 9] = [
 fn expression() -> impl Strategy<Value = String> {
     let leaf = prop_oneof![
         prop::sample::select(vec![
-            "x", "z", "y", "D", "t", "a", "b", "sigma", "theta", "pi", "e", "1", "0", "1e300", "1e309", "nan",
-            "inf", "-0", "2.5", "q", "sin", "",
+            "x", "z", "y", "D", "t", "a", "b", "sigma", "theta", "pi", "e", "1", "0", "1e300", "1e309",
+            "nan", "inf", "-0", "2.5", "q", "sin", "",
         ])
         .prop_map(str::to_string),
         any::<f64>().prop_map(|v| format!("{v:e}")),
@@ -473,4 +510,42 @@ fn fuzz_model_file_reader() {
         Preset::from_toml_str(model, "example.toml").expect("the example model files are valid");
     }
     fuzz("model file", toml_input(MODELS.to_vec(), expression_value()), |text| read_model(&text));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Regressions found by the fuzz targets
+
+/// A tiny `measurements.every` asked for more measurement times than a `Vec` can hold (a panic,
+/// "capacity overflow") or than memory holds (an abort); it is an error naming the key.
+#[test]
+fn a_tiny_measurement_interval_is_refused_before_allocating() {
+    let spec = SPECS[1];
+    assert!(spec.contains("every = 0.1"));
+    for every in ["1e-300", "1e-9"] {
+        let text = spec.replacen("every = 0.1", &format!("every = {every}"), 1);
+        let e = Experiment::from_toml(&text).unwrap_err().to_string();
+        assert!(e.contains("measurements.every") && e.contains("measurement times"), "{e}");
+    }
+}
+
+/// Expressions nested deeper than the parser's limit are an error with the line, not a stack
+/// overflow (the recursive descent takes a few frames per level).
+#[test]
+fn a_deeply_nested_expression_is_an_error_not_a_stack_overflow() {
+    let model = MODELS[0];
+    let drift = "drift = [\"x*4 - x^3*4\"]";
+    assert!(model.contains(drift));
+    for nested in [
+        format!("{}x{}", "(".repeat(100_000), ")".repeat(100_000)),
+        format!("{}x", "-".repeat(100_000)),
+        format!("x{}", "^-x".repeat(100_000)),
+        format!("{}x{}", "sin(".repeat(100_000), ")".repeat(100_000)),
+    ] {
+        let text = model.replacen(drift, &format!("drift = [\"{nested}\"]"), 1);
+        let e = Preset::from_toml_str(&text, "deep.toml").unwrap_err().to_string();
+        assert!(e.contains("nested more than") && e.contains("deep.toml"), "{}", &e[..e.len().min(300)]);
+    }
+    // Nesting within the limit is fine.
+    let text = model.replacen(drift, &format!("drift = [\"{}x{}\"]", "(".repeat(400), ")".repeat(400)), 1);
+    Preset::from_toml_str(&text, "deep.toml").unwrap();
 }
