@@ -8,6 +8,7 @@ mod estimators;
 mod experiment;
 mod fuzz;
 mod golden;
+mod limits;
 mod models;
 mod path;
 mod shard;
