@@ -396,6 +396,9 @@ fn read_table<R: Read>(reader: R, path: &Path) -> Result<Table> {
     Ok(Table { header, rows })
 }
 
+/// The largest magnitude of a value in a file: squares (likelihoods, variances) stay finite.
+const MAX_MAGNITUDE: f64 = 1e150;
+
 fn parse_cell(cell: &str, path: &Path, line: usize, col: usize, name: &str, missing_ok: bool) -> Result<f64> {
     let column = Some(format!("{col} ({name})"));
     if cell.is_empty() || cell.eq_ignore_ascii_case("nan") {
@@ -410,6 +413,14 @@ fn parse_cell(cell: &str, path: &Path, line: usize, col: usize, name: &str, miss
         .map_err(|_| data_err(path, line, column.clone(), format!("cannot parse `{cell}` as a number")))?;
     if !v.is_finite() {
         return Err(data_err(path, line, column, format!("`{cell}` is not finite")));
+    }
+    if v.abs() > MAX_MAGNITUDE {
+        return Err(data_err(
+            path,
+            line,
+            column,
+            format!("`{cell}` is too large: its square overflows (|value| at most {MAX_MAGNITUDE:e}); rescale the column"),
+        ));
     }
     Ok(v)
 }

@@ -543,3 +543,61 @@ impl From<PathEstimate> for MethodRun {
         MethodRun { estimate, notes: Vec::new() }
     }
 }
+
+/// Progress of a long estimate, for a front end that shows it (the command line's progress line
+/// on a terminal). The library never prints: an estimate run through
+/// [`Estimator::run_observed`](crate::estimator::Estimator::run_observed) calls the observer
+/// from its iterations, on the calling thread; an estimate run otherwise costs one thread-local
+/// look-up per iteration.
+pub mod progress {
+    use std::cell::RefCell;
+    use std::sync::Arc;
+
+    /// What an estimator reports as it runs.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    #[non_exhaustive]
+    pub enum ProgressEvent {
+        /// An iteration of the interior-point NLP (`jme`, `mee`, `ksp-closure`,
+        /// `double-exp-closure`) or of the dual maximisation (`gaussian-closure`, `exp-closure`,
+        /// `mean-optimal`) begins: its number (0 for the starting point of the NLP, counting
+        /// from 1 for the dual's Newton steps) and its merit (the NLP's objective; the dual's
+        /// optimality residual max_m |λ_m − (r_m − z_m)/R_m|).
+        Iteration {
+            /// The iteration's number; it restarts at each solve of a run that solves more
+            /// than one problem.
+            iteration: usize,
+            /// The merit at the iteration's start.
+            merit: f64,
+        },
+    }
+
+    /// An observer of [`ProgressEvent`]s.
+    pub type Observer = Arc<dyn Fn(ProgressEvent) + Send + Sync>;
+
+    thread_local! {
+        static OBSERVER: RefCell<Option<Observer>> = const { RefCell::new(None) };
+    }
+
+    /// Runs `f` with `observer` receiving the events of this thread (the previous observer, if
+    /// any, comes back afterwards, also when `f` panics).
+    pub fn observe<R>(observer: Observer, f: impl FnOnce() -> R) -> R {
+        struct Restore(Option<Observer>);
+        impl Drop for Restore {
+            fn drop(&mut self) {
+                let previous = self.0.take();
+                OBSERVER.with(|o| *o.borrow_mut() = previous);
+            }
+        }
+        let _restore = Restore(OBSERVER.with(|o| o.borrow_mut().replace(observer)));
+        f()
+    }
+
+    /// Sends `event` to the observer of this thread, if any (no allocation).
+    pub fn emit(event: ProgressEvent) {
+        OBSERVER.with(|o| {
+            if let Some(observer) = o.borrow().as_ref() {
+                observer(event);
+            }
+        });
+    }
+}

@@ -232,3 +232,78 @@ fn the_cli_keeps_its_promises() {
     assert!(out.contains("Exit codes"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn max_iterations_and_tolerance_and_no_progress_text_on_a_pipe() {
+    let dir = scratch("limits");
+    let (code, _, err) = run(&["simulate", "--t-end", "5", "--seed", "3", "--out", "w.csv"], &dir);
+    assert_eq!(code, 0, "{err}");
+    let jme = ["estimate", "--data", "w.csv", "--method", "jme"];
+    let report = |name: &str| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(dir.join(name)).unwrap()).unwrap()
+    };
+    // At the iteration limit: the status max-iterations and exit code 2.
+    let (code, out, err) = run(&[&jme[..], &["--max-iterations", "1", "--report", "r1.json"]].concat(), &dir);
+    assert_eq!(code, 2, "{out}{err}");
+    assert_eq!(report("r1.json")["status"], "max-iterations");
+    // A looser tolerance: fewer iterations in the report. Stderr is a pipe here: no progress text.
+    let (code, out, err) = run(&[&jme[..], &["--report", "r0.json"]].concat(), &dir);
+    assert_eq!(code, 0, "{out}{err}");
+    assert!(!err.contains('\r') && !err.contains("iteration"), "{err}");
+    let (code, out, err) = run(&[&jme[..], &["--tolerance", "1e-2", "--report", "r2.json"]].concat(), &dir);
+    assert_eq!(code, 0, "{out}{err}");
+    let (strict, loose) =
+        (report("r0.json")["iterations"].as_u64(), report("r2.json")["iterations"].as_u64());
+    assert!(loose < strict, "{loose:?} < {strict:?}");
+    // A method that does not iterate says so.
+    let (code, out, err) =
+        run(&["estimate", "--data", "w.csv", "--method", "uks", "--max-iterations", "5"], &dir);
+    assert_eq!(code, 0, "{out}{err}");
+    assert!(out.contains("`uks` does not iterate"), "{out}");
+    // Bad values name the flag, exit code 1.
+    for (flag, value) in [("--max-iterations", "0"), ("--tolerance", "-1"), ("--tolerance", "nan")] {
+        let (code, _, err) = run(&[&jme[..], &[flag, value]].concat(), &dir);
+        assert_eq!(code, 1, "{flag} {value}: {err}");
+        assert!(err.contains(flag), "{err}");
+    }
+    // compare passes the limits to every estimator.
+    let (code, out, err) = run(
+        &["compare", "--data", "w.csv", "--methods", "jme,uks", "--max-iterations", "1", "--out-dir", "c"],
+        &dir,
+    );
+    assert_eq!(code, 2, "{out}{err}");
+    assert!(out.lines().any(|l| l.starts_with("jme") && l.contains("max-iterations")), "{out}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn messages_name_what_the_user_typed() {
+    let dir = scratch("messages");
+    let (code, _, err) = run(&["simulate", "--t-end", "5", "--seed", "3", "--out", "w.csv"], &dir);
+    assert_eq!(code, 0, "{err}");
+    // A datum of 1e300: the file, line and column, not an option of the estimator.
+    std::fs::write(dir.join("big.csv"), "t,y\n0,1\n0.5,1e300\n1,2\n").unwrap();
+    for method in ["exp-closure", "jme", "uks"] {
+        let (code, _, err) = run(&["estimate", "--data", "big.csv", "--method", method], &dir);
+        assert_eq!(code, 1, "{method}: {err}");
+        assert!(err.contains("big.csv:3") && !err.contains("moments"), "{err}");
+    }
+    // Large data within range: the exponential closure names its domain, not `moments`.
+    std::fs::write(dir.join("wide.csv"), "t,y\n0,1\n0.5,1e140\n1,2\n").unwrap();
+    let (code, _, err) = run(&["estimate", "--data", "wide.csv", "--method", "exp-closure"], &dir);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("`domain`") && !err.contains("`moments`"), "{err}");
+    // The Gauss–Hermite points as typed: the flag when the flag set them.
+    for (method, value) in [("gaussian-closure", "0"), ("ksp-closure", "0"), ("gaussian-closure", "1000000")]
+    {
+        let (code, _, err) =
+            run(&["estimate", "--data", "w.csv", "--method", method, "--gaussian-points", value], &dir);
+        assert_eq!(code, 1, "{method} {value}: {err}");
+        assert!(err.contains("`--gaussian-points`") && !err.contains("gaussian points"), "{err}");
+    }
+    // simulate: a step that does not divide the horizon names the flag.
+    let (code, _, err) = run(&["simulate", "--dt", "10", "--t-end", "5"], &dir);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("`--dt`"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

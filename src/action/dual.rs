@@ -876,6 +876,10 @@ fn maximize<A: EffectiveAction + ?Sized>(
             break Status::MaxIterations;
         }
         iterations += 1;
+        crate::estimate::progress::emit(crate::estimate::progress::ProgressEvent::Iteration {
+            iteration: iterations,
+            merit: res,
+        });
         let g = present.gradient(&lambda, &cur.z);
         // The chord's K must be positive definite; otherwise ∇²F at λ from here on.
         let chord_k = chord.take().map(|h| {

@@ -12,7 +12,7 @@ use onsager::estimator::{parse_list, read_list, Estimator, Labelled, NotApplicab
 use onsager::model::Sde;
 use onsager::{Error, Result};
 
-use super::{create_parent, ModelArgs};
+use super::{create_parent, LimitArgs, ModelArgs};
 
 /// The estimators of `--methods`, parsed at the door.
 #[derive(Debug, Clone)]
@@ -61,6 +61,8 @@ pub struct CompareArgs {
     /// margins).
     #[arg(long, value_parser = parse_grid)]
     pub grid: Option<GridSpec>,
+    #[command(flatten)]
+    pub limits: LimitArgs,
     /// Seed of the methods that draw random numbers.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -95,6 +97,9 @@ impl CompareArgs {
                     _ => {}
                 }
             }
+        }
+        for e in &mut list {
+            e.estimator = e.estimator.clone().with_limits(self.limits.limits())?;
         }
         if !flag.is_empty() {
             for e in &list {

@@ -15,7 +15,7 @@ use onsager::model::Sde;
 use onsager::path::Transcription;
 use onsager::Result;
 
-use super::{create_parent, ModelArgs};
+use super::{create_parent, LimitArgs, ModelArgs};
 
 /// Parses `--method` (the names of [`Method`]).
 pub fn parse_method(s: &str) -> std::result::Result<Method, String> {
@@ -99,6 +99,8 @@ pub struct EstimateArgs {
     /// 16 / 8 / 5 per dimension for 1 / 2 / 3 states.
     #[arg(long)]
     pub gaussian_points: Option<usize>,
+    #[command(flatten)]
+    pub limits: LimitArgs,
     /// Seed of the methods that draw random numbers.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -142,7 +144,39 @@ impl EstimateArgs {
             .map(|(k, _)| k.trim().to_string())
             .collect();
         keep_set_parameters(self.method, &mut options, &kept);
-        Estimator::from_options(self.method, &options)
+        Estimator::from_options(self.method, &options)?.with_limits(self.limits.limits())
+    }
+}
+
+impl EstimateArgs {
+    /// The shorthand flags given, as (the option they set, the flag).
+    fn shorthands(&self) -> Vec<(&'static str, &'static str)> {
+        [
+            (self.grid.is_some(), "grid", "--grid"),
+            (self.dt.is_some(), "dt", "--dt"),
+            (self.particles.is_some(), "particles", "--particles"),
+            (self.transcription.is_some(), "transcription", "--transcription"),
+            (self.step.is_some(), "step", "--step"),
+            (self.moments.is_some(), "moments", "--moments"),
+            (self.gaussian_points.is_some(), "gaussian_points", "--gaussian-points"),
+        ]
+        .into_iter()
+        .filter(|(given, _, _)| *given)
+        .map(|(_, option, flag)| (option, flag))
+        .collect()
+    }
+
+    /// `e` naming the flag the user typed where it is about an option a shorthand flag set.
+    fn as_typed(&self, e: onsager::Error) -> onsager::Error {
+        let table = self.shorthands();
+        match e {
+            onsager::Error::EstimatorOption { method, option, reason } => {
+                let option =
+                    table.iter().find(|(o, _)| *o == option).map_or(option, |(_, f)| (*f).to_string());
+                onsager::Error::EstimatorOption { method, option, reason }
+            }
+            other => super::as_flags(other, &table),
+        }
     }
 }
 
@@ -182,11 +216,14 @@ impl Setup {
 /// Runs `onsager estimate`; `Ok(false)` when the estimator did not succeed (the CLI then exits
 /// non-zero after writing what it has).
 pub fn run(args: &EstimateArgs) -> Result<bool> {
-    let estimator = args.estimator()?;
+    let estimator = args.estimator().map_err(|e| args.as_typed(e))?;
     let setup = Setup::new(args)?;
     let problem = EstimationProblem { seed: args.seed, max_memory: args.max_memory, ..setup.problem() };
     problem.validate()?;
-    let run = estimator.run(&problem)?;
+    if let Some(note) = args.limits.ignored_note(&estimator) {
+        outln!("note: {note}");
+    }
+    let run = super::progress::run_with_progress(&estimator, &problem).map_err(|e| args.as_typed(e))?;
     for note in &run.notes {
         outln!("note: {note}");
     }

@@ -3,6 +3,7 @@
 pub mod compare;
 pub mod estimate;
 pub mod experiment;
+pub mod progress;
 pub mod simulate;
 
 use std::path::{Path, PathBuf};
@@ -10,11 +11,64 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 
 use onsager::data::{Dataset, StatePath};
+use onsager::estimator::{Estimator, IterationLimits};
 use onsager::model::library::{self, Preset};
 use onsager::model::observation::Noise;
 use onsager::model::prior::Prior;
 use onsager::model::{Observation, Sde};
 use onsager::{Error, Result};
+
+/// `--max-iterations` and `--tolerance` of `estimate` and `compare`.
+#[derive(Args, Debug, Clone, Default)]
+pub struct LimitArgs {
+    /// Iteration limit of an iterating estimator (at least 1): the interior-point solver of jme,
+    /// mee, ksp-closure and double-exp-closure, the dual's Newton steps of gaussian-closure,
+    /// exp-closure and mean-optimal, BFGS of pem. The others do not iterate and ignore it (with
+    /// a note). Reaching it is the status `max-iterations` (exit code 2).
+    #[arg(long, value_name = "N", value_parser = parse_max_iterations)]
+    pub max_iterations: Option<usize>,
+    /// Convergence tolerance of an iterating estimator (positive), in its own measure: the
+    /// interior-point solver's scaled optimality error (jme, mee, ksp-closure,
+    /// double-exp-closure; default 1e-8, 1e-9 for the closures), the dual's optimality residual
+    /// (gaussian-closure, exp-closure, mean-optimal; default 1e-9), pem's relative gradient
+    /// (default 1e-8).
+    #[arg(long, value_name = "TOL", value_parser = parse_tolerance, allow_negative_numbers = true)]
+    pub tolerance: Option<f64>,
+}
+
+impl LimitArgs {
+    /// The limits of the flags.
+    pub fn limits(&self) -> IterationLimits {
+        IterationLimits { max_iterations: self.max_iterations, tolerance: self.tolerance }
+    }
+
+    /// The note for `estimator` when the flags are set and it does not iterate.
+    pub fn ignored_note(&self, estimator: &Estimator) -> Option<String> {
+        (!self.limits().is_empty() && !estimator.method().iterates()).then(|| {
+            format!(
+                "`{}` does not iterate: --max-iterations and --tolerance do not apply to it",
+                estimator.name()
+            )
+        })
+    }
+}
+
+/// Parses `--max-iterations`: a whole number of at least 1.
+fn parse_max_iterations(s: &str) -> std::result::Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(0) => Err("must be at least 1".into()),
+        Ok(n) => Ok(n),
+        Err(_) => Err(format!("expected a whole number of at least 1, got `{s}`")),
+    }
+}
+
+/// Parses `--tolerance`: a positive finite number.
+fn parse_tolerance(s: &str) -> std::result::Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        _ => Err(format!("expected a positive finite number, got `{s}`")),
+    }
+}
 
 /// The model flags every subcommand takes (DESIGN.md, "Data formats").
 #[derive(Args, Debug, Clone)]

@@ -39,11 +39,11 @@ pub struct SimulateArgs {
     pub truth: Option<PathBuf>,
 }
 
-/// Runs `onsager simulate`.
 /// The preset's settings and the flags of `onsager simulate` that set them.
 const SIMULATE_FLAGS: &[(&str, &str)] =
     &[("t_end", "--t-end"), ("dt", "--dt"), ("sample_every", "--sample-every"), ("first_sample", "--t-end")];
 
+/// Runs `onsager simulate`.
 pub fn run(args: &SimulateArgs) -> Result<()> {
     let mut p = args.model.preset()?;
     if let Some(t) = args.t_end {
@@ -57,7 +57,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     }
     p.validate().map_err(|e| super::as_flags(e, SIMULATE_FLAGS))?;
     let mut rng = StdRng::seed_from_u64(args.seed);
-    let (path, data) = p.simulate(args.scheme, &mut rng)?;
+    let (path, data) = p.simulate(args.scheme, &mut rng).map_err(|e| super::as_flags(e, SIMULATE_FLAGS))?;
     create_parent(&args.out)?;
     data.write_csv(&args.out)?;
     outln!(

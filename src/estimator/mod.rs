@@ -237,6 +237,23 @@ impl Method {
         matches!(self, Method::Jme | Method::Mee | Method::Pem)
     }
 
+    /// Whether the method iterates to a tolerance (an NLP, a dual maximisation or BFGS), so
+    /// that [`IterationLimits`] apply to it; the filters, smoothers and the exact KSP smoother
+    /// run a fixed number of steps.
+    pub fn iterates(self) -> bool {
+        matches!(
+            self,
+            Method::Jme
+                | Method::Mee
+                | Method::Pem
+                | Method::MeanOptimal
+                | Method::GaussianClosure
+                | Method::ExpClosure
+                | Method::KspClosure
+                | Method::DoubleExpClosure
+        )
+    }
+
     /// Whether the method is one of the exact grid methods (one or two states).
     pub fn uses_grid(self) -> bool {
         matches!(self, Method::Ksp | Method::MeanOptimal)
@@ -314,6 +331,74 @@ impl Estimator {
             ));
         }
         Ok(run)
+    }
+}
+
+/// An iteration limit and a convergence tolerance for any iterating estimator (the command
+/// line's `--max-iterations` and `--tolerance`), mapped by [`Estimator::with_limits`] onto the
+/// method's own options: the interior-point solver's `max_iterations` and `tolerance` (`jme`,
+/// `mee`, `ksp-closure`, `double-exp-closure`), the dual's `dual.max_iterations` and
+/// `dual.tolerance` (`gaussian-closure`, `exp-closure`, `mean-optimal`), BFGS's
+/// `max_iterations` and `gradient_tolerance` (`pem`). Each tolerance is the method's own
+/// measure (docs/reports.md). Methods that do not iterate ([`Method::iterates`]) ignore them.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct IterationLimits {
+    /// The iteration limit (at least 1); `None` keeps the method's.
+    pub max_iterations: Option<usize>,
+    /// The convergence tolerance (positive); `None` keeps the method's.
+    pub tolerance: Option<f64>,
+}
+
+impl IterationLimits {
+    /// Whether neither limit is set.
+    pub fn is_empty(&self) -> bool {
+        self.max_iterations.is_none() && self.tolerance.is_none()
+    }
+}
+
+impl Estimator {
+    /// The estimator with `limits` written into its options (see [`IterationLimits`]); an
+    /// estimator that does not iterate is returned unchanged. Errors:
+    /// [`Error::InvalidOption`] naming `max_iterations` (0) or `tolerance` (not positive and
+    /// finite).
+    pub fn with_limits(mut self, limits: IterationLimits) -> Result<Estimator> {
+        if limits.max_iterations == Some(0) {
+            return Err(Error::invalid("max_iterations", "must be at least 1, got 0"));
+        }
+        crate::error::check_positive("tolerance", limits.tolerance)?;
+        let set = |n: &mut usize, tol: &mut f64| {
+            *n = limits.max_iterations.unwrap_or(*n);
+            *tol = limits.tolerance.unwrap_or(*tol);
+        };
+        match &mut self {
+            Estimator::Jme(o) | Estimator::Mee(o) => {
+                o.max_iterations = limits.max_iterations.or(o.max_iterations);
+                o.tolerance = limits.tolerance.or(o.tolerance);
+            }
+            Estimator::Pem(o) => set(&mut o.max_iterations, &mut o.gradient_tolerance),
+            Estimator::MeanOptimal(o) => set(&mut o.dual.max_iterations, &mut o.dual.tolerance),
+            Estimator::GaussianClosure(o) => {
+                set(&mut o.options.dual.max_iterations, &mut o.options.dual.tolerance)
+            }
+            Estimator::ExpClosure(o) => {
+                set(&mut o.options.dual.max_iterations, &mut o.options.dual.tolerance)
+            }
+            Estimator::KspClosure(o) | Estimator::DoubleExpClosure(o) => {
+                set(&mut o.max_iterations, &mut o.tolerance)
+            }
+            _ => {}
+        }
+        Ok(self)
+    }
+
+    /// Runs the estimator as [`Estimator::run`], with `observer` receiving its progress
+    /// ([`crate::estimate::progress`]).
+    pub fn run_observed<S: Sde + ?Sized>(
+        &self,
+        problem: &EstimationProblem<'_, S, StateMeasurement>,
+        observer: crate::estimate::progress::Observer,
+    ) -> Result<MethodRun> {
+        crate::estimate::progress::observe(observer, || self.run(problem))
     }
 }
 

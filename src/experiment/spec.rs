@@ -416,6 +416,9 @@ impl Experiment {
     }
 }
 
+/// The most measurement times a scenario may have (`measurements.every` against the horizon).
+const MAX_MEASUREMENT_TIMES: usize = 10_000_000;
+
 fn placeholder() -> ExperimentSpec {
     ExperimentSpec {
         name: String::new(),
@@ -695,7 +698,22 @@ impl Scenario {
                 }
                 t.clone()
             }
-            None => p.measurement_times(),
+            None => {
+                // Checked before the times are allocated: a tiny `every` would ask for more times
+                // than memory holds.
+                let count = (p.t_end - p.first_sample) / p.sample_every;
+                if count > MAX_MEASUREMENT_TIMES as f64 {
+                    return Err(invalid(
+                        "measurements.every",
+                        format!(
+                            "{} gives {count:.3e} measurement times on [{}, {}]; at most \
+                             {MAX_MEASUREMENT_TIMES} are allowed",
+                            p.sample_every, p.first_sample, p.t_end
+                        ),
+                    ));
+                }
+                p.measurement_times()
+            }
         };
         if let Some(states) = &m.states {
             measure_states(&mut p, states)?;

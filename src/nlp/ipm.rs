@@ -1432,6 +1432,10 @@ impl<'a, P: NlpProblem + ?Sized, K: KktSolver + ?Sized> Ipm<'a, P, K> {
 
     /// Calls the user callback; true if it asks to stop.
     fn callback(&mut self) -> bool {
+        crate::estimate::progress::emit(crate::estimate::progress::ProgressEvent::Iteration {
+            iteration: self.iter,
+            merit: self.f / self.sf,
+        });
         if self.opt.callback.is_none() {
             return false;
         }

@@ -33,6 +33,11 @@ pub struct MapOptions {
     /// estimate start from the regression guess of `000_74b95e149527c64e.txt` Sec. 4.1. Default
     /// none (the command line fills it from `--param`).
     pub keep_initial: Vec<String>,
+    /// Iteration limit of the interior-point solver. Default `None`: the solver's (3000).
+    pub max_iterations: Option<usize>,
+    /// Tolerance of the interior-point solver on its scaled optimality error. Default `None`:
+    /// the solver's (1e-8).
+    pub tolerance: Option<f64>,
 }
 
 impl Default for MapOptions {
@@ -42,6 +47,8 @@ impl Default for MapOptions {
             step: None,
             laplace_max_states: 4000,
             keep_initial: Vec::new(),
+            max_iterations: None,
+            tolerance: None,
         }
     }
 }
@@ -57,9 +64,10 @@ impl EstimatorOptions for MapOptions {
         map_estimate(problem, merit, self)
     }
 
-    /// Checks a positive finite `step`.
+    /// Checks a positive finite `step` and `tolerance`.
     fn validate(&self) -> Result<()> {
-        crate::error::check_positive("step", self.step)
+        crate::error::check_positive("step", self.step)?;
+        crate::error::check_positive("tolerance", self.tolerance)
     }
 }
 
@@ -123,6 +131,12 @@ pub fn map_estimate<S: Sde + ?Sized>(
     let guess = spline_guess(problem.sde, problem.theta, &problem.observation.states, problem.data, &times)?;
     let mut path_options =
         PathOptions::new(merit, options.transcription).with_step(step).with_initial_path(guess);
+    path_options.nlp.max_iterations = options.max_iterations.unwrap_or(path_options.nlp.max_iterations);
+    if let Some(tolerance) = options.tolerance {
+        // The acceptable level is never stricter than the requested one.
+        path_options.nlp.tolerance = tolerance;
+        path_options.nlp.acceptable_tolerance = path_options.nlp.acceptable_tolerance.max(tolerance);
+    }
     let states = nodes * problem.sde.dims().states();
     let skipped = states > options.laplace_max_states;
     if skipped {

@@ -450,6 +450,8 @@ pub fn moment_path_estimate<S: Sde + ?Sized>(
     let mut mp = build(problem, kind, options)?;
     let nlp_options = NlpOptions {
         tolerance: options.tolerance,
+        // The acceptable level is never stricter than the requested one.
+        acceptable_tolerance: NlpOptions::default().acceptable_tolerance.max(options.tolerance),
         max_iterations: options.max_iterations,
         ..NlpOptions::default()
     };

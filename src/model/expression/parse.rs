@@ -110,7 +110,7 @@ impl<'a> Lexer<'a> {
 
 /// Parses `text` into `graph`, resolving names through `symbols`; returns the root node.
 pub(crate) fn parse(text: &str, graph: &mut Graph, symbols: &dyn Symbols) -> Result<Id, ParseError> {
-    let mut p = Parser { lexer: Lexer { text, pos: 0 }, peeked: None, graph, symbols };
+    let mut p = Parser { lexer: Lexer { text, pos: 0 }, peeked: None, graph, symbols, depth: 0 };
     if p.peek()?.0 == Token::End {
         return Err(ParseError { offset: 0, message: "empty expression".into() });
     }
@@ -141,7 +141,14 @@ struct Parser<'a, 'g> {
     peeked: Option<(Token<'a>, usize)>,
     graph: &'g mut Graph,
     symbols: &'g dyn Symbols,
+    /// Nesting of the unary expressions being parsed (parentheses, function arguments, signs,
+    /// exponents), at most [`MAX_DEPTH`].
+    depth: usize,
 }
+
+/// The deepest nesting an expression may have: deeper ones are refused (the recursive descent
+/// would otherwise exhaust the stack).
+const MAX_DEPTH: usize = 500;
 
 impl<'a> Parser<'a, '_> {
     fn peek(&mut self) -> Result<(Token<'a>, usize), ParseError> {
@@ -196,6 +203,22 @@ impl<'a> Parser<'a, '_> {
     }
 
     fn unary(&mut self) -> Result<Id, ParseError> {
+        if self.depth >= MAX_DEPTH {
+            return Err(ParseError {
+                offset: self.peek()?.1,
+                message: format!(
+                    "the expression is nested more than {MAX_DEPTH} levels deep (parentheses, function \
+                     calls, signs and exponents)"
+                ),
+            });
+        }
+        self.depth += 1;
+        let result = self.unary_inner();
+        self.depth -= 1;
+        result
+    }
+
+    fn unary_inner(&mut self) -> Result<Id, ParseError> {
         match self.peek()?.0 {
             Token::Op('-') => {
                 self.next()?;

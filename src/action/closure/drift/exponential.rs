@@ -611,8 +611,14 @@ fn exponential_setup<'a, S: Sde + ?Sized>(
     let panels = if n == 1 { options.panels } else { options.panels.div_ceil(2) };
     let grid = onsager_closures::panel_grid(&domain, panels, 8)
         .map_err(|e| Error::invalid("domain", e.to_string()))?;
-    let family = Exponential::polynomial(grid, onsager_closures::Reference::Lebesgue, degree as u32)
-        .map_err(|e| Error::invalid("moments", e.to_string()))?;
+    let family =
+        Exponential::polynomial(grid, onsager_closures::Reference::Lebesgue, degree as u32).map_err(|e| {
+            let whence = if options.domain.is_empty() { " (the default, from the data's range)" } else { "" };
+            Error::invalid(
+                "domain",
+                format!("{domain:?}{whence} is too wide for moments of degree {degree} ({e}); give a narrower `domain` or rescale the data"),
+            )
+        })?;
     // λ_0: the (independent) Gaussian prior is the member with m_i/v_i on x_i, −1/(2v_i) on
     // x_i² and 0 elsewhere; polished by the Legendre inverse of its moments on the grid (moment
     // matching, (II.39)).
