@@ -8,6 +8,12 @@
 //! RMSE: 600 cells on [−3, 3], dt = 0.005, output step 0.1 (`exact_mean_optimal_table_settings`).
 //! Default closure options (dispersion included). The record:
 //! `test_models::DoubleWellRecord::new(0, 40.0)` (x(0) = −1, seed 0, x0 ~ N(−1, 0.2²)).
+//!
+//! Group `closure_lorenz63_t20` (issue target: the Gaussian closure on a Lorenz-63 record of
+//! T = 20 in at most 2 s, as a ratio to the UKS in the same run): the Gaussian KSP closure
+//! (`gaussian-ksp-closure`, default rule and step) and the UKS on one record of the dense setting
+//! of the `lorenz63-smoothing` experiment: G = √10 I, all three states measured every 0.2 with
+//! variance 2 (here from t = 0, 101 times), x0 ~ N((−5.9, −5.5, 24.6), I), seed 1.
 
 use std::hint::black_box;
 use std::time::Duration;
@@ -15,7 +21,22 @@ use std::time::Duration;
 use criterion::{criterion_group, criterion_main, Criterion};
 
 use onsager::action::{closure_estimate, mean_optimal, Closure, ClosureOptions, ExactOptions, GridSpec};
-use onsager::test_models::DoubleWellRecord;
+use onsager::kalman::{estimate, gaussian_ksp, GaussianKspOptions, KalmanMethod, KalmanOptions};
+use onsager::model::library::{preset, Preset};
+use onsager::model::observation::{Noise, Param};
+use onsager::model::prior::Prior;
+use onsager::test_models::{DoubleWellRecord, PresetRecord};
+
+/// The dense setting of `lorenz63-smoothing` on [0, 20], measured from t = 0.
+fn lorenz63_dense() -> Preset {
+    let mut p = preset("lorenz63").expect("preset");
+    let sigma_w = p.param_index("sigma_w").expect("sigma_w");
+    p.theta[sigma_w] = 10f64.sqrt();
+    p.observation.noise = Noise::Gaussian { sigma: Param::Fixed(2f64.sqrt()) };
+    p.x0_prior = [-5.9, -5.5, 24.6].iter().map(|&m| Prior::gaussian(m, 1.0)).collect();
+    (p.t_end, p.sample_every) = (20.0, 0.2);
+    p
+}
 
 fn bench(c: &mut Criterion) {
     let record = DoubleWellRecord::new(0, 40.0).expect("record");
@@ -37,6 +58,18 @@ fn bench(c: &mut Criterion) {
     let table = ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 600)).with_dt(0.005).with_output_step(0.1);
     group.bench_function("exact_mean_optimal_table_settings", |b| {
         b.iter(|| black_box(mean_optimal(&problem, &table).expect("mean-optimal")))
+    });
+    group.finish();
+
+    let record = PresetRecord::simulate(lorenz63_dense(), 1).expect("record");
+    let problem = record.preset.problem(&record.data, &[]);
+    let mut group = c.benchmark_group("closure_lorenz63_t20");
+    group.sample_size(10).warm_up_time(Duration::from_millis(1)).measurement_time(Duration::from_secs(1));
+    group.bench_function("gaussian_ksp_closure", |b| {
+        b.iter(|| black_box(gaussian_ksp(&problem, &GaussianKspOptions::default()).expect("closure")))
+    });
+    group.bench_function("uks", |b| {
+        b.iter(|| black_box(estimate(&problem, KalmanMethod::Uks, &KalmanOptions::default()).expect("uks")))
     });
     group.finish();
 }

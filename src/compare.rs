@@ -68,20 +68,21 @@ pub struct Comparison {
 }
 
 /// The candidates of [`default_estimators`], in the order of the table.
-pub const DEFAULT_METHODS: [Method; 9] = [
+pub const DEFAULT_METHODS: [Method; 10] = [
     Method::Ksp,
     Method::MeanOptimal,
     Method::GaussianClosure,
     Method::ExpClosure,
     Method::DoubleExpClosure,
     Method::KspClosure,
+    Method::GaussianKspClosure,
     Method::Jme,
     Method::Mee,
     Method::Uks,
 ];
 
 /// The estimators compared by default, with their default options: those of
-/// [`DEFAULT_METHODS`] (the exact grid methods, the four closures, JME, MEE and the UKS) that
+/// [`DEFAULT_METHODS`] (the exact grid methods, the five closures, JME, MEE and the UKS) that
 /// apply to the problem ([`Estimator::applies_to`]), and the others with the reason they do not.
 pub fn default_estimators<S: Sde + ?Sized>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
@@ -370,6 +371,42 @@ mod tests {
         assert!(svg.contains("uks") && svg.contains("truth"));
         let bad = StatePath { names: vec!["q".into()], ..truth.clone() };
         assert!(compare(&problem, &methods, Some(&bad), &options).is_err());
+    }
+
+    #[test]
+    fn the_default_estimators_are_those_that_apply() {
+        // Lorenz-63 (three states, Gaussian errors): the grid methods and the one- and two-state
+        // closures are skipped with their reason; the Gaussian closures, JME, MEE and the UKS run.
+        let p = preset("lorenz63").unwrap();
+        let data = crate::data::Dataset { names: vec![], times: vec![], values: vec![] };
+        let (chosen, skipped) = default_estimators(&p.problem(&data, &[]));
+        let chosen: Vec<Method> = chosen.iter().map(|l| l.estimator.method()).collect();
+        assert_eq!(
+            chosen,
+            [Method::GaussianClosure, Method::GaussianKspClosure, Method::Jme, Method::Mee, Method::Uks]
+        );
+        let skipped_methods: Vec<Method> = skipped.iter().map(|s| s.method).collect();
+        assert_eq!(
+            skipped_methods,
+            [
+                Method::Ksp,
+                Method::MeanOptimal,
+                Method::ExpClosure,
+                Method::DoubleExpClosure,
+                Method::KspClosure
+            ]
+        );
+        assert!(skipped.iter().all(|s| s.reason.contains('3')), "{skipped:?}");
+        // A Student-t likelihood: the Gaussian KSP closure needs Gaussian errors.
+        let mut p = preset("double-well").unwrap();
+        p.observation.noise = crate::model::Noise::StudentT {
+            nu: crate::model::Param::Fixed(4.0),
+            scale: crate::model::Param::Fixed(0.2),
+        };
+        let (chosen, skipped) = default_estimators(&p.problem(&data, &[]));
+        assert!(chosen.iter().all(|l| l.estimator.method() != Method::GaussianKspClosure));
+        let why = skipped.iter().find(|s| s.method == Method::GaussianKspClosure).unwrap();
+        assert!(why.reason.contains("Gaussian measurement errors"), "{why}");
     }
 
     #[test]

@@ -5,9 +5,9 @@
 //! ## One look per estimator
 //!
 //! Every method has a fixed colour and dash pattern ([`method_look`]) from the colour-blind-safe
-//! [`PALETTE`] (Paul Tol's "muted" scheme): the nine estimators of the default comparison are
-//! solid lines in the nine colours. The other methods reuse a colour with a dash of their own:
-//! the UKF dashed in the UKS's teal, the EKS dashed and the EKF dotted in cyan, the EnKS dashed
+//! [`PALETTE`] (Paul Tol's "muted" scheme): nine estimators of the default comparison are
+//! solid lines in the nine colours, and its Gaussian KSP closure is dashed in the wine of the
+//! mean-optimal estimator. The other methods reuse a colour with a dash of their own: the UKF dashed in the UKS's teal, the EKS dashed and the EKF dotted in cyan, the EnKS dashed
 //! and the EnKF dotted in purple, the particle smoother dashed in the indigo of the exact KSP
 //! smoother it approximates, the PEM dashed in MEE's olive. No look is the truth's ([`TRUTH`], a
 //! thin black line) or the data's ([`DATA`], grey markers); estimators are lines without

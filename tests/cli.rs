@@ -137,7 +137,7 @@ fn compare_prints_the_table_and_writes_the_four_files() {
         stdout.contains("rmse_truth") && stdout.contains("rmse_ksp") && stdout.contains("same_well"),
         "{stdout}"
     );
-    for method in ["ksp", "mean-optimal", "jme", "mee", "uks"] {
+    for method in ["ksp", "mean-optimal", "gaussian-ksp-closure", "jme", "mee", "uks"] {
         assert!(stdout.lines().any(|l| l.starts_with(method)), "no row for {method}:\n{stdout}");
     }
     for file in ["paths.csv", "summary.json", "compare.svg", "compare.png"] {

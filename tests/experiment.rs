@@ -232,3 +232,29 @@ fn a_cancelled_run_stops_and_resumes() {
     run(&experiment, &options(&full, true, 1), &|_| {}).unwrap();
     assert_eq!(row_set(&out), row_set(&full));
 }
+
+/// `lorenz96-smoothing --quick`: every estimator on the 10-state record, and the Gaussian KSP
+/// closure equal to the UKS (identity: with a quadratic drift both compute the same closed
+/// moment equations, `docs/closures.md`, "Relation to the UKS"), with a calibrated coverage.
+#[test]
+fn lorenz96_smoothing_quick_runs_and_the_gaussian_ksp_closure_is_the_uks() {
+    let out = scratch("lorenz96");
+    let experiment = builtin("lorenz96-smoothing").unwrap();
+    let report = run(&experiment, &options(&out, true, 1), &|_| {}).unwrap();
+    let text = std::fs::read_to_string(&report.results).unwrap();
+    let results = parse_results(&text, &report.results).unwrap();
+    // The reference (particle) runs first.
+    let labels: BTreeSet<&str> = results.rows.iter().map(|r| r.estimator.as_str()).collect();
+    assert_eq!(labels, BTreeSet::from(["gaussian-ksp-closure", "uks", "eks", "enks", "particle"]));
+    assert!(results.rows.iter().all(|r| r.status == RowStatus::Finished(onsager::Status::Converged)));
+    let metric = |label: &str, col: &str| {
+        let row = results.rows.iter().find(|r| r.estimator == label).unwrap();
+        row.metrics[results.metric_columns.iter().position(|c| c == col).unwrap()]
+    };
+    for col in ["rmse", "mean_sd", "coverage"] {
+        let (closure, uks) = (metric("gaussian-ksp-closure", col), metric("uks", col));
+        assert!((closure - uks).abs() <= 1e-6 * uks.abs().max(1.0), "{col}: {closure} vs {uks}");
+    }
+    assert!((0.8..=1.0).contains(&metric("gaussian-ksp-closure", "coverage")));
+    let _ = std::fs::remove_dir_all(&out);
+}

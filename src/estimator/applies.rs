@@ -40,7 +40,7 @@ impl Estimator {
     /// - `ksp`, `mean-optimal`: one or two states, and a grid (the default grid needs every
     ///   state measured directly);
     /// - `exp-closure`: one or two states (moments up to degree 6 in two); `ksp-closure`, `double-exp-closure`: one noisy state;
-    ///   `gaussian-closure`: any number of states;
+    ///   `gaussian-closure`, `gaussian-ksp-closure`: any number of states, clean states too;
     /// - `pem`: parameters to estimate;
     /// - Gaussian measurement errors for every method except `ksp`, `jme`, `mee` and `particle`.
     ///

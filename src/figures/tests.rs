@@ -101,12 +101,19 @@ fn the_looks_are_fixed_distinct_and_never_the_reserved_ones() {
         assert!(PALETTE.contains(&a.color));
         assert!(!all[..i].contains(a), "{:?} shares its look", Method::ALL[i]);
     }
-    // The nine estimators of the default comparison are nine colours, solid.
+    // The default comparison: nine estimators in nine colours, solid, and the Gaussian KSP
+    // closure dashed (the palette has nine colours); no two share a look.
     let defaults = crate::compare::DEFAULT_METHODS;
-    let colors: Vec<Color> = defaults.iter().map(|&m| method_look(m).color).collect();
+    let solid: Vec<Method> = defaults.iter().copied().filter(|&m| m != Method::GaussianKspClosure).collect();
+    assert_eq!(solid.len(), PALETTE.len());
+    let colors: Vec<Color> = solid.iter().map(|&m| method_look(m).color).collect();
     for (i, c) in colors.iter().enumerate() {
         assert!(!colors[..i].contains(c));
-        assert_eq!(method_look(defaults[i]).dash, Dash::Solid);
+        assert_eq!(method_look(solid[i]).dash, Dash::Solid);
+    }
+    let looks: Vec<Look> = defaults.iter().map(|&m| method_look(m)).collect();
+    for (i, l) in looks.iter().enumerate() {
+        assert!(!looks[..i].contains(l), "{:?} shares its look", defaults[i]);
     }
     // Forty estimators of one method: looks distinct as far as the palette and the dashes go
     // (36), then repeated, never the truth's or the data's; the same list gives the same looks.
