@@ -43,7 +43,7 @@ pub struct CompareArgs {
     /// Estimators to compare, each with its own options:
     /// `METHOD[:NAME=VALUE,…],METHOD…`, e.g. `exp-closure:moments=6,jme:transcription=trapezoidal,uks`
     /// (a value with commas in double quotes; `label=…` names a row). Default: those of ksp,
-    /// mean-optimal, the four closures, jme, mee and uks that apply to the model, its likelihood
+    /// mean-optimal, the five closures, jme, mee and uks that apply to the model, its likelihood
     /// and `--estimate`; the others are listed under the table with the reason. A method named
     /// here that does not apply is an error.
     #[arg(long, value_name = "LIST", value_parser = parse_methods)]
