@@ -376,7 +376,7 @@ fn cli_writes_the_path_and_the_report_and_rejects_bad_input() {
     assert!(out.status.success());
     assert!(String::from_utf8_lossy(&out.stdout)
         .contains("(the default: data range with margins and the initial prior)"));
-    fails("ksp", &["--step", "0.1"], "`step`");
+    fails("ksp", &["--step", "0.1"], "`--step`");
     fails(
         "mean-optimal",
         &["--grid", "lo=-3,hi=3,cells=50", "--likelihood", "laplace:scale=0.2"],
