@@ -281,6 +281,12 @@ fn messages_name_what_the_user_typed() {
     let dir = scratch("messages");
     let (code, _, err) = run(&["simulate", "--t-end", "5", "--seed", "3", "--out", "w.csv"], &dir);
     assert_eq!(code, 0, "{err}");
+    // A tiny sampling interval is refused before the times are allocated (it was a panic).
+    for every in ["1e-300", "1e-8"] {
+        let (code, _, err) = run(&["simulate", "--sample-every", every, "--out", "tiny.csv"], &dir);
+        assert_eq!(code, 1, "{err}");
+        assert!(err.contains("--sample-every") && err.contains("at most"), "{err}");
+    }
     // A datum of 1e300: the file, line and column, not an option of the estimator.
     std::fs::write(dir.join("big.csv"), "t,y\n0,1\n0.5,1e300\n1,2\n").unwrap();
     for method in ["exp-closure", "jme", "uks"] {

@@ -26,7 +26,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::estimator::{Estimator, Method};
 pub use crate::metrics::Metric;
-use crate::model::library::{self, Preset};
+use crate::model::library::{self, Preset, MAX_MEASUREMENT_TIMES};
 use crate::model::observation::Noise;
 use crate::model::prior::Prior;
 use crate::model::Sde;
@@ -415,9 +415,6 @@ impl Experiment {
         Ok(scenarios)
     }
 }
-
-/// The most measurement times a scenario may have (`measurements.every` against the horizon).
-const MAX_MEASUREMENT_TIMES: usize = 10_000_000;
 
 fn placeholder() -> ExperimentSpec {
     ExperimentSpec {

@@ -211,6 +211,10 @@ pub struct Preset {
     pub sample_every: f64,
 }
 
+/// The most measurement times a preset or an experiment may ask for (`sample_every`,
+/// `measurements.every`): checked before the times are allocated.
+pub const MAX_MEASUREMENT_TIMES: usize = 10_000_000;
+
 impl Preset {
     /// For a bistable model, the barrier between the wells of its first state (0 for the double
     /// well, whose drift 4x − 4x³ has stable points ±1); `None` otherwise.
@@ -321,6 +325,17 @@ impl Preset {
         positive("t_end", self.t_end)?;
         positive("dt", self.dt)?;
         positive("sample_every", self.sample_every)?;
+        let count = (self.t_end - self.first_sample) / self.sample_every;
+        if count > MAX_MEASUREMENT_TIMES as f64 {
+            return Err(Error::InvalidOption {
+                name: "sample_every".into(),
+                reason: format!(
+                    "{} gives {count:.3e} measurement times on [{}, {}]; at most {MAX_MEASUREMENT_TIMES} \
+                     are allowed",
+                    self.sample_every, self.first_sample, self.t_end
+                ),
+            });
+        }
         if !(0.0..=self.t_end).contains(&self.first_sample) {
             return Err(Error::InvalidOption {
                 name: "first_sample".into(),
