@@ -12,6 +12,7 @@ pub const BUILTIN: &[(&str, &str)] = &[
     ("holmes-rand-quantized", include_str!("../../experiments/holmes-rand-quantized.toml")),
     ("double-well-jumps", include_str!("../../experiments/double-well-jumps.toml")),
     ("lorenz63-smoothing", include_str!("../../experiments/lorenz63-smoothing.toml")),
+    ("closures-2d", include_str!("../../experiments/closures-2d.toml")),
 ];
 
 /// The TOML text of the built-in experiment `name`; [`Error::UnknownName`] (kind
