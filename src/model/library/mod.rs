@@ -566,25 +566,7 @@ pub fn preset(name: &str) -> Result<Preset> {
             first_sample: 0.0,
             sample_every: 0.5,
         },
-        "double-well-2d" => Preset {
-            name: "double-well-2d".into(),
-            description:
-                "two-state double well dX = (4X - 4X^3) dt + sqrt(2D) dW1, dV = (X - V) dt + sqrt(2D) dW2, \
-                          Gaussian measurements of x"
-                    .into(),
-            source: "notation of 003_d2fc48a470e528fc.txt (0.1); defaults are our choice".into(),
-            model: Model::DoubleWell2d(DoubleWell2d),
-            theta: DoubleWell2d::NOMINAL.to_vec(),
-            theta_prior: vec![positive()],
-            estimate: vec![false],
-            x0_prior: vec![normal(-1.0, 0.2), normal(-1.0, 0.2)],
-            z0_prior: vec![],
-            observation: gaussian_of(0, Param::Fixed(0.5)),
-            t_end: 10.0,
-            dt: 0.005,
-            first_sample: 0.0,
-            sample_every: 1.0,
-        },
+        "double-well-2d" => double_well_2d_preset(),
         "lorenz63" => Preset {
             name: "lorenz63".into(),
             description: "Lorenz-63 system with additive noise sigma_w I, all three states measured".into(),
@@ -609,6 +591,29 @@ pub fn preset(name: &str) -> Result<Preset> {
         _ => return Err(unknown()),
     };
     Ok(p)
+}
+
+/// The `double-well-2d` preset of [`preset`]: [`DoubleWell2d`], x measured.
+fn double_well_2d_preset() -> Preset {
+    Preset {
+        name: "double-well-2d".into(),
+        description:
+            "two-state double well dX = (4X - 4X^3) dt + sqrt(2D) dW1, dV = (X - V) dt + sqrt(2D) dW2, \
+                      Gaussian measurements of x"
+                .into(),
+        source: "notation of 003_d2fc48a470e528fc.txt (0.1); defaults are our choice".into(),
+        model: Model::DoubleWell2d(DoubleWell2d),
+        theta: DoubleWell2d::NOMINAL.to_vec(),
+        theta_prior: vec![positive()],
+        estimate: vec![false],
+        x0_prior: vec![normal(-1.0, 0.2), normal(-1.0, 0.2)],
+        z0_prior: vec![],
+        observation: gaussian_of(0, Param::Fixed(0.5)),
+        t_end: 10.0,
+        dt: 0.005,
+        first_sample: 0.0,
+        sample_every: 1.0,
+    }
 }
 
 /// The `lorenz96` preset of [`preset`]: [`Lorenz96`] with 10 states, every state measured.
