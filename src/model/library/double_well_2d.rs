@@ -1,7 +1,7 @@
 //! A two-state double well: a bistable state x driving a relaxing state v.
 
 use super::names;
-use crate::model::{Dims, Scalar, Sde};
+use crate::model::{Dims, DriftDerivatives, Scalar, Sde};
 
 /// The double well of [`DoubleWell`](super::DoubleWell) driving a second, relaxing state
 /// (Eyink's notation, `003_d2fc48a470e528fc.txt (0.1)`, dX = f dt + (2D)^{1/2} dW, in two
@@ -50,6 +50,27 @@ impl Sde for DoubleWell2d {
     /// $\operatorname{div} f = 3 - 12 x^2$, in closed form.
     fn divergence<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], _theta: &[D]) -> D {
         D::from(3.0) - x[0] * x[0] * 12.0
+    }
+
+    /// f = (4x − 4x³, x − v) and div f = 3 − 12x² with their derivatives in closed form:
+    /// ∂f₁/∂x = 4 − 12x², ∂²f₁/∂x² = −24x, ∂f₂/∂(x, v) = (1, −1), (div f)′ = −24x,
+    /// (div f)″ = −24.
+    fn drift_derivatives(
+        &self,
+        _t: f64,
+        x: &[f64],
+        _z: &[f64],
+        _theta: &[f64],
+        out: &mut DriftDerivatives,
+    ) -> bool {
+        let u = x[0];
+        out.first(0, 0, 4.0 - 12.0 * u * u);
+        out.second(0, 0, 0, -24.0 * u);
+        out.first(1, 0, 1.0);
+        out.first(1, 1, -1.0);
+        out.first(2, 0, -24.0 * u);
+        out.second(2, 0, 0, -24.0);
+        true
     }
 
     /// f is a cubic in (x, v).
