@@ -6,7 +6,7 @@ use rand::rngs::StdRng;
 use rand::SeedableRng;
 
 use onsager::action::closure::om::MomentPathOptions;
-use onsager::action::closure::{closure_action, Closure, ExponentialFamily, GaussianFamily};
+use onsager::action::closure::{closure_action, Closure, ExponentialFamily, GaussianFamily, NodeRule};
 use onsager::action::exact::gaussian_dual_data;
 use onsager::action::{
     maximize_dual, mean_optimal, ClosureOptions, DualOptions, EffectiveAction, ExactOptions, GridSpec,
@@ -467,13 +467,19 @@ fn quadratic_exponential_closure_in_2d_is_the_gaussian_closure_on_a_linear_model
     };
     let options = ClosureOptions::new().with_tolerances(1e-9, 1e-11).with_dispersion(false);
     let g = closure_estimate(&problem, &ClosureKind::Gaussian, &options).unwrap();
-    let family = ExponentialFamily::of_degree(2).with_domain(&[(-3.5, 3.5), (-3.5, 3.5)]);
-    let e = Estimator::ExpClosure(Closure::new(family, options)).run(&problem).unwrap().estimate;
-    assert_eq!(e.status, Status::Converged);
-    assert_eq!(g.path.times, e.path.times);
-    for (a, b) in g.path.values.iter().zip(&e.path.values) {
-        for i in 0..2 {
-            assert_relative_eq!(a[i], b[i], epsilon = 1e-5);
+    let on_box = ExponentialFamily::of_degree(2).with_domain(&[(-3.5, 3.5), (-3.5, 3.5)]);
+    // The same family on nodes that follow the density (exact for a Gaussian up to the node
+    // rule's tolerance).
+    let following =
+        ExponentialFamily::of_degree(2).with_nodes(NodeRule::Density).with_density_tolerance(1e-8);
+    for family in [on_box, following] {
+        let e = Estimator::ExpClosure(Closure::new(family, options.clone())).run(&problem).unwrap().estimate;
+        assert_eq!(e.status, Status::Converged);
+        assert_eq!(g.path.times, e.path.times);
+        for (a, b) in g.path.values.iter().zip(&e.path.values) {
+            for i in 0..2 {
+                assert_relative_eq!(a[i], b[i], epsilon = 1e-5);
+            }
         }
     }
 }

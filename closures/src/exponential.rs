@@ -125,6 +125,51 @@ pub fn panel_grid(bounds: &[(f64, f64)], panels: usize, points_per_panel: usize)
     tensor_product(&axes)
 }
 
+/// A tensor grid of composite Gauss–Legendre panels on the box $\xi \in [-c, c]^n$ of a frame
+/// $x = m + L\xi$ ($L$ lower triangular, row-major $n\times n$, positive diagonal), in any
+/// dimension: each axis of $\xi$ gets `panels` panels of `points_per_panel` points, the nodes
+/// are $m + L\xi_k$ and the weights $w_k\det L$. With $(m, LL^\top)$ the mean and covariance of
+/// a density and $c$ a few standard deviations, the nodes follow the density wherever it moves;
+/// the rule integrates over the parallelepiped $m + L[-c, c]^n$ (what lies outside is cut).
+///
+/// # Errors
+/// [`Error::DimensionMismatch`] for `chol` not $n\times n$; [`Error::InvalidOption`] for a
+/// non-positive or non-finite diagonal of $L$ or width $c$, or invalid panels.
+pub fn frame_grid(
+    mean: &[f64],
+    chol: &[f64],
+    width: f64,
+    panels: usize,
+    points_per_panel: usize,
+) -> Result<Rule, Error> {
+    let n = mean.len();
+    if chol.len() != n * n {
+        return Err(Error::DimensionMismatch { what: "chol", expected: n * n, got: chol.len() });
+    }
+    check_finite("mean", mean)?;
+    check_finite("chol", chol)?;
+    if n == 0 || !(width.is_finite() && width > 0.0) || (0..n).any(|i| chol[i * n + i] <= 0.0) {
+        return Err(Error::InvalidOption {
+            name: "frame",
+            reason: format!(
+                "need n >= 1, a width > 0 and a positive diagonal of L, got n {n}, width {width}"
+            ),
+        });
+    }
+    let axis = composite_gauss_legendre(-width, width, panels, points_per_panel)?;
+    let box_rule = tensor_product(&vec![axis; n])?;
+    let det: f64 = (0..n).map(|i| chol[i * n + i]).product();
+    let mut points = Vec::with_capacity(box_rule.len() * n);
+    let mut weights = Vec::with_capacity(box_rule.len());
+    for (xi, w) in box_rule.iter() {
+        for i in 0..n {
+            points.push(mean[i] + (0..=i).map(|j| chol[i * n + j] * xi[j]).sum::<f64>());
+        }
+        weights.push(w * det);
+    }
+    Rule::try_new(n, points, weights)
+}
+
 /// An exponential family $p(x;\lambda) = e^{\lambda^\top M(x)}p_{\ast}(x)/\mathcal N(\lambda)$
 /// (`003_d2fc48a470e528fc.txt (II.36)`–(II.37)) with user moment functions, integrated on a fixed
 /// quadrature grid $\lbrace (x_k, w_k)\rbrace$:

@@ -79,8 +79,8 @@ pub mod weights;
 
 pub use error::Error;
 pub use exponential::{
-    panel_grid, Exponential, LogDensityFn, MomentDerivativeFn, MomentFn, MomentFunctions, Polynomial,
-    Reference,
+    frame_grid, panel_grid, Exponential, LogDensityFn, MomentDerivativeFn, MomentFn, MomentFunctions,
+    Polynomial, Reference,
 };
 pub use family::{legendre_newton, Cumulants, LegendreOptions, LegendreSolution, TrialFamily};
 pub use gaussian::{Gaussian, GaussianRule};

@@ -6,7 +6,8 @@
 use approx::assert_relative_eq;
 use num_dual::{Dual64, DualNum};
 use onsager_closures::{
-    panel_grid, Error, Exponential, Gaussian, GaussianRule, LegendreOptions, Reference, TrialFamily,
+    frame_grid, panel_grid, Error, Exponential, Gaussian, GaussianRule, LegendreOptions, Reference,
+    TrialFamily,
 };
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
@@ -695,4 +696,45 @@ fn trial_family_is_object_safe() {
             assert_relative_eq!(*a, *b, epsilon = 1e-10, max_relative = 1e-10);
         }
     }
+}
+
+/// The frame grid m + Lξ integrates the moments of a correlated 2-D Gaussian N(m, LLᵀ) to
+/// their closed forms (mean, covariance, fourth moment E[(x − m_x)⁴] = 3Σ_xx²) with the
+/// Gaussian as a polynomial exponential family of degree 2 on it; and the moments of a
+/// 3-D Gaussian (the frame grid in any dimension).
+#[test]
+fn frame_grid_moments_of_gaussians_match_closed_forms() {
+    let (m, l) = ([0.7, -1.2], [0.5, 0.0, -0.3, 0.2]);
+    let s = [l[0] * l[0], l[0] * l[2], l[0] * l[2], l[2] * l[2] + l[3] * l[3]];
+    let grid = frame_grid(&m, &l, 7.0, 6, 8).unwrap();
+    let density = |x: &[f64]| {
+        let det = s[0] * s[3] - s[1] * s[2];
+        let (dx, dy) = (x[0] - m[0], x[1] - m[1]);
+        let q = (s[3] * dx * dx - 2.0 * s[1] * dx * dy + s[0] * dy * dy) / det;
+        (-0.5 * q).exp() / (2.0 * PI * det.sqrt())
+    };
+    let mass = grid.integrate(density);
+    assert!((mass - 1.0).abs() < 1e-10, "mass {mass}");
+    let mean_x = grid.integrate(|x| x[0] * density(x));
+    let cov_xy = grid.integrate(|x| (x[0] - m[0]) * (x[1] - m[1]) * density(x));
+    let fourth = grid.integrate(|x| (x[0] - m[0]).powi(4) * density(x));
+    assert!((mean_x - m[0]).abs() < 1e-10, "{mean_x}");
+    assert!((cov_xy - s[1]).abs() < 1e-10, "{cov_xy} vs {}", s[1]);
+    assert!((fourth - 3.0 * s[0] * s[0]).abs() < 1e-8, "{fourth}");
+    // The same Gaussian as the exponential family of degree 2 (x, y, x², xy, y²) on the grid.
+    let p = [s[3], -s[1], s[0]].map(|v| v / (s[0] * s[3] - s[1] * s[2]));
+    let lambda = [p[0] * m[0] + p[1] * m[1], p[1] * m[0] + p[2] * m[1], -0.5 * p[0], -p[1], -0.5 * p[2]];
+    let family = Exponential::polynomial(grid, Reference::Lebesgue, 2).unwrap();
+    let mu = family.mean(&lambda).unwrap();
+    let expected = [m[0], m[1], s[0] + m[0] * m[0], s[1] + m[0] * m[1], s[3] + m[1] * m[1]];
+    for (a, b) in mu.iter().zip(expected) {
+        assert!((a - b).abs() < 1e-10, "{a} vs {b}");
+    }
+    // 3-D: the unit Gaussian's second moments on a shifted, sheared frame.
+    let l3 = [1.0, 0.0, 0.0, 0.2, 0.9, 0.0, -0.1, 0.3, 1.1];
+    let grid3 = frame_grid(&[0.1, 0.2, -0.1], &l3, 8.0, 5, 8).unwrap();
+    let phi = |x: &[f64]| (-0.5 * x.iter().map(|v| v * v).sum::<f64>()).exp() / (2.0 * PI).powf(1.5);
+    assert!((grid3.integrate(phi) - 1.0).abs() < 1e-7);
+    assert!((grid3.integrate(|x| x[2] * x[2] * phi(x)) - 1.0).abs() < 1e-7);
+    assert!(frame_grid(&[0.0], &[-1.0], 6.0, 2, 8).is_err());
 }

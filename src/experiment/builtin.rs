@@ -13,6 +13,7 @@ pub const BUILTIN: &[(&str, &str)] = &[
     ("double-well-jumps", include_str!("../../experiments/double-well-jumps.toml")),
     ("lorenz63-smoothing", include_str!("../../experiments/lorenz63-smoothing.toml")),
     ("lorenz96-smoothing", include_str!("../../experiments/lorenz96-smoothing.toml")),
+    ("closures-2d", include_str!("../../experiments/closures-2d.toml")),
 ];
 
 /// The TOML text of the built-in experiment `name`; [`Error::UnknownName`] (kind

@@ -50,6 +50,7 @@ pub const MODEL_FILES: &[(&str, &str)] = &[
     ("duffing", include_str!("../../examples/models/duffing.toml")),
     ("holmes-rand", include_str!("../../examples/models/holmes-rand.toml")),
     ("double-well", include_str!("../../examples/models/double-well.toml")),
+    ("double-well-2d", include_str!("../../examples/models/double-well-2d.toml")),
     ("lorenz63", include_str!("../../examples/models/lorenz63.toml")),
     ("lorenz96", include_str!("../../examples/models/lorenz96.toml")),
     ("pendulum", include_str!("../../examples/models/pendulum.toml")),

@@ -23,7 +23,7 @@ pub mod sweep;
 
 pub use drift::{
     ClosureDrift, ExponentialDrift, ExponentialFamily, FamilyMoments, GaussianDrift, GaussianFamily,
-    Unrealizable,
+    NodeRule, Unrealizable,
 };
 pub use sweep::{ClosureAction, SweepTolerances};
 

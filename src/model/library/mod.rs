@@ -14,10 +14,12 @@
 //! | `duffing` | [`Duffing`] | `000_74b95e149527c64e.txt` Sec. 4.1.1, (4.2), Table 4.1 |
 //! | `holmes-rand` | [`HolmesRand`] | `000_74b95e149527c64e.txt` Sec. 4.1.3, (4.8), Table 4.3 |
 //! | `double-well` | [`DoubleWell`] | `003_d2fc48a470e528fc.txt (0.1)` notation (our defaults) |
+//! | `double-well-2d` | [`DoubleWell2d`] | `003_d2fc48a470e528fc.txt (0.1)` notation, two states (our defaults) |
 //! | `lorenz63` | [`Lorenz63`] | Lorenz (1963) drift (our noise defaults) |
 //! | `lorenz96` | [`Lorenz96`] | Lorenz (1996) drift, 10 states (our noise defaults) |
 
 mod double_well;
+mod double_well_2d;
 mod duffing;
 mod holmes_rand;
 mod lorenz63;
@@ -30,6 +32,7 @@ mod van_der_pol;
 mod tests;
 
 pub use double_well::DoubleWell;
+pub use double_well_2d::DoubleWell2d;
 pub use duffing::Duffing;
 pub use holmes_rand::HolmesRand;
 pub use lorenz63::Lorenz63;
@@ -54,8 +57,17 @@ fn names(list: &[&str]) -> Vec<String> {
 }
 
 /// The names [`preset`] accepts, in the order of the table in the module documentation.
-pub const NAMES: &[&str] =
-    &["ou", "tanh", "van-der-pol", "duffing", "holmes-rand", "double-well", "lorenz63", "lorenz96"];
+pub const NAMES: &[&str] = &[
+    "ou",
+    "tanh",
+    "van-der-pol",
+    "duffing",
+    "holmes-rand",
+    "double-well",
+    "double-well-2d",
+    "lorenz63",
+    "lorenz96",
+];
 
 /// A model chosen at run time: one of the built-in models, or a model read from a file
 /// ([`ExpressionModel`], [`Preset::from_path`]). Implements [`Sde`] by delegating to the model
@@ -74,6 +86,8 @@ pub enum Model {
     HolmesRand(HolmesRand),
     /// [`DoubleWell`], `double-well`.
     DoubleWell(DoubleWell),
+    /// [`DoubleWell2d`], `double-well-2d`.
+    DoubleWell2d(DoubleWell2d),
     /// [`Lorenz63`], `lorenz63`.
     Lorenz63(Lorenz63),
     /// [`Lorenz96`], `lorenz96`.
@@ -92,6 +106,7 @@ macro_rules! delegate {
             Model::Duffing($m) => $body,
             Model::HolmesRand($m) => $body,
             Model::DoubleWell($m) => $body,
+            Model::DoubleWell2d($m) => $body,
             Model::Lorenz63($m) => $body,
             Model::Lorenz96($m) => $body,
             Model::Expression($m) => $body,
@@ -109,6 +124,7 @@ impl Model {
             Model::Duffing(_) => "duffing",
             Model::HolmesRand(_) => "holmes-rand",
             Model::DoubleWell(_) => "double-well",
+            Model::DoubleWell2d(_) => "double-well-2d",
             Model::Lorenz63(_) => "lorenz63",
             Model::Lorenz96(_) => "lorenz96",
             Model::Expression(_) => return None,
@@ -219,7 +235,7 @@ impl Preset {
     /// For a bistable model, the barrier between the wells of its first state (0 for the double
     /// well, whose drift 4x − 4x³ has stable points ±1); `None` otherwise.
     pub fn well_barrier(&self) -> Option<f64> {
-        (self.name == "double-well").then_some(0.0)
+        (self.name == "double-well" || self.name == "double-well-2d").then_some(0.0)
     }
 
     /// The model's dimensions.
@@ -425,6 +441,9 @@ fn gaussian_of(state: usize, sigma: Param) -> StateMeasurement {
 /// - `double-well` — [`DoubleWell`], D = 0.5, x0 ~ N(−1, 0.2²) (the left well),
 ///   y ~ N(x, 0.4²) every 0.5 from t = 0 to 20, simulation step 0.005. Our choice: 003 gives
 ///   the notation (`003_d2fc48a470e528fc.txt (0.1)`) but no numerical example.
+/// - `double-well-2d` — [`DoubleWell2d`], D = 0.5, x0 ~ N(−1, 0.2²), v0 ~ N(−1, 0.2²) (the
+///   left well, v at rest), x measured as y ~ N(x, 0.5²) every 1 from t = 0 to 10, simulation
+///   step 0.005. Our choice, for the two-state closures against the exact two-dimensional grid.
 /// - `lorenz63` — [`Lorenz63`], s = 10, r = 28, b = 8/3 (Lorenz 1963), σ_w = 1,
 ///   x0 ~ N((1, 1, 1), I), all three states measured as y1, y2, y3 ~ N(x_i, 1) every 0.1 from
 ///   t = 0 to 10, simulation step 0.001. Noise levels, initial prior and sampling are our
@@ -562,6 +581,7 @@ pub fn preset(name: &str) -> Result<Preset> {
             first_sample: 0.0,
             sample_every: 0.5,
         },
+        "double-well-2d" => double_well_2d_preset(),
         "lorenz63" => Preset {
             name: "lorenz63".into(),
             description: "Lorenz-63 system with additive noise sigma_w I, all three states measured".into(),
@@ -586,6 +606,29 @@ pub fn preset(name: &str) -> Result<Preset> {
         _ => return Err(unknown()),
     };
     Ok(p)
+}
+
+/// The `double-well-2d` preset of [`preset`]: [`DoubleWell2d`], x measured.
+fn double_well_2d_preset() -> Preset {
+    Preset {
+        name: "double-well-2d".into(),
+        description:
+            "two-state double well dX = (4X - 4X^3) dt + sqrt(2D) dW1, dV = (X - V) dt + sqrt(2D) dW2, \
+                      Gaussian measurements of x"
+                .into(),
+        source: "notation of 003_d2fc48a470e528fc.txt (0.1); defaults are our choice".into(),
+        model: Model::DoubleWell2d(DoubleWell2d),
+        theta: DoubleWell2d::NOMINAL.to_vec(),
+        theta_prior: vec![positive()],
+        estimate: vec![false],
+        x0_prior: vec![normal(-1.0, 0.2), normal(-1.0, 0.2)],
+        z0_prior: vec![],
+        observation: gaussian_of(0, Param::Fixed(0.5)),
+        t_end: 10.0,
+        dt: 0.005,
+        first_sample: 0.0,
+        sample_every: 1.0,
+    }
 }
 
 /// The `lorenz96` preset of [`preset`]: [`Lorenz96`] with 10 states, every state measured.

@@ -277,6 +277,8 @@ fn divergence_closed_form(p: &Preset, x: &[f64], z: &[f64], th: &[f64]) -> f64 {
         Model::HolmesRand(_) => -(th[HolmesRand::A] + th[HolmesRand::GAMMA] * z[0] * z[0]),
         // f = 4x − 4x³: f' = 4 − 12x².
         Model::DoubleWell(_) => 4.0 - 12.0 * x[0] * x[0],
+        // f = (4x − 4x³, x − v): (4 − 12x²) + (−1).
+        Model::DoubleWell2d(_) => 3.0 - 12.0 * x[0] * x[0],
         // Lorenz: −s − 1 − b.
         Model::Lorenz63(_) => -(th[Lorenz63::SIGMA] + 1.0 + th[Lorenz63::BETA]),
         // Lorenz-96: ∂f_i/∂x_i = −1.

@@ -1,7 +1,7 @@
 //! The exponential-family closure drift on the fixed nodes of an [`Exponential`] family
 //! ([`ExponentialDrift`]).
 
-use onsager_closures::{cholesky_into, cholesky_solve_in_place, dot, Exponential, TrialFamily};
+use onsager_closures::{cholesky_into, cholesky_solve_in_place, dot, frame_grid, Exponential, TrialFamily};
 
 use super::{diffusion_matrix, unrealizable, ClosureDrift, FamilyMoments, Unrealizable};
 use onsager_closures::LegendreOptions;
@@ -30,23 +30,70 @@ use crate::{Error, Result};
 pub struct ExponentialDrift<'a, S: Sde + ?Sized> {
     sde: &'a S,
     theta: Vec<f64>,
-    family: Exponential,
     diffusion: Vec<f64>,
-    /// The hot loops run over the nodes with one contiguous row per moment ("moment-major"):
-    /// M_a(x_k) at row a is the family's [`Exponential::moment_table_by_moment`], and
-    /// ∂M_a/∂x_i(x_k) at row a·dim + i.
-    jac: Vec<f64>,
-    /// D : ∇∇M_a(x_k) at row a.
-    second: Vec<f64>,
+    /// The nodes, the family on them and the node tables; replaced when nodes that follow the
+    /// density move.
+    nodes: std::cell::RefCell<Nodes>,
+    /// How the nodes follow the density, if they do.
+    follow: Option<DensityNodes>,
+    n_moments: usize,
     linear: Vec<Option<usize>>,
     square: Vec<Option<usize>>,
     /// The buffers of one evaluation, reused (the drift is evaluated at every Runge–Kutta stage).
     work: std::cell::RefCell<ExpWork>,
 }
 
+/// The nodes of an [`ExponentialDrift`]: the family on them and its node tables. The hot loops
+/// run over the nodes with one contiguous row per moment ("moment-major"): M_a(x_k) at row a is
+/// the family's [`Exponential::moment_table_by_moment`], ∂M_a/∂x_i(x_k) at row a·dim + i of
+/// `jac`, and D : ∇∇M_a(x_k) at row a of `second`.
+#[derive(Clone)]
+struct Nodes {
+    family: Exponential,
+    jac: Vec<f64>,
+    second: Vec<f64>,
+    /// The frame x = m + Lξ of nodes that follow the density; `None` for a fixed box.
+    frame: Option<Frame>,
+}
+
+/// A frame of nodes that follow the density: centre m, lower-triangular L (row-major), the
+/// half-width c of the box in ξ and, per node, whether it lies on the box's boundary (its
+/// outermost points on some axis).
+#[derive(Debug, Clone)]
+struct Frame {
+    mean: Vec<f64>,
+    chol: Vec<f64>,
+    width: f64,
+    edge: Vec<bool>,
+}
+
+/// Nodes that follow the density (`nodes = density`): a tensor grid of `panels` × 8
+/// Gauss–Legendre points per axis on ±`width` standard deviations of a frame m + Lξ
+/// ([`onsager_closures::frame_grid`]), refined to `tolerance`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct DensityNodes {
+    pub(crate) degree: u32,
+    pub(crate) panels: usize,
+    pub(crate) width: f64,
+    pub(crate) tolerance: f64,
+}
+
+/// Gauss–Legendre points per panel of the node grids.
+const POINTS_PER_PANEL: usize = 8;
+/// The most panels per axis the refinement of nodes that follow the density may reach.
+const MAX_DENSITY_PANELS: usize = 32;
+/// The widest box, in standard deviations of the frame, the nodes may widen to.
+const MAX_DENSITY_WIDTH: f64 = 24.0;
+/// The frame is moved when the density's mean has moved this many frame standard deviations,
+/// or its covariance in frame coordinates differs from I by this much in some entry.
+const FRAME_DRIFT: f64 = 0.5;
+
 impl<S: Sde + ?Sized> std::fmt::Debug for ExponentialDrift<'_, S> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ExponentialDrift").field("family", &self.family).finish()
+        f.debug_struct("ExponentialDrift")
+            .field("family", &self.nodes.borrow().family)
+            .field("follow", &self.follow)
+            .finish()
     }
 }
 
@@ -55,6 +102,29 @@ impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
     /// states and whose moment functions must have derivatives). Errors:
     /// [`Error::InvalidOption`] for a dimension mismatch or missing derivatives; a singular G.
     pub fn try_new(sde: &'a S, theta: &[f64], family: Exponential) -> Result<Self> {
+        Self::with_nodes(sde, theta, family, None, None)
+    }
+
+    /// The closure of `sde` at θ with nodes that follow the density: `family` must be on the
+    /// [`frame_grid`] of `frame` = (m, L) with `follow`'s width and panels (as built by
+    /// [`density_family`]). Errors: those of [`ExponentialDrift::try_new`].
+    pub(crate) fn following(
+        sde: &'a S,
+        theta: &[f64],
+        family: Exponential,
+        frame: (Vec<f64>, Vec<f64>),
+        follow: DensityNodes,
+    ) -> Result<Self> {
+        Self::with_nodes(sde, theta, family, Some(frame), Some(follow))
+    }
+
+    fn with_nodes(
+        sde: &'a S,
+        theta: &[f64],
+        family: Exponential,
+        frame: Option<(Vec<f64>, Vec<f64>)>,
+        follow: Option<DensityNodes>,
+    ) -> Result<Self> {
         let n = sde.dims().states();
         if family.dim() != n {
             return Err(Error::InvalidOption {
@@ -67,20 +137,8 @@ impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
         }
         let diffusion = diffusion_matrix(sde, theta)?;
         let r = family.n_moments();
-        let nodes = family.grid().len();
-        let mut jac = vec![0.0; nodes * r * n];
-        let mut second = vec![0.0; nodes * r];
-        let mut h = vec![0.0; r * n * n];
-        let grid = family.grid().clone();
-        for (k, (x, _)) in grid.iter().enumerate() {
-            family.moment_derivatives(x, &mut jac[k * r * n..(k + 1) * r * n], &mut h).map_err(|e| {
-                Error::InvalidOption { name: "method".into(), reason: format!("exponential closure: {e}") }
-            })?;
-            for a in 0..r {
-                second[k * r + a] = (0..n * n).map(|ij| diffusion[ij] * h[a * n * n + ij]).sum::<f64>();
-            }
-        }
         // Find x_i and x_i² among the moments numerically on the nodes.
+        let grid = family.grid();
         let table = family.moment_table();
         let find = |g: &dyn Fn(&[f64]) -> f64| -> Option<usize> {
             (0..r).find(|&a| {
@@ -92,6 +150,157 @@ impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
         };
         let linear = (0..n).map(|i| find(&|x: &[f64]| x[i])).collect();
         let square = (0..n).map(|i| find(&|x: &[f64]| x[i] * x[i])).collect();
+        let frame = match (frame, follow) {
+            (Some((mean, chol)), Some(f)) => Some(Frame::new(mean, chol, f.width, f.panels, n)),
+            _ => None,
+        };
+        let nodes = Nodes::try_new(family, &diffusion, frame).map_err(|e| Error::InvalidOption {
+            name: "method".into(),
+            reason: format!("exponential closure: {}", e.0),
+        })?;
+        Ok(ExponentialDrift {
+            sde,
+            theta: theta.to_vec(),
+            diffusion,
+            nodes: std::cell::RefCell::new(nodes),
+            follow,
+            n_moments: r,
+            linear,
+            square,
+            work: Default::default(),
+        })
+    }
+
+    /// The family on the current nodes (for nodes that follow the density, those of the last
+    /// evaluation).
+    pub fn family(&self) -> Exponential {
+        self.nodes.borrow().family.clone()
+    }
+
+    /// The diffusion D = ½GGᵀ of the full state (row-major).
+    pub fn diffusion(&self) -> &[f64] {
+        &self.diffusion
+    }
+}
+
+impl Frame {
+    /// The frame (m, L) with box half-width `width` and `panels` per axis in `n` dimensions;
+    /// the node order is that of [`frame_grid`] (the last axis fastest).
+    fn new(mean: Vec<f64>, chol: Vec<f64>, width: f64, panels: usize, n: usize) -> Frame {
+        let per_axis = panels * POINTS_PER_PANEL;
+        let total = per_axis.pow(n as u32);
+        let edge = (0..total)
+            .map(|mut k| {
+                (0..n).any(|_| {
+                    let i = k % per_axis;
+                    k /= per_axis;
+                    i == 0 || i + 1 == per_axis
+                })
+            })
+            .collect();
+        Frame { mean, chol, width, edge }
+    }
+
+    /// Whether a density of mean `mean` and covariance `cov` has left the frame: its mean
+    /// more than [`FRAME_DRIFT`] frame standard deviations from the centre, or its covariance
+    /// in frame coordinates, L⁻¹ cov L⁻ᵀ, more than that from I in some entry.
+    fn moved(&self, mean: &[f64], cov: &[f64]) -> bool {
+        let n = mean.len();
+        let mut z: Vec<f64> = mean.iter().zip(&self.mean).map(|(a, b)| a - b).collect();
+        lower_solve(&self.chol, n, &mut z);
+        if z.iter().any(|v| v.abs() > FRAME_DRIFT) {
+            return true;
+        }
+        // B = L⁻¹ cov (column by column, row-major), then column j of S = L⁻¹ cov L⁻ᵀ is
+        // L⁻¹ times row j of B.
+        let mut b = vec![0.0; n * n];
+        let mut col = vec![0.0; n];
+        for j in 0..n {
+            (0..n).for_each(|i| col[i] = cov[i * n + j]);
+            lower_solve(&self.chol, n, &mut col);
+            (0..n).for_each(|i| b[i * n + j] = col[i]);
+        }
+        for j in 0..n {
+            col.copy_from_slice(&b[j * n..(j + 1) * n]);
+            lower_solve(&self.chol, n, &mut col);
+            for (i, &v) in col.iter().enumerate() {
+                let identity = if i == j { 1.0 } else { 0.0 };
+                if (v - identity).abs() > FRAME_DRIFT || !v.is_finite() {
+                    return true;
+                }
+            }
+        }
+        false
+    }
+}
+
+/// x = L⁻¹x in place, L lower triangular (row-major n × n).
+fn lower_solve(l: &[f64], n: usize, x: &mut [f64]) {
+    for i in 0..n {
+        let s: f64 = (0..i).map(|j| l[i * n + j] * x[j]).sum();
+        x[i] = (x[i] - s) / l[i * n + i];
+    }
+}
+
+/// The mean and covariance (row-major) of the state under node probabilities `p` at `points`.
+fn state_moments(points: &[f64], p: &[f64], n: usize) -> (Vec<f64>, Vec<f64>) {
+    let mut mean = vec![0.0; n];
+    for (x, &pk) in points.chunks_exact(n).zip(p) {
+        mean.iter_mut().zip(x).for_each(|(m, &v)| *m += pk * v);
+    }
+    let mut cov = vec![0.0; n * n];
+    for (x, &pk) in points.chunks_exact(n).zip(p) {
+        for i in 0..n {
+            for j in 0..=i {
+                cov[i * n + j] += pk * (x[i] - mean[i]) * (x[j] - mean[j]);
+            }
+        }
+    }
+    for i in 0..n {
+        for j in 0..i {
+            cov[j * n + i] = cov[i * n + j];
+        }
+    }
+    (mean, cov)
+}
+
+/// The polynomial family of total degree `degree` on the [`frame_grid`] of (m, L) with
+/// `panels` × 8 Gauss–Legendre points per axis on ±`width`.
+pub(crate) fn density_family(
+    mean: &[f64],
+    chol: &[f64],
+    width: f64,
+    panels: usize,
+    degree: u32,
+) -> std::result::Result<Exponential, onsager_closures::Error> {
+    let grid = frame_grid(mean, chol, width, panels, POINTS_PER_PANEL)?;
+    Exponential::polynomial(grid, onsager_closures::Reference::Lebesgue, degree)
+}
+
+impl Nodes {
+    /// The node tables of `family` for the diffusion D (row-major n × n).
+    fn try_new(
+        family: Exponential,
+        diffusion: &[f64],
+        frame: Option<Frame>,
+    ) -> std::result::Result<Nodes, Unrealizable> {
+        let n = family.dim();
+        let r = family.n_moments();
+        let nodes = family.grid().len();
+        if frame.as_ref().is_some_and(|f| f.edge.len() != nodes) {
+            return Err(Unrealizable("the frame and the family have different nodes".into()));
+        }
+        let mut jac = vec![0.0; nodes * r * n];
+        let mut second = vec![0.0; nodes * r];
+        let mut h = vec![0.0; r * n * n];
+        for (k, (x, _)) in family.grid().iter().enumerate() {
+            family
+                .moment_derivatives(x, &mut jac[k * r * n..(k + 1) * r * n], &mut h)
+                .map_err(unrealizable)?;
+            for a in 0..r {
+                second[k * r + a] = (0..n * n).map(|ij| diffusion[ij] * h[a * n * n + ij]).sum::<f64>();
+            }
+        }
         // Node-major → moment-major.
         let transpose = |m: &[f64], rows: usize| -> Vec<f64> {
             let mut out = vec![0.0; m.len()];
@@ -103,27 +312,89 @@ impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
             out
         };
         let (jac, second) = (transpose(&jac, r * n), transpose(&second, r));
-        Ok(ExponentialDrift {
-            sde,
-            theta: theta.to_vec(),
-            family,
-            diffusion,
-            jac,
-            second,
-            linear,
-            square,
-            work: Default::default(),
-        })
+        Ok(Nodes { family, jac, second, frame })
+    }
+}
+
+impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
+    /// Moves nodes that follow the density to the density at λ, if it has left their frame
+    /// ([`Frame::moved`]: the new box has the `width` of the options) or reaches the box's
+    /// boundary (its density there above `tolerance` times its peak: the box widens by half).
+    /// The new frame is centred at the density's mean m with L the Cholesky factor of its
+    /// covariance, both from the old nodes,
+    /// and its panels are refined ([`ExponentialDrift::refined`]); then the test repeats on the
+    /// new nodes, at most 8 times. Within a frame W, ∂W/∂λ and ∇²(κᵀW) are exact derivatives
+    /// of one another; across a move they agree to the node rule's tolerance.
+    fn follow_density(&self, lambda: &[f64], work: &mut ExpWork) -> std::result::Result<(), Unrealizable> {
+        let Some(opts) = self.follow else { return Ok(()) };
+        let mut nodes = self.nodes.borrow_mut();
+        let n = nodes.family.dim();
+        for _ in 0..8 {
+            let frame = nodes.frame.as_ref().ok_or_else(|| Unrealizable("no frame for the nodes".into()))?;
+            let ExpWork { s, p_all, .. } = work;
+            nodes.family.node_probabilities_into(lambda, s, p_all).map_err(unrealizable)?;
+            let (mean, cov) = state_moments(nodes.family.grid().points(), p_all, n);
+            // log p at the nodes = s_k − log w_k (Lebesgue reference).
+            let (mut peak, mut edge) = (f64::NEG_INFINITY, f64::NEG_INFINITY);
+            for ((&sk, &wk), &e) in s.iter().zip(nodes.family.grid().weights()).zip(&frame.edge) {
+                let v = sk - wk.ln();
+                peak = peak.max(v);
+                if e {
+                    edge = edge.max(v);
+                }
+            }
+            let cut = edge - peak > opts.tolerance.ln();
+            let moved = frame.moved(&mean, &cov);
+            if !cut && !moved {
+                return Ok(());
+            }
+            let width = if moved { opts.width } else { frame.width * 1.5 };
+            if width > MAX_DENSITY_WIDTH {
+                return Err(Unrealizable(format!(
+                    "the density reaches the boundary of its nodes at ±{MAX_DENSITY_WIDTH} standard deviations"
+                )));
+            }
+            let chol = onsager_closures::cholesky(&cov, n)
+                .map_err(|_| Unrealizable("the density's covariance is not positive definite".into()))?;
+            let (family, panels) = self.refined(lambda, &mean, &chol, width, opts)?;
+            *nodes = Nodes::try_new(family, &self.diffusion, Some(Frame::new(mean, chol, width, panels, n)))?;
+        }
+        Err(Unrealizable("the nodes that follow the density did not settle in 8 moves".into()))
     }
 
-    /// The family.
-    pub fn family(&self) -> &Exponential {
-        &self.family
-    }
-
-    /// The diffusion D = ½GGᵀ of the full state (row-major).
-    pub fn diffusion(&self) -> &[f64] {
-        &self.diffusion
+    /// The family on the frame (m, L, width) with the fewest panels P (from `opts.panels`,
+    /// scaled with the width, doubling) whose moments agree with those on 2P panels to
+    /// `opts.tolerance` times their standard deviations: max_a |μ_a(P) − μ_a(2P)|/√C_aa.
+    fn refined(
+        &self,
+        lambda: &[f64],
+        mean: &[f64],
+        chol: &[f64],
+        width: f64,
+        opts: DensityNodes,
+    ) -> std::result::Result<(Exponential, usize), Unrealizable> {
+        let degree = opts.degree;
+        let mut panels = ((opts.panels as f64) * width / opts.width).ceil() as usize;
+        let family = |p: usize| density_family(mean, chol, width, p, degree).map_err(unrealizable);
+        let mut coarse = family(panels)?;
+        while 2 * panels <= MAX_DENSITY_PANELS {
+            let fine = family(2 * panels)?;
+            let c = coarse.cumulants(lambda).map_err(unrealizable)?;
+            let mu = fine.mean(lambda).map_err(unrealizable)?;
+            let r = mu.len();
+            let err = (0..r)
+                .map(|a| (c.mean[a] - mu[a]).abs() / c.covariance[a * r + a].max(f64::MIN_POSITIVE).sqrt())
+                .fold(0.0, f64::max);
+            if err <= opts.tolerance {
+                return Ok((coarse, panels));
+            }
+            panels *= 2;
+            coarse = fine;
+        }
+        Err(Unrealizable(format!(
+            "the nodes that follow the density do not reach the tolerance {} with {MAX_DENSITY_PANELS} panels per axis",
+            opts.tolerance
+        )))
     }
 }
 
@@ -202,10 +473,13 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
     /// ([`onsager_closures::NEGLIGIBLE_LOG_WEIGHT`]), so W, ∂W/∂λ and ∇²(κᵀW) remain the
     /// exact derivatives of one another.
     fn zeroth(&self, t: f64, lambda: &[f64], work: &mut ExpWork) -> std::result::Result<(), Unrealizable> {
-        let n = self.family.dim();
-        let r = self.family.n_moments();
+        self.follow_density(lambda, work)?;
+        let held = self.nodes.borrow();
+        let family = &held.family;
+        let n = family.dim();
+        let r = family.n_moments();
         let ExpWork { z, s, fs, f, cov, p_all, .. } = work;
-        self.family.node_probabilities_into(lambda, s, p_all).map_err(unrealizable)?;
+        family.node_probabilities_into(lambda, s, p_all).map_err(unrealizable)?;
         let all = p_all.len();
         let lo = p_all.iter().position(|&pk| pk > 0.0).unwrap_or(0);
         let hi = p_all.iter().rposition(|&pk| pk > 0.0).map_or(all, |k| k + 1);
@@ -220,7 +494,7 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
         fs.resize(n * nodes, 0.0);
         f.clear();
         f.resize(n, 0.0);
-        let points = &self.family.grid().points()[lo * n..hi * n];
+        let points = &family.grid().points()[lo * n..hi * n];
         for (k, &pk) in p.iter().enumerate() {
             if pk != 0.0 {
                 self.sde.state_drift(t, &points[k * n..(k + 1) * n], &self.theta, f);
@@ -229,7 +503,7 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
                 }
             }
         }
-        let table = self.family.moment_table_by_moment();
+        let table = family.moment_table_by_moment();
         let massless = p.contains(&0.0);
         let (d, pd, g, v) = (&mut z.d, &mut z.pd, &mut z.g, &mut z.v);
         d.clear();
@@ -243,10 +517,10 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
             let mu = dot(p, ma);
             d.extend(ma.iter().map(|&mk| mk - mu));
             pd.extend(p.iter().zip(&d[row.clone()]).map(|(&pk, &dk)| pk * dk));
-            g.extend_from_slice(&self.second[active(a)]);
+            g.extend_from_slice(&held.second[active(a)]);
             let ga = &mut g[row];
             for i in 0..n {
-                let ji = &self.jac[active(a * n + i)];
+                let ji = &held.jac[active(a * n + i)];
                 let fi = &fs[i * nodes..(i + 1) * nodes];
                 for ((gk, &jk), &fk) in ga.iter_mut().zip(ji).zip(fi) {
                     *gk += jk * fk;
@@ -347,7 +621,7 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
     /// ∇²(κᵀW) of [`ClosureDrift::w_second`] into `hess`, from the node values of `work.z` and
     /// J = ∂W/∂λ.
     fn hessian_of(&self, work: &mut ExpWork, kappa: &[f64], jac: &[f64], hess: &mut [f64]) {
-        let r = self.family.n_moments();
+        let r = self.n_moments;
         let ExpWork { z, nodes: [ud, wd, ug, psi, tu], u, tm, tj, f: sd, .. } = work;
         u.clear();
         u.extend_from_slice(kappa);
@@ -381,11 +655,11 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
 
 impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
     fn n_params(&self) -> usize {
-        self.family.n_moments()
+        self.n_moments
     }
 
     fn state_dim(&self) -> usize {
-        self.family.dim()
+        self.linear.len()
     }
 
     fn w(&self, t: f64, lambda: &[f64], out: &mut [f64]) -> std::result::Result<(), Unrealizable> {
@@ -452,7 +726,8 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
     }
 
     fn moments(&self, lambda: &[f64]) -> std::result::Result<FamilyMoments, Unrealizable> {
-        let c = self.family.cumulants(lambda).map_err(unrealizable)?;
+        self.follow_density(lambda, &mut self.work.borrow_mut())?;
+        let c = self.nodes.borrow().family.cumulants(lambda).map_err(unrealizable)?;
         Ok(FamilyMoments { log_partition: c.log_partition, mean: c.mean, covariance: c.covariance })
     }
 
@@ -478,15 +753,50 @@ pub struct ExponentialFamily {
     /// widened by half its width plus 1 on each side. Set it for a state that is not measured
     /// and whose range the prior does not cover.
     pub domain: Vec<(f64, f64)>,
-    /// Panels × 8 Gauss–Legendre points per dimension of the grid. Default 12 (96 nodes in 1-D;
-    /// the double-well estimates of `benches/closure.rs` agree with 24 panels to 1e-5); in 2-D
-    /// half as many per dimension (6 × 8 = 48, 2304 nodes).
+    /// Panels × 8 Gauss–Legendre points per dimension of the fixed box (`nodes = box`). Default
+    /// 12 (96 nodes in 1-D; the double-well estimates of `benches/closure.rs` agree with 24
+    /// panels to 1e-5); in 2-D half as many per dimension (6 × 8 = 48, 2304 nodes).
     pub panels: usize,
+    /// Where the nodes are: on a fixed box (`box`, the default, with `domain` and `panels`), or
+    /// on a grid that follows the density (`density`, with `density_panels`, `density_width`
+    /// and `density_tolerance`).
+    pub nodes: NodeRule,
+    /// Nodes that follow the density: the panels × 8 Gauss–Legendre points per axis the
+    /// refinement starts from. Default 3 (24 per axis, 576 nodes in 2-D).
+    pub density_panels: usize,
+    /// Nodes that follow the density: the half-width of their box in standard deviations of the
+    /// density. Default 6; the box widens by half wherever the density at its boundary is above
+    /// `density_tolerance` times its peak.
+    pub density_width: f64,
+    /// Nodes that follow the density: the panels double until the moments on P and 2P panels
+    /// agree to this many of their standard deviations. Default 1e-4.
+    pub density_tolerance: f64,
+}
+
+/// Where the nodes of the exponential closure are (option `nodes`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+#[non_exhaustive]
+pub enum NodeRule {
+    /// A fixed box of Gauss–Legendre panels (`domain`, `panels`).
+    #[default]
+    Box,
+    /// A grid centred and scaled by the density's mean and covariance, moved with it and
+    /// refined to `density_tolerance` (`density_panels`, `density_width`).
+    Density,
 }
 
 impl Default for ExponentialFamily {
     fn default() -> Self {
-        ExponentialFamily { moments: 4, domain: Vec::new(), panels: 12 }
+        ExponentialFamily {
+            moments: 4,
+            domain: Vec::new(),
+            panels: 12,
+            nodes: NodeRule::Box,
+            density_panels: 3,
+            density_width: 6.0,
+            density_tolerance: 1e-4,
+        }
     }
 }
 
@@ -507,6 +817,23 @@ impl ExponentialFamily {
         self.panels = panels;
         self
     }
+
+    /// Sets where the nodes are.
+    pub fn with_nodes(mut self, nodes: NodeRule) -> Self {
+        self.nodes = nodes;
+        self
+    }
+
+    /// Sets the tolerance of the nodes that follow the density.
+    pub fn with_density_tolerance(mut self, tolerance: f64) -> Self {
+        self.density_tolerance = tolerance;
+        self
+    }
+
+    /// Whether the nodes follow the density.
+    fn follows_density(&self) -> bool {
+        self.nodes == NodeRule::Density
+    }
 }
 
 impl ClosureFamily for ExponentialFamily {
@@ -526,6 +853,24 @@ impl ClosureFamily for ExponentialFamily {
         }
         if self.panels == 0 {
             return Err(Error::invalid("panels", "must be at least 1, got 0"));
+        }
+        if self.density_panels == 0 || self.density_panels > MAX_DENSITY_PANELS / 2 {
+            return Err(Error::invalid(
+                "density_panels",
+                format!("must be 1 to {}, got {}", MAX_DENSITY_PANELS / 2, self.density_panels),
+            ));
+        }
+        if !(self.density_width.is_finite() && (2.0..=MAX_DENSITY_WIDTH).contains(&self.density_width)) {
+            return Err(Error::invalid(
+                "density_width",
+                format!("must be 2 to {MAX_DENSITY_WIDTH} standard deviations, got {}", self.density_width),
+            ));
+        }
+        if !(self.density_tolerance > 0.0 && self.density_tolerance < 1.0) {
+            return Err(Error::invalid(
+                "density_tolerance",
+                format!("must be in (0, 1), got {}", self.density_tolerance),
+            ));
         }
         match self.domain.iter().find(|(a, b)| !(a.is_finite() && b.is_finite() && a < b)) {
             Some((a, b)) => Err(Error::invalid("domain", format!("need finite a < b, got [{a}, {b}]"))),
@@ -608,17 +953,36 @@ fn exponential_setup<'a, S: Sde + ?Sized>(
             .collect();
         domain.push(options.domain.get(i).copied().unwrap_or_else(|| default_domain(&values, m0, v0)));
     }
-    let panels = if n == 1 { options.panels } else { options.panels.div_ceil(2) };
-    let grid = onsager_closures::panel_grid(&domain, panels, 8)
-        .map_err(|e| Error::invalid("domain", e.to_string()))?;
-    let family =
-        Exponential::polynomial(grid, onsager_closures::Reference::Lebesgue, degree as u32).map_err(|e| {
-            let whence = if options.domain.is_empty() { " (the default, from the data's range)" } else { "" };
-            Error::invalid(
-                "domain",
-                format!("{domain:?}{whence} is too wide for moments of degree {degree} ({e}); give a narrower `domain` or rescale the data"),
-            )
-        })?;
+    let follow = options.follows_density().then_some(DensityNodes {
+        degree: degree as u32,
+        panels: options.density_panels,
+        width: options.density_width,
+        tolerance: options.density_tolerance,
+    });
+    // Nodes that follow the density start on the frame of the prior: its means and sds.
+    let frame_mean: Vec<f64> = moments.iter().map(|m| m.0).collect();
+    let mut frame_chol = vec![0.0; n * n];
+    (0..n).for_each(|i| frame_chol[i * n + i] = moments[i].1.sqrt());
+    let family = match follow {
+        Some(f) => density_family(&frame_mean, &frame_chol, f.width, f.panels, f.degree)
+            .map_err(|e| Error::invalid("density_width", e.to_string()))?,
+        None => {
+            let panels = if n == 1 { options.panels } else { options.panels.div_ceil(2) };
+            let grid = onsager_closures::panel_grid(&domain, panels, POINTS_PER_PANEL)
+                .map_err(|e| Error::invalid("domain", e.to_string()))?;
+            Exponential::polynomial(grid, onsager_closures::Reference::Lebesgue, degree as u32).map_err(|e| {
+                let whence =
+                    if options.domain.is_empty() { " (the default, from the data's range)" } else { "" };
+                Error::invalid(
+                    "domain",
+                    format!(
+                        "{domain:?}{whence} is too wide for moments of degree {degree} ({e}); give a narrower \
+                         `domain` or rescale the data"
+                    ),
+                )
+            })?
+        }
+    };
     // λ_0: the (independent) Gaussian prior is the member with m_i/v_i on x_i, −1/(2v_i) on
     // x_i² and 0 elsewhere; polished by the Legendre inverse of its moments on the grid (moment
     // matching, (II.39)).
@@ -639,7 +1003,12 @@ fn exponential_setup<'a, S: Sde + ?Sized>(
         .legendre(&mu0, &LegendreOptions::default().with_initial(guess.clone()))
         .map(|s| s.lambda)
         .unwrap_or(guess);
-    let drift = ExponentialDrift::try_new(problem.sde, problem.theta, family)?;
+    let drift = match follow {
+        Some(f) => {
+            ExponentialDrift::following(problem.sde, problem.theta, family, (frame_mean, frame_chol), f)?
+        }
+        None => ExponentialDrift::try_new(problem.sde, problem.theta, family)?,
+    };
     Ok((drift, lambda0))
 }
 
@@ -681,6 +1050,56 @@ mod tests {
         assert_w_is_c_inverse_v(&family, &lambda, &w);
         assert_eq!(dr.linear_index(0), Some(0));
         assert_eq!(dr.square_index(0), Some(1));
+    }
+
+    /// Nodes that follow the density: after an evaluation at a density far from the prior's
+    /// frame (a bimodal quartic density of the two-state double well), the frame has moved to
+    /// it, and W agrees with W on a fine fixed box to the node tolerance; at that λ (the frame
+    /// settled), ∂W/∂λ by the closed form equals central differences of W.
+    #[test]
+    fn exponential_drift_on_nodes_that_follow_the_density() {
+        use crate::model::library::DoubleWell2d;
+        let lambda = [
+            -1.43, -1.72, 2.92, 0.82, -1.15, 0.31, 0.18, 0.04, 0.0035, -1.67, -0.038, 0.0027, 0.0014,
+            0.000_12,
+        ];
+        let follow = DensityNodes { degree: 4, panels: 3, width: 6.0, tolerance: 1e-4 };
+        let chol = [0.2, 0.0, 0.0, 0.2];
+        let family = density_family(&[-1.0, -1.0], &chol, 6.0, 3, 4).unwrap();
+        let dr = ExponentialDrift::following(
+            &DoubleWell2d,
+            &[0.5],
+            family,
+            (vec![-1.0, -1.0], chol.to_vec()),
+            follow,
+        )
+        .unwrap();
+        let (mut w, mut jac) = ([0.0; 14], [0.0; 196]);
+        dr.w_jacobian(0.0, &lambda, &mut w, &mut jac).unwrap();
+        let moved = dr.nodes.borrow().frame.clone().unwrap();
+        // Within the frame drift (half a standard deviation, sd_x ≈ 0.49) of the density's mean.
+        assert!((moved.mean[0] + 0.788).abs() < 0.25, "frame centre {:?}", moved.mean);
+        let fixed = Exponential::polynomial(
+            onsager_closures::panel_grid(&[(-8.0, 8.0), (-8.0, 8.0)], 40, 8).unwrap(),
+            onsager_closures::Reference::Lebesgue,
+            4,
+        )
+        .unwrap();
+        let reference = ExponentialDrift::try_new(&DoubleWell2d, &[0.5], fixed).unwrap();
+        let mut w_ref = [0.0; 14];
+        reference.w(0.0, &lambda, &mut w_ref).unwrap();
+        let scale = w_ref.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        // The node tolerance 1e-4 bounds the moments' errors; W = C⁻¹V amplifies them to about
+        // 1e-3 of W's largest entry.
+        for (a, b) in w.iter().zip(&w_ref) {
+            assert!((a - b).abs() <= 5e-3 * scale, "{a} vs {b} (largest entry {scale})");
+        }
+        let fd = fd_jacobian(&dr, 0.0, &lambda);
+        assert_eq!(dr.nodes.borrow().frame.as_ref().unwrap().mean, moved.mean, "the frame stays");
+        let scale = jac.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        for (a, b) in jac.iter().zip(&fd) {
+            assert!((a - b).abs() <= 1e-6 * scale, "{a} vs {b} (largest entry {scale})");
+        }
     }
 
     /// A density concentrated on a small part of a wide grid (N(1, 0.2²) on [−6, 6], 512 nodes):

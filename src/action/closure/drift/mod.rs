@@ -24,7 +24,7 @@
 mod exponential;
 mod gaussian;
 
-pub use exponential::{ExponentialDrift, ExponentialFamily};
+pub use exponential::{ExponentialDrift, ExponentialFamily, NodeRule};
 pub use gaussian::{exact_gauss_hermite_points, gaussian_closure_rule, GaussianDrift, GaussianFamily};
 
 use crate::model::prior::{Prior, PriorDensity};
