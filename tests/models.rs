@@ -135,6 +135,7 @@ twin_tests! {
     duffing_file_equals_built_in => "duffing",
     holmes_rand_file_equals_built_in => "holmes-rand",
     double_well_file_equals_built_in => "double-well",
+    double_well_2d_file_equals_built_in => "double-well-2d",
     lorenz63_file_equals_built_in => "lorenz63",
     lorenz96_file_equals_built_in => "lorenz96",
 }
