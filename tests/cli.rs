@@ -1,18 +1,13 @@
 //! The command-line tool, run as a user would run it.
 
 use std::path::PathBuf;
-use std::process::Command;
 
 use onsager::data::{Dataset, StatePath};
 
-fn onsager() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_onsager"))
-}
+use crate::support::onsager;
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("onsager-cli-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    crate::support::scratch("cli", name)
 }
 
 #[test]

@@ -4,7 +4,7 @@
 //! that names the estimator, the option and what is allowed.
 
 use std::path::PathBuf;
-use std::process::{Command, Output};
+use std::process::Output;
 
 use onsager::compare::{compare, CompareOptions};
 use onsager::estimator::{parse_list, read_list, Estimator, Method};
@@ -13,14 +13,10 @@ use onsager::experiment::runner::simulate_replicate;
 use onsager::experiment::{replicate_seed, run, Experiment, RunOptions};
 use onsager::Error;
 
-fn onsager() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_onsager"))
-}
+use crate::support::onsager;
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("onsager-estimators-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    crate::support::scratch("estimators", name)
 }
 
 /// Simulated double-well data (9 measurements) and its truth in `dir`.

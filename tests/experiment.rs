@@ -10,9 +10,7 @@ use onsager::experiment::report::parse_results;
 use onsager::experiment::{builtin, run, Experiment, RunOptions, BUILTIN};
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("onsager-experiment-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
+    crate::support::fresh_scratch("experiment", name)
 }
 
 fn options(out: &Path, quick: bool, jobs: usize) -> RunOptions {

@@ -12,4 +12,5 @@ mod limits;
 mod models;
 mod path;
 mod shard;
+mod support;
 mod trust;

@@ -5,8 +5,6 @@
 //! estimator, to round-off (the same status, and the same numbers whether or not the method
 //! converged). The command line takes `--model-file` and `models --check`.
 
-use std::process::Command;
-
 use onsager::estimator::Estimator;
 use onsager::model::library::{preset, Preset, NAMES};
 use onsager::model::observation::{Noise, Param};
@@ -140,9 +138,7 @@ twin_tests! {
     lorenz96_file_equals_built_in => "lorenz96",
 }
 
-fn onsager() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_onsager"))
-}
+use crate::support::onsager;
 
 fn example(name: &str) -> String {
     format!("{}/examples/models/{name}.toml", env!("CARGO_MANIFEST_DIR"))

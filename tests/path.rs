@@ -118,9 +118,7 @@ fn joint_parameter_estimate_maximises_the_profile_merit() {
 }
 
 fn scratch(name: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("onsager-path-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    crate::support::scratch("path", name)
 }
 
 #[test]

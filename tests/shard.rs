@@ -16,9 +16,7 @@ use onsager::Error;
 use crate::experiment::row_set;
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("onsager-shard-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
+    crate::support::fresh_scratch("shard", name)
 }
 
 fn options(out: &Path, replicates: Option<usize>, shard: Option<Shard>) -> RunOptions {

@@ -3,7 +3,6 @@
 //! edge or a degenerate parameter is never reported as converged.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use onsager::data::Dataset;
 use onsager::estimate::{EstimationProblem, MemoryLimit};
@@ -14,14 +13,10 @@ use onsager::simulate::{sample_measurements, simulate, SimulateOptions};
 use onsager::Error;
 use rand::SeedableRng;
 
-fn onsager() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_onsager"))
-}
+use crate::support::onsager;
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("onsager-trust-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    crate::support::scratch("trust", name)
 }
 
 /// Double-well measurements every 0.5 to t = 20 (41 points), seed `seed`.
