@@ -103,6 +103,30 @@ fn gaussian_closure_of_ou_is_the_rts_smoother() {
 }
 
 #[test]
+fn the_continuation_rule_gives_the_rts_smoother_on_ou() {
+    // Linear dynamics: the curve of stationary points from the prior is λ(s) = s(R + sC)⁻¹(r − μ),
+    // without folds, and its end is the RTS smoothed mean, as from the filter start.
+    let ou = OuRecord::new().unwrap().with_theta_prior([Prior::flat(); 2]);
+    let problem = ou.problem();
+    let options = ClosureOptions::new()
+        .with_tolerances(1e-10, 1e-12)
+        .with_output_step(0.1)
+        .with_branch(onsager::action::BranchRule::Continuation);
+    let est = closure_estimate(&problem, &ClosureKind::Gaussian, &options).unwrap();
+    assert_eq!(est.status, Status::Converged);
+    assert_eq!(est.details["dual_start"], "continuation");
+    let kf = ou.rts(&est.path.times).unwrap();
+    let max_err = est
+        .path
+        .times
+        .iter()
+        .enumerate()
+        .map(|(i, &t)| (est.path.values[i][0] - kf.smoothed_mean[kf.index_of(t).unwrap()][0]).abs())
+        .fold(0.0, f64::max);
+    assert!(max_err < 1e-7, "max |closure − RTS| = {max_err}");
+}
+
+#[test]
 fn filter_start_satisfies_the_filter_condition() {
     // Each multiplier of the closure's assumed-density filter solves μ_x(t_k+) = r_k − Rλ_k with
     // the earlier multipliers fixed.

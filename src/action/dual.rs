@@ -363,6 +363,20 @@ pub enum DualStop {
         /// The optimality residual.
         residual: f64,
     },
+    /// The curve of stationary points from the prior was lost before the data's precision
+    /// ([`super::continuation::follow_branch`]).
+    BranchLost {
+        /// The last precision s reached (the data variances R/s).
+        precision: f64,
+        /// The folds it passed.
+        folds: usize,
+    },
+    /// The curve of stationary points from the prior reached the data's precision at a saddle
+    /// of the dual, not a maximum ([`super::continuation::follow_branch`]).
+    Saddle {
+        /// The folds it passed.
+        folds: usize,
+    },
     /// The sweep of ∇²F failed.
     Sweep {
         /// Why.
@@ -413,6 +427,14 @@ impl fmt::Display for DualStop {
                 f,
                 "non-finite ∇²F or a failed eigen-decomposition of ∇²F + R (optimality residual {residual:.3e})"
             ),
+            DualStop::BranchLost { precision, folds } => write!(
+                f,
+                "the curve of stationary points from the prior was lost at {precision:.3e} of the data's precision, after {folds} fold(s): no estimate on that branch; the option branch = \"filter\" looks for another stationary point"
+            ),
+            DualStop::Saddle { folds } => write!(
+                f,
+                "the curve of stationary points from the prior reached the data's precision after {folds} fold(s) at a saddle of the dual (∇²F + R not positive definite), not a maximum: no estimate on that branch"
+            ),
             DualStop::Sweep { failure, residual } => {
                 write!(f, "the sweep of ∇²F failed: {failure} (optimality residual {residual:.3e})")
             }
@@ -426,7 +448,8 @@ impl Serialize for DualStop {
     }
 }
 
-fn phi(lambda: &[f64], data: &DualData, active: &[usize], f: f64) -> f64 {
+/// Φ(λ) on the present data `active` with F(λ) = `f`.
+pub(crate) fn phi(lambda: &[f64], data: &DualData, active: &[usize], f: f64) -> f64 {
     active
         .iter()
         .map(|&m| lambda[m] * data.r[m] - 0.5 * data.variance[m] * lambda[m] * lambda[m])
@@ -434,7 +457,8 @@ fn phi(lambda: &[f64], data: &DualData, active: &[usize], f: f64) -> f64 {
         - f
 }
 
-fn residual(lambda: &[f64], z: &[f64], data: &DualData, active: &[usize]) -> f64 {
+/// The optimality residual max |λ_m − (r_m − z_m)/R_m| on the present data `active`.
+pub(crate) fn residual(lambda: &[f64], z: &[f64], data: &DualData, active: &[usize]) -> f64 {
     active.iter().map(|&m| (lambda[m] - (data.r[m] - z[m]) / data.variance[m]).abs()).fold(0.0, f64::max)
 }
 

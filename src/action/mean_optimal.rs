@@ -8,6 +8,7 @@
 
 use serde::Serialize;
 
+use super::continuation::{follow_branch, BranchEnd};
 use super::dispersion::posterior_variance;
 use super::dual::{
     maximize_dual, maximize_dual_chord, DualData, DualOptions, DualSolution, DualStop, EffectiveAction,
@@ -30,6 +31,9 @@ pub enum DualStart {
     Prior,
     /// λ = 0 (the retry after a failed start).
     Zero,
+    /// The end of the branch of stationary points from the prior, followed in the measurement
+    /// precision ([`follow_branch`]).
+    Continuation,
 }
 
 /// What the standard deviations of a mean-optimal estimate are.
@@ -227,6 +231,48 @@ pub fn solve<A: EffectiveAction + ?Sized>(
         };
     let status = if history_failure.is_some() { Status::NumericalFailure } else { dual.status };
     Ok(Solution { history, sd, sd_kind, dual, status, start, coarse_stage, history_failure })
+}
+
+/// The mean-optimal estimate at the stationary point connected to the prior by the curve of
+/// stationary points in the measurement precision ([`follow_branch`], at the requested sweep
+/// tolerances — the last stage's of `plan` — to `plan.dual.tolerance`): a function of the data
+/// alone. `plan.retry_from_zero` is ignored (a retry would leave the branch). When the curve
+/// is lost before the data's precision, the estimate is a `NumericalFailure` with the reason
+/// [`DualStop::BranchLost`] and the history at the last point reached; when the point it
+/// reaches is a saddle of the dual (∇²F + R not positive definite), a `NumericalFailure` with
+/// the reason [`DualStop::Saddle`] and the history there.
+///
+/// Errors: as [`solve`].
+pub fn solve_on_branch<A: EffectiveAction + ?Sized>(
+    action: &mut A,
+    data: &DualData,
+    plan: &Plan,
+) -> Result<Solution> {
+    if let Some((_, (rtol, atol))) = plan.stages {
+        action.set_tolerances(rtol, atol)?;
+    }
+    let branch = follow_branch(action, data, plan.dual.tolerance)?;
+    let reached = matches!(branch.end, BranchEnd::Reached { .. });
+    let last = Plan {
+        dual: plan.dual.clone().with_max_iterations(0),
+        stages: None,
+        retry_from_zero: false,
+        dispersion: plan.dispersion && reached,
+    };
+    let mut sol = solve(action, data, (branch.lambda, DualStart::Continuation), &last)?;
+    sol.dual.iterations += branch.iterations;
+    sol.dual.evaluations += branch.evaluations;
+    let lost = match branch.end {
+        BranchEnd::Reached { maximum: true } => None,
+        BranchEnd::Reached { maximum: false } => Some(DualStop::Saddle { folds: branch.folds }),
+        BranchEnd::Lost { precision } => Some(DualStop::BranchLost { precision, folds: branch.folds }),
+        BranchEnd::NoPrior => Some(DualStop::NonFiniteStart),
+    };
+    if let Some(why) = lost {
+        sol.dual.reason = Some(why);
+        (sol.dual.status, sol.status) = (Status::NumericalFailure, Status::NumericalFailure);
+    }
+    Ok(sol)
 }
 
 /// The report's details of a mean-optimal estimate (the exact grid's and the dual closures').

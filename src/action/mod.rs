@@ -17,6 +17,8 @@
 //! - [`mean_optimal`](mod@mean_optimal): the mean-optimal estimator of any [`dual::EffectiveAction`] — start,
 //!   dual (in two stages for adaptive sweeps), history and dispersion — written once for the
 //!   exact grid and every closure.
+//! - [`continuation`]: which stationary point of a non-concave dual is the estimate — the
+//!   branch from the prior, followed in the measurement precision.
 //! - [`closure`]: the Rayleigh–Ritz closures (Gaussian, exponential family) with their jump
 //!   conditions (`(II.36)–(II.53)`, `(A.30)`) on the same [`dual::EffectiveAction`] interface,
 //!   and [`closure::closure_estimate`].
@@ -24,6 +26,7 @@
 //! See `docs/effective-action.md` and `docs/closures.md` for the theory.
 
 pub mod closure;
+pub mod continuation;
 pub mod dispersion;
 pub mod dual;
 pub mod exact;
@@ -35,6 +38,7 @@ pub use closure::{
     closure_estimate, Closure, ClosureAction, ClosureFamily, ClosureOptions, ExponentialFamily,
     GaussianFamily,
 };
+pub use continuation::{Branch, BranchEnd, BranchRule};
 pub use dual::{
     maximize_dual, maximize_dual_chord, DualData, DualOptions, DualSolution, DualStop, EffectiveAction,
     History, SweepFailure, Swept,

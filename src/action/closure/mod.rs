@@ -40,6 +40,7 @@ use crate::model::observation::StateMeasurement;
 use crate::model::Sde;
 use crate::{Error, Result};
 
+use super::continuation::BranchRule;
 use super::dual::{DualData, DualOptions, EffectiveAction};
 use super::exact::gaussian_dual_data;
 use super::mean_optimal::{self, DualStart, Plan};
@@ -115,6 +116,12 @@ pub struct ClosureOptions {
     /// `dual.tolerance` alone (see `docs/closures.md`, "The dual's tolerance, its shortest step
     /// and its fallbacks").
     pub dual_matched_to_sweeps: bool,
+    /// Which stationary point of the dual is the estimate: `continuation` (default), the one
+    /// on the branch from the prior followed in the measurement precision, a function of the
+    /// data alone (none when the branch folds); `filter`, the maximum Newton's method reaches
+    /// from the closure's filter (retried from λ = 0). See `docs/closures.md`, "Which
+    /// stationary point".
+    pub branch: BranchRule,
     /// Options of the dual maximisation.
     pub dual: DualOptions,
 }
@@ -128,6 +135,7 @@ impl Default for ClosureOptions {
             extra_times: Vec::new(),
             dispersion: true,
             dual_matched_to_sweeps: true,
+            branch: BranchRule::default(),
             dual: DualOptions::default(),
         }
     }
@@ -168,6 +176,12 @@ impl ClosureOptions {
     /// [`ClosureOptions::dual_matched_to_sweeps`]).
     pub fn with_dual_matched_to_sweeps(mut self, matched: bool) -> Self {
         self.dual_matched_to_sweeps = matched;
+        self
+    }
+
+    /// Sets the rule that picks the dual's stationary point ([`ClosureOptions::branch`]).
+    pub fn with_branch(mut self, branch: BranchRule) -> Self {
+        self.branch = branch;
         self
     }
 
@@ -400,14 +414,19 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
     if let Some((c_rtol, c_atol)) = coarse {
         action.set_tolerances(c_rtol, c_atol)?;
     }
-    let begin = dual_start(&mut action, &data)?;
     let plan = Plan {
         dual: fine,
         stages: coarse.map(|c| (c, (rtol, atol))),
         retry_from_zero: true,
         dispersion: options.dispersion,
     };
-    let sol = mean_optimal::solve(&mut action, &data, begin, &plan)?;
+    let sol = match options.branch {
+        BranchRule::Continuation => mean_optimal::solve_on_branch(&mut action, &data, &plan)?,
+        BranchRule::Filter => {
+            let begin = dual_start(&mut action, &data)?;
+            mean_optimal::solve(&mut action, &data, begin, &plan)?
+        }
+    };
     let details = sol.details(Some(closure.family.describe()), action.work(), &plan);
     Ok(PathEstimate {
         method: F::METHOD,
