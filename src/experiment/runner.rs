@@ -480,6 +480,11 @@ impl Shared<'_> {
                         self.theta_cols.iter().position(|n| *n == names[k]).expect("a column per parameter");
                     row.theta[c] = Some(est.theta[k]);
                 }
+                if !est.status.is_success() {
+                    if let Some(reason) = est.details.json().get("dual_reason").and_then(|v| v.as_str()) {
+                        messages.insert(0, reason.to_string());
+                    }
+                }
                 row.message = messages.join("; ");
             }
             Err(message) => row.message = message,

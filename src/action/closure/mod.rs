@@ -116,11 +116,11 @@ pub struct ClosureOptions {
     /// `dual.tolerance` alone (see `docs/closures.md`, "The dual's tolerance, its shortest step
     /// and its fallbacks").
     pub dual_matched_to_sweeps: bool,
-    /// Which stationary point of the dual is the estimate: `continuation` (default), the one
-    /// on the branch from the prior followed in the measurement precision, a function of the
-    /// data alone (none when the branch folds); `filter`, the maximum Newton's method reaches
-    /// from the closure's filter (retried from λ = 0). See `docs/closures.md`, "Which
-    /// stationary point".
+    /// Which stationary point of the dual is the estimate: `filter` (default), the maximum
+    /// Newton's method reaches from the closure's filter (retried from λ = 0); `continuation`,
+    /// the one on the branch from the prior followed in the measurement precision, a function
+    /// of the data alone (none when the branch is lost or ends at a saddle). See
+    /// `docs/closures.md`, "Which stationary point".
     pub branch: BranchRule,
     /// Options of the dual maximisation.
     pub dual: DualOptions,
