@@ -492,7 +492,10 @@ impl<'a, S: Sde + ?Sized> AreaAction<'a, S> {
         outputs: &[f64],
         max_step: f64,
     ) -> Result<Self> {
-        if times.is_empty() || times.windows(2).any(|w| !(w[0] < w[1])) || times[0] < t0 {
+        if times.is_empty()
+            || times.windows(2).any(|w| w[0].partial_cmp(&w[1]) != Some(std::cmp::Ordering::Less))
+            || times[0] < t0
+        {
             return Err(invalid("data", "the measurement times must increase and not be before t0"));
         }
         if !(max_step > 0.0 && max_step.is_finite()) {
