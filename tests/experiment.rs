@@ -87,7 +87,7 @@ fn results_do_not_depend_on_the_number_of_threads() {
     run(&experiment, &options(&one, true, 1), &|_| {}).unwrap();
     run(&experiment, &options(&two, true, 2), &|_| {}).unwrap();
     let (a, b) = (row_set(&one), row_set(&two));
-    assert_eq!(a.len(), 14); // 2 replicates × 7 estimators
+    assert_eq!(a.len(), 16); // 2 replicates × 8 estimators
     assert_eq!(a, b);
     for d in [one, two] {
         let _ = std::fs::remove_dir_all(d);

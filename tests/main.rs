@@ -1,6 +1,7 @@
 //! Integration tests of `onsager`: one test binary, one module per area.
 
 mod action;
+mod area;
 mod baselines;
 mod cli;
 mod closure;

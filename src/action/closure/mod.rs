@@ -12,10 +12,13 @@
 //!   [`EffectiveAction`](super::dual::EffectiveAction), so the dual estimator
 //!   ([`maximize_dual`](super::dual::maximize_dual)) and the ensemble dispersion
 //!   ([`super::dispersion`]) are those of the exact grid;
-//! - [`closure_estimate`]: the estimator as a [`PathEstimate`].
+//! - [`closure_estimate`]: the estimator as a [`PathEstimate`];
+//! - [`area`]: the scalar area-rule closure (one state, one moment, one measured output,
+//!   `(II.17)–(II.35)`), its own [`EffectiveAction`](super::dual::EffectiveAction).
 //!
 //! See `docs/closures.md`.
 
+pub mod area;
 pub mod drift;
 mod jet;
 pub mod om;
