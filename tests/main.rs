@@ -4,6 +4,7 @@ mod action;
 mod baselines;
 mod cli;
 mod closure;
+mod continuous;
 mod estimators;
 mod experiment;
 mod fuzz;
