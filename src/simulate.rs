@@ -673,7 +673,7 @@ pub fn sample_record<R: Rng + ?Sized>(
     }
     let sd = (intensity / cell).sqrt();
     let mut values = Vec::with_capacity(times.len());
-    for k in 0..times.len() {
+    for (k, &mid) in times.iter().enumerate() {
         let (a, b) = (k * m, (k + 1) * m);
         let tol = 1e-6 * dt;
         if b >= path.times.len() || (path.times[b] - (t0 + (k + 1) as f64 * cell)).abs() > tol {
@@ -685,7 +685,7 @@ pub fn sample_record<R: Rng + ?Sized>(
             let sum: f64 =
                 (a..b).map(|j| 0.5 * (s(j) + s(j + 1)) * (path.times[j + 1] - path.times[j])).sum();
             if !sum.is_finite() {
-                return Err(Error::NonFinite { what: format!("path in the cell at t = {}", times[k]) });
+                return Err(Error::NonFinite { what: format!("path in the cell at t = {mid}") });
             }
             let e: f64 = StandardNormal.sample(rng);
             row.push(sum / cell + sd * e);

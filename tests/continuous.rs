@@ -131,7 +131,8 @@ fn ou_with_a_continuous_record_converges_to_the_kalman_bucy_smoother() {
             seed: 0,
             max_memory: Default::default(),
         };
-        let exact = ExactOptions::new(GridSpec::new_1d(-6.0, 6.0, 1200)).with_dt(0.001).with_output_step(0.05);
+        let exact =
+            ExactOptions::new(GridSpec::new_1d(-6.0, 6.0, 1200)).with_dt(0.001).with_output_step(0.05);
         let ksp = ksp_smoother(&problem, &exact).unwrap();
         let ksp_mean: Vec<f64> = ksp.smoothed_mean.iter().map(|v| v[0]).collect();
         let mo = mean_optimal(&problem, &exact).unwrap();
