@@ -641,6 +641,60 @@ fn parse_continuous(spec: &str, m: &MeasurementSpec) -> Result<f64> {
     }
 }
 
+/// The measurement times of a scenario: the cells' midpoints of a continuous record, the
+/// explicit `measurements.times`, or the preset's grid (`every`, `first`).
+fn scenario_times(m: &MeasurementSpec, p: &Preset, continuous: Option<f64>) -> Result<Vec<f64>> {
+    match &m.times {
+        _ if continuous.is_some() => {
+            let times = crate::data::continuous::cell_midpoints(0.0, p.t_end, p.sample_every);
+            if times.len() < 2 {
+                return Err(invalid(
+                    "measurements.every",
+                    format!(
+                        "a continuous record needs at least two cells of {} in [0, {}]",
+                        p.sample_every, p.t_end
+                    ),
+                ));
+            }
+            Ok(times)
+        }
+        Some(t) => {
+            if m.every.is_some() || m.first.is_some() {
+                return Err(invalid(
+                    "measurements.times",
+                    "give either `times` or `every`/`first`, not both",
+                ));
+            }
+            if t.is_empty() || t.iter().any(|&x| !(x.is_finite() && (0.0..=p.t_end).contains(&x))) {
+                return Err(invalid(
+                    "measurements.times",
+                    format!("must be non-empty and within [0, {}]", p.t_end),
+                ));
+            }
+            if t.windows(2).any(|w| w[1] <= w[0]) {
+                return Err(invalid("measurements.times", "must be strictly increasing"));
+            }
+            Ok(t.clone())
+        }
+        None => {
+            // Checked before the times are allocated: a tiny `every` would ask for more times
+            // than memory holds.
+            let count = (p.t_end - p.first_sample) / p.sample_every;
+            if count > MAX_MEASUREMENT_TIMES as f64 {
+                return Err(invalid(
+                    "measurements.every",
+                    format!(
+                        "{} gives {count:.3e} measurement times on [{}, {}]; at most \
+                         {MAX_MEASUREMENT_TIMES} are allowed",
+                        p.sample_every, p.first_sample, p.t_end
+                    ),
+                ));
+            }
+            Ok(p.measurement_times())
+        }
+    }
+}
+
 /// Measures the `states` (by name) of the preset `p` (`measurements.states`).
 fn measure_states(p: &mut Preset, states: &[String]) -> Result<()> {
     let names = p.model.state_names();
@@ -707,55 +761,7 @@ impl Scenario {
             Some(g) if g.starts_with("continuous:") => Some(parse_continuous(g, m)?),
             _ => None,
         };
-        let times = match &m.times {
-            _ if continuous.is_some() => {
-                let times = crate::data::continuous::cell_midpoints(0.0, p.t_end, p.sample_every);
-                if times.len() < 2 {
-                    return Err(invalid(
-                        "measurements.every",
-                        format!(
-                            "a continuous record needs at least two cells of {} in [0, {}]",
-                            p.sample_every, p.t_end
-                        ),
-                    ));
-                }
-                times
-            }
-            Some(t) => {
-                if m.every.is_some() || m.first.is_some() {
-                    return Err(invalid(
-                        "measurements.times",
-                        "give either `times` or `every`/`first`, not both",
-                    ));
-                }
-                if t.is_empty() || t.iter().any(|&x| !(x.is_finite() && (0.0..=p.t_end).contains(&x))) {
-                    return Err(invalid(
-                        "measurements.times",
-                        format!("must be non-empty and within [0, {}]", p.t_end),
-                    ));
-                }
-                if t.windows(2).any(|w| w[1] <= w[0]) {
-                    return Err(invalid("measurements.times", "must be strictly increasing"));
-                }
-                t.clone()
-            }
-            None => {
-                // Checked before the times are allocated: a tiny `every` would ask for more times
-                // than memory holds.
-                let count = (p.t_end - p.first_sample) / p.sample_every;
-                if count > MAX_MEASUREMENT_TIMES as f64 {
-                    return Err(invalid(
-                        "measurements.every",
-                        format!(
-                            "{} gives {count:.3e} measurement times on [{}, {}]; at most \
-                             {MAX_MEASUREMENT_TIMES} are allowed",
-                            p.sample_every, p.first_sample, p.t_end
-                        ),
-                    ));
-                }
-                p.measurement_times()
-            }
-        };
+        let times = scenario_times(m, &p, continuous)?;
         if let Some(states) = &m.states {
             measure_states(&mut p, states)?;
         }
