@@ -5,6 +5,7 @@ mod area;
 mod baselines;
 mod cli;
 mod closure;
+mod continuous;
 mod estimators;
 mod experiment;
 mod fuzz;

@@ -15,6 +15,7 @@ pub const BUILTIN: &[(&str, &str)] = &[
     ("lorenz63-smoothing", include_str!("../../experiments/lorenz63-smoothing.toml")),
     ("lorenz96-smoothing", include_str!("../../experiments/lorenz96-smoothing.toml")),
     ("closures-2d", include_str!("../../experiments/closures-2d.toml")),
+    ("double-well-continuous", include_str!("../../experiments/double-well-continuous.toml")),
 ];
 
 /// The TOML text of the built-in experiment `name`; [`Error::UnknownName`] (kind
