@@ -199,7 +199,7 @@ fn cli_lists_runs_and_fails_with_exit_code_1() {
         .unwrap();
     assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
     // Not a terminal: plain progress lines on stderr, one per row.
-    assert_eq!(String::from_utf8_lossy(&ok.stderr).lines().filter(|l| l.starts_with('[')).count(), 7);
+    assert_eq!(String::from_utf8_lossy(&ok.stderr).lines().filter(|l| l.starts_with('[')).count(), 8);
     assert!(out.join("summary.json").exists());
     let spec = out.join("bad.toml");
     std::fs::write(&spec, "name = \"bad\"\n[model]\nname = \"ou\"\nmodle = 1\n").unwrap();
