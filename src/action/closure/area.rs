@@ -52,7 +52,7 @@ use crate::action::dual::{
 };
 use crate::action::exact::gaussian_dual_data;
 use crate::action::mean_optimal::{self, DualStart, Plan};
-use crate::estimate::{Details, EstimationProblem, Method, MethodRun, PathEstimate};
+use crate::estimate::{EstimationProblem, Method, MethodRun, PathEstimate};
 use crate::estimator::EstimatorOptions;
 use crate::model::observation::StateMeasurement;
 use crate::model::Sde;
@@ -796,23 +796,7 @@ pub fn area_estimate<S: Sde + ?Sized>(
         }
     };
     let details = sol.details(Some(describe(options)), action.work(), &plan);
-    Ok(PathEstimate {
-        method: Method::AreaClosure,
-        path: crate::data::StatePath {
-            names: problem.sde.state_names(),
-            times: sol.history.times,
-            values: sol.history.mean,
-            sd: Some(sol.sd),
-        },
-        theta_names: problem.sde.param_names(),
-        theta: problem.theta.to_vec(),
-        estimated: Vec::new(),
-        theta_sd: None,
-        status: sol.status,
-        iterations: sol.dual.iterations,
-        solve_seconds: start.elapsed().as_secs_f64(),
-        details: Details::new(details),
-    })
+    Ok(super::dual_path_estimate(problem, Method::AreaClosure, sol, details, start))
 }
 
 fn describe(options: &AreaClosure) -> String {

@@ -431,8 +431,21 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
         }
     };
     let details = sol.details(Some(closure.family.describe()), action.work(), &plan);
-    Ok(PathEstimate {
-        method: F::METHOD,
+    Ok(dual_path_estimate(problem, F::METHOD, sol, details, start))
+}
+
+/// The [`PathEstimate`] of a dual closure from its solution: the history as the path with the
+/// solution's sd, θ as given (nothing estimated), the dual's status and iterations, the time
+/// since `start`.
+pub(crate) fn dual_path_estimate<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    method: Method,
+    sol: mean_optimal::Solution,
+    details: mean_optimal::DualDetails,
+    start: Instant,
+) -> PathEstimate {
+    PathEstimate {
+        method,
         path: crate::data::StatePath {
             names: problem.sde.state_names(),
             times: sol.history.times,
@@ -447,7 +460,7 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
         iterations: sol.dual.iterations,
         solve_seconds: start.elapsed().as_secs_f64(),
         details: Details::new(details),
-    })
+    }
 }
 
 #[cfg(test)]
