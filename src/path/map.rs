@@ -8,8 +8,10 @@ use super::{
     default_step, estimate_path, regression_theta_guess, spline_guess, LaplaceSd, Merit, PathDetails,
     PathOptions, Transcription,
 };
+use crate::data::StatePath;
 use crate::estimate::{flag_degenerate, Details, EstimationProblem, Method, MethodRun, Status};
 use crate::estimator::EstimatorOptions;
+use crate::kalman::{KalmanMethod, KalmanOptions};
 use crate::model::observation::StateMeasurement;
 use crate::model::Sde;
 use crate::{Error, Result};
@@ -38,6 +40,22 @@ pub struct MapOptions {
     /// Tolerance of the interior-point solver on its scaled optimality error. Default `None`:
     /// the solver's (1e-8).
     pub tolerance: Option<f64>,
+    /// Where the solver starts the path. Default [`PathStart::Spline`].
+    pub start: PathStart,
+}
+
+/// The initial path of the interior-point solver (docs/map.md, "The initial path").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PathStart {
+    /// Smoothing splines through the measured states ([`spline_guess`]); the other states at
+    /// zero, except derivatives of measured states.
+    #[default]
+    Spline,
+    /// The path of the unscented RTS smoother with the initial θ (one Kalman pass; Gaussian
+    /// likelihoods only): for models whose unmeasured states a zero start puts in the wrong
+    /// basin, e.g. Lorenz-63 with x alone measured.
+    Uks,
 }
 
 impl Default for MapOptions {
@@ -49,6 +67,7 @@ impl Default for MapOptions {
             keep_initial: Vec::new(),
             max_iterations: None,
             tolerance: None,
+            start: PathStart::Spline,
         }
     }
 }
@@ -86,8 +105,8 @@ fn convergence_note(transcription: Transcription, merit: Merit) -> Option<&'stat
 }
 
 /// The MAP path of `merit` (`jme`: Onsager–Machlup, `mee`: energy) and the estimated parameters
-/// of `problem` (`000_74b95e149527c64e.txt (2.49)–(2.51)`, `(2.58)–(2.60)`), from the spline
-/// initial path of the data and, for the parameters to estimate, the regression guess (except
+/// of `problem` (`000_74b95e149527c64e.txt (2.49)–(2.51)`, `(2.58)–(2.60)`), from the initial
+/// path of [`MapOptions::start`] and, for the parameters to estimate, the regression guess (except
 /// those in [`MapOptions::keep_initial`]). Notes: what the transcription converges to, and a
 /// skipped Laplace sd.
 ///
@@ -128,7 +147,19 @@ pub fn map_estimate<S: Sde + ?Sized>(
         }
     }
     let problem = &EstimationProblem { theta: &theta, ..*problem };
-    let guess = spline_guess(problem.sde, problem.theta, &problem.observation.states, problem.data, &times)?;
+    let guess = match options.start {
+        PathStart::Spline => {
+            spline_guess(problem.sde, problem.theta, &problem.observation.states, problem.data, &times)?
+        }
+        PathStart::Uks => {
+            let uks = crate::kalman::estimate(problem, KalmanMethod::Uks, &KalmanOptions::default())
+                .map_err(|e| Error::InvalidOption {
+                    name: "start".into(),
+                    reason: format!("`uks` starts from the UKS path, which failed: {e}"),
+                })?;
+            StatePath { sd: None, ..uks.path }
+        }
+    };
     let mut path_options =
         PathOptions::new(merit, options.transcription).with_step(step).with_initial_path(guess);
     path_options.nlp.max_iterations = options.max_iterations.unwrap_or(path_options.nlp.max_iterations);

@@ -57,7 +57,7 @@ use crate::nlp::{self, NlpOptions, NlpProblem, NlpReport};
 use crate::{Error, Result};
 
 pub use guess::{derivative_states, regression_theta_guess, spline_guess, ThetaGuess, ThetaSource};
-pub use map::{map_estimate, MapOptions};
+pub use map::{map_estimate, MapOptions, PathStart};
 pub use transcription::{MeritParts, PathNlp};
 
 /// Which continuous-time merit the path maximises.
