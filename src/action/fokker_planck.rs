@@ -20,7 +20,8 @@
 //! total mass exactly. The damped step ([`StepKind::Damped`], used after a jump) is eight
 //! implicit Euler steps (I − Δt/8 L_a)⁻¹ per axis: every M_a is a column-diagonally-dominant
 //! M-matrix, so it keeps positivity, and it removes the stiff modes a jump excites, which the
-//! two-stage step would map to small negative multiples. The backward Kolmogorov step
+//! two-stage step would map to small negative multiples (R(z) = (1 + (√2 − 1)z)/(1 − gz)² is
+//! negative for z < −(1 + √2), down to −0.21). The backward Kolmogorov step
 //! `003 (I.17)` is the exact transpose (the sub-steps in reverse order, M_a⁻ᵀ for M_a⁻¹), so
 //! ⟨a, m⟩ is conserved by the discrete scheme to rounding.
 
@@ -89,6 +90,8 @@ pub struct FokkerPlanck<'a, S: Sde + ?Sized> {
     axes: Vec<Axis>,
     autonomous: bool,
     cache: Vec<StepFactors>,
+    /// Work vector of the two-stage step (M⁻¹x), kept between steps.
+    scratch: std::cell::Cell<Vec<f64>>,
 }
 
 impl<S: Sde + ?Sized> std::fmt::Debug for FokkerPlanck<'_, S> {
@@ -162,6 +165,7 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
             axes,
             autonomous: true,
             cache: Vec::new(),
+            scratch: std::cell::Cell::new(Vec::new()),
         };
         if let Some(&t0) = probe_times.first() {
             let first = fp.face_drifts(t0);
@@ -198,7 +202,7 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
         }
         for &dt in dts {
             if self.cached(dt).is_none() {
-                let f = self.factor(0.0, dt);
+                let f = self.factor(0.0, dt, None);
                 self.cache.push(f);
             }
         }
@@ -288,13 +292,20 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
 
     /// The factors of one step of size `dt` with the rates at time `t`: per axis, the LU factors
     /// of I − g τ_a L_a with τ_a the axis's sub-step ([`FokkerPlanck::substep`]), and of the
-    /// damping half step I − (dt/2) L_a.
-    fn factor(&self, t: f64, dt: f64) -> StepFactors {
+    /// damping sub-step I − (dt/n) L_a (n = [`DAMPING_STEPS`]); only those of `only` if given.
+    fn factor(&self, t: f64, dt: f64, only: Option<StepKind>) -> StepFactors {
         let rates = self.rates(t);
-        let axes =
-            (0..rates.len()).map(|a| self.axis_factor(a, &rates[a], STAGE * self.substep(a, dt))).collect();
-        let damped =
-            (0..rates.len()).map(|a| self.axis_factor(a, &rates[a], dt / DAMPING_STEPS as f64)).collect();
+        let dim = rates.len();
+        let smooth = only != Some(StepKind::Damped);
+        let damped = only != Some(StepKind::Smooth);
+        let axes = (0..dim)
+            .filter(|_| smooth)
+            .map(|a| self.axis_factor(a, &rates[a], STAGE * self.substep(a, dt)))
+            .collect();
+        let damped = (0..dim)
+            .filter(|_| damped)
+            .map(|a| self.axis_factor(a, &rates[a], dt / DAMPING_STEPS as f64))
+            .collect();
         StepFactors { dt, axes, damped }
     }
 
@@ -340,31 +351,22 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
         }
     }
 
-    /// The axes in the order of the forward step's sub-steps: the two-stage sub-steps
-    /// ([`FokkerPlanck::substep`]) or, for a damped step, the implicit Euler half steps.
-    fn sequence(&self, damped: bool) -> &'static [usize] {
-        match (self.grid.dim(), damped) {
-            (2, false) => &[0, 1, 0],
-            (2, true) => &[0, 1, 0, 1, 0, 1, 0, 1, 0, 1, 0, 1, 0, 1, 0, 1],
-            (_, false) => &[0],
-            (_, true) => &[0; DAMPING_STEPS],
-        }
-    }
-
     /// Runs `f` with the factors of a step of size `dt` ending at `t_new`: the cached ones for
-    /// an autonomous drift, otherwise freshly factored with the rates at the step's midpoint.
-    fn with_factors<R>(&self, t_new: f64, dt: f64, f: impl FnOnce(&StepFactors) -> R) -> R {
+    /// an autonomous drift, otherwise freshly factored (only those of `kind`) with the rates at
+    /// the step's midpoint.
+    fn with_factors<R>(&self, t_new: f64, dt: f64, kind: StepKind, f: impl FnOnce(&StepFactors) -> R) -> R {
         if self.autonomous {
             if let Some(fac) = self.cached(dt) {
                 return f(fac);
             }
         }
-        let fac = self.factor(t_new - 0.5 * dt, dt);
+        let fac = self.factor(t_new - 0.5 * dt, dt, Some(kind));
         f(&fac)
     }
 
     /// Applies the step (or, with `adjoint`, its transpose) to `x`, where `solve(axis factor,
     /// axis, x)` applies M⁻¹ (or M⁻ᵀ) in place and `combine(x, x0)` sets x ← a x − (a − 1) x0.
+    /// The two-stage sub-steps keep M⁻¹x in a buffer reused from step to step.
     fn apply(
         &self,
         (t_new, dt): (f64, f64),
@@ -374,32 +376,40 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
         mut solve: impl FnMut(&AxisFactor, Axis, &mut [f64]),
         combine: impl Fn(&mut [f64], &[f64]),
     ) {
-        let damped = kind == StepKind::Damped;
-        self.with_factors(t_new, dt, |fac| {
-            let seq = self.sequence(damped);
-            let mut run = |axis: usize| {
-                let ax = self.axes[axis];
-                if damped {
-                    solve(&fac.damped[axis], ax, x);
-                } else {
-                    let af = &fac.axes[axis];
-                    solve(af, ax, x);
-                    let x0 = x.to_vec();
-                    solve(af, ax, x);
+        let dim = self.axes.len();
+        // The axis of sub-step k of the forward sequence; the adjoint runs it backwards.
+        let axis = |k: usize, len: usize| {
+            let k = if adjoint { len - 1 - k } else { k };
+            k % dim
+        };
+        self.with_factors(t_new, dt, kind, |fac| match kind {
+            StepKind::Damped => {
+                let len = DAMPING_STEPS * dim;
+                for k in 0..len {
+                    let a = axis(k, len);
+                    solve(&fac.damped[a], self.axes[a], x);
+                }
+            }
+            StepKind::Smooth => {
+                // Strang sequence 0, 1, 0 in two dimensions (a palindrome: the same for the adjoint).
+                let seq: &[usize] = if dim == 2 { &[0, 1, 0] } else { &[0] };
+                let mut x0 = self.scratch.take();
+                x0.resize(x.len(), 0.0);
+                for &a in seq {
+                    let af = &fac.axes[a];
+                    solve(af, self.axes[a], x);
+                    x0.copy_from_slice(x);
+                    solve(af, self.axes[a], x);
                     combine(x, &x0);
                 }
-            };
-            if adjoint {
-                seq.iter().rev().for_each(|&a| run(a));
-            } else {
-                seq.iter().for_each(|&a| run(a));
+                self.scratch.set(x0);
             }
         });
     }
 
     /// One forward (Fokker–Planck) step of size `dt` ending at `t_new`: m ← S m with
     /// S = S₀(dt/2) S₁(dt) S₀(dt/2) in two dimensions, S_a(τ) = R(τ L_a) (see the module doc);
-    /// a [`StepKind::Damped`] step is two implicit Euler half steps instead.
+    /// a [`StepKind::Damped`] step is eight implicit Euler sub-steps of dt/8 instead.
     pub fn step(&self, t_new: f64, dt: f64, kind: StepKind, m: &mut [f64]) {
         self.apply((t_new, dt), kind, false, m, |f, ax, x| solve(ax, f, x), |x, x0| combine(x, x0, 1, 1));
     }
@@ -459,7 +469,7 @@ const DAMPING_STEPS: usize = 8;
 pub enum StepKind {
     /// The second-order two-stage step.
     Smooth,
-    /// Two implicit Euler half steps (positive, first order): the first step after a jump, which
+    /// Eight implicit Euler sub-steps of dt/8 (positive, first order): the first step after a jump, which
     /// damps the stiff modes a jump excites.
     Damped,
 }
