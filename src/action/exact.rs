@@ -29,7 +29,7 @@ use crate::model::{Observation, Sde};
 use crate::{Error, Result};
 
 use super::dual::{ActionValue, DualData, DualOptions, DualSolution, EffectiveAction, History, Swept};
-use super::fokker_planck::{check_model_fits_grid, FokkerPlanck, StepKind};
+use super::fokker_planck::{check_model_fits_grid, FokkerPlanck, StepKind, TimeScheme};
 use super::grid::{Grid, GridSpec};
 use super::mean_optimal::{DualDetails, DualStart, Plan, SdKind};
 
@@ -44,8 +44,11 @@ pub struct ExactOptions {
     /// four measurement sd on each side (at least 0.5), 400 cells in one dimension and 120 per
     /// axis in two.
     pub grid: Option<GridSpec>,
-    /// Time step of the second-order implicit scheme. Default: the output step / 2.
+    /// Time step. Default: the output step / 2 with [`TimeScheme::TrBdf2`], the output step / 4
+    /// with [`TimeScheme::ImplicitEuler`].
     pub dt: Option<f64>,
+    /// The time scheme: second-order TR-BDF2 (default) or first-order implicit Euler.
+    pub scheme: TimeScheme,
     /// Step of the output grid. Default: the mean measurement spacing / 10 (the horizon / 10
     /// with a single measurement).
     /// The densities P and A are stored at every output time, so (output times) × (cells) is
@@ -65,6 +68,12 @@ impl ExactOptions {
     /// Sets the time step.
     pub fn with_dt(mut self, dt: f64) -> Self {
         self.dt = Some(dt);
+        self
+    }
+
+    /// Sets the time scheme.
+    pub fn with_scheme(mut self, scheme: TimeScheme) -> Self {
+        self.scheme = scheme;
         self
     }
 
@@ -327,7 +336,10 @@ impl TimeSteps {
         if !(output_step.is_finite() && output_step > 0.0) {
             return Err(invalid("output step", format!("must be positive and finite, got {output_step}")));
         }
-        let dt = options.dt.unwrap_or(output_step / 2.0);
+        let dt = options.dt.unwrap_or(match options.scheme {
+            TimeScheme::TrBdf2 => output_step / 2.0,
+            TimeScheme::ImplicitEuler => output_step / 4.0,
+        });
         if !(dt.is_finite() && dt > 0.0) {
             return Err(invalid("dt", format!("must be positive and finite, got {dt}")));
         }
@@ -481,7 +493,8 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
             })
             .collect();
         let probes = [t0, t0 + 0.37 * span + 0.1, t_end + 0.71];
-        let mut fp = FokkerPlanck::try_new(problem.sde, problem.theta, &grid, &probes)?;
+        let mut fp =
+            FokkerPlanck::try_new(problem.sde, problem.theta, &grid, &probes)?.with_scheme(options.scheme);
         let mut dts: Vec<f64> = substeps.iter().map(|s| s.1).collect();
         dts.sort_by(f64::total_cmp);
         dts.dedup();
@@ -530,6 +543,11 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
     /// Total number of implicit time steps of one sweep.
     pub fn n_steps(&self) -> usize {
         self.substeps.iter().map(|s| s.0).sum()
+    }
+
+    /// The tridiagonal solves of the sweeps so far ([`FokkerPlanck::solves`]).
+    pub fn solves(&self) -> usize {
+        self.fp.solves()
     }
 
     /// The scheme of step j (1-based) of the interval after event e: damped for the first step
@@ -1075,7 +1093,8 @@ pub fn mean_optimal<S: Sde + ?Sized>(
     }
     let plan = Plan { dual: options.dual.clone(), stages: None, retry_from_zero: false, dispersion: true };
     let sol = super::mean_optimal::solve(&mut action, &data, (lambda0, DualStart::Ksp), &plan)?;
-    let details = sol.details(None, action.work(), &plan);
+    let mut details = sol.details(None, action.work(), &plan);
+    details.tridiagonal_solves = Some(ksp.solves + action.grid.solves());
     Ok(MeanOptimal {
         history: sol.history,
         sd: sol.sd,
@@ -1111,6 +1130,8 @@ pub struct KspSmoothing {
     pub solve_seconds: f64,
     /// Where the smoothed densities reach the grid's edge, if they do.
     pub edge: Option<GridEdge>,
+    /// Tridiagonal solves of the two sweeps ([`FokkerPlanck::solves`]).
+    pub solves: usize,
 }
 
 /// The Kushner–Stratonovich–Pardoux smoother on a grid with any measurement likelihood
@@ -1157,6 +1178,7 @@ pub fn ksp_smoother<S: Sde + ?Sized, O: Observation + ?Sized>(
         log_likelihood: fw.log_w.iter().sum(),
         solve_seconds: 0.0,
         edge: None,
+        solves: g.solves(),
     };
     for (a_ev, p_ev) in a.iter().zip(&fw.p) {
         let q: Vec<f64> = a_ev.iter().zip(p_ev).map(|(x, y)| x * y).collect();

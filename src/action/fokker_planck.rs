@@ -24,6 +24,12 @@
 //! negative for z < −(1 + √2), down to −0.21). The backward Kolmogorov step
 //! `003 (I.17)` is the exact transpose (the sub-steps in reverse order, M_a⁻ᵀ for M_a⁻¹), so
 //! ⟨a, m⟩ is conserved by the discrete scheme to rounding.
+//!
+//! The first-order alternative [`TimeScheme::ImplicitEuler`] makes every step one implicit Euler
+//! step (I − Δt L_a)⁻¹ per axis (Lie splitting in two dimensions, m⁺ = M₁⁻¹ M₀⁻¹ m), the damped
+//! step with a single sub-step: positive at every step size, first order in Δt.
+
+use serde::{Deserialize, Serialize};
 
 use crate::model::Sde;
 use crate::{Error, Result};
@@ -90,6 +96,9 @@ pub struct FokkerPlanck<'a, S: Sde + ?Sized> {
     axes: Vec<Axis>,
     autonomous: bool,
     cache: Vec<StepFactors>,
+    scheme: TimeScheme,
+    /// Tridiagonal solves so far (one per vector and axis sub-step, all lines of the axis).
+    solves: std::cell::Cell<usize>,
     /// Work vector of the two-stage step (M⁻¹x), kept between steps.
     scratch: std::cell::Cell<Vec<f64>>,
 }
@@ -165,6 +174,8 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
             axes,
             autonomous: true,
             cache: Vec::new(),
+            scheme: TimeScheme::default(),
+            solves: std::cell::Cell::new(0),
             scratch: std::cell::Cell::new(Vec::new()),
         };
         if let Some(&t0) = probe_times.first() {
@@ -177,6 +188,43 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
             }
         }
         Ok(fp)
+    }
+
+    /// The operator with time scheme `scheme` (default [`TimeScheme::TrBdf2`]); set it before
+    /// [`FokkerPlanck::prepare`].
+    pub fn with_scheme(mut self, scheme: TimeScheme) -> Self {
+        self.scheme = scheme;
+        self.cache.clear();
+        self
+    }
+
+    /// The time scheme.
+    pub fn scheme(&self) -> TimeScheme {
+        self.scheme
+    }
+
+    /// The number of tridiagonal solves of the steps taken so far: one per vector and axis
+    /// sub-step (each solves every line of the axis), a machine-independent measure of the work.
+    pub fn solves(&self) -> usize {
+        self.solves.get()
+    }
+
+    /// The implicit Euler sub-steps of a damped step: [`DAMPING_STEPS`] for TR-BDF2, one (the
+    /// whole step) for implicit Euler.
+    fn euler_substeps(&self) -> usize {
+        match self.scheme {
+            TimeScheme::TrBdf2 => DAMPING_STEPS,
+            TimeScheme::ImplicitEuler => 1,
+        }
+    }
+
+    /// The kind of step the scheme takes when `kind` is asked for: implicit Euler steps are all
+    /// damped steps of one sub-step.
+    fn effective(&self, kind: StepKind) -> StepKind {
+        match self.scheme {
+            TimeScheme::TrBdf2 => kind,
+            TimeScheme::ImplicitEuler => StepKind::Damped,
+        }
     }
 
     /// Whether the drift was found autonomous (the factorisations are then reused).
@@ -292,10 +340,12 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
 
     /// The factors of one step of size `dt` with the rates at time `t`: per axis, the LU factors
     /// of I − g τ_a L_a with τ_a the axis's sub-step ([`FokkerPlanck::substep`]), and of the
-    /// damping sub-step I − (dt/n) L_a (n = [`DAMPING_STEPS`]); only those of `only` if given.
+    /// damping sub-step I − (dt/n) L_a (n = [`FokkerPlanck::euler_substeps`]); only those of
+    /// `only` if given (implicit Euler: only the damping factors, n = 1).
     fn factor(&self, t: f64, dt: f64, only: Option<StepKind>) -> StepFactors {
         let rates = self.rates(t);
         let dim = rates.len();
+        let only = if self.scheme == TimeScheme::ImplicitEuler { Some(StepKind::Damped) } else { only };
         let smooth = only != Some(StepKind::Damped);
         let damped = only != Some(StepKind::Smooth);
         let axes = (0..dim)
@@ -304,7 +354,7 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
             .collect();
         let damped = (0..dim)
             .filter(|_| damped)
-            .map(|a| self.axis_factor(a, &rates[a], dt / DAMPING_STEPS as f64))
+            .map(|a| self.axis_factor(a, &rates[a], dt / self.euler_substeps() as f64))
             .collect();
         StepFactors { dt, axes, damped }
     }
@@ -353,29 +403,39 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
 
     /// Runs `f` with the factors of a step of size `dt` ending at `t_new`: the cached ones for
     /// an autonomous drift, otherwise freshly factored (only those of `kind`) with the rates at
-    /// the step's midpoint.
+    /// the step's midpoint (TR-BDF2) or end (implicit Euler).
     fn with_factors<R>(&self, t_new: f64, dt: f64, kind: StepKind, f: impl FnOnce(&StepFactors) -> R) -> R {
         if self.autonomous {
             if let Some(fac) = self.cached(dt) {
                 return f(fac);
             }
         }
-        let fac = self.factor(t_new - 0.5 * dt, dt, Some(kind));
+        let t = match self.scheme {
+            TimeScheme::TrBdf2 => t_new - 0.5 * dt,
+            TimeScheme::ImplicitEuler => t_new,
+        };
+        let fac = self.factor(t, dt, Some(kind));
         f(&fac)
     }
 
     /// Applies the step (or, with `adjoint`, its transpose) to `x`, where `solve(axis factor,
-    /// axis, x)` applies M⁻¹ (or M⁻ᵀ) in place and `combine(x, x0)` sets x ← a x − (a − 1) x0.
-    /// The two-stage sub-steps keep M⁻¹x in a buffer reused from step to step.
+    /// axis, x)` applies M⁻¹ (or M⁻ᵀ) in place and returns the number of vectors it solved, and
+    /// `combine(x, x0)` sets x ← a x − (a − 1) x0. The two-stage sub-steps keep M⁻¹x in a
+    /// buffer reused from step to step.
     fn apply(
         &self,
         (t_new, dt): (f64, f64),
         kind: StepKind,
         adjoint: bool,
         x: &mut [f64],
-        mut solve: impl FnMut(&AxisFactor, Axis, &mut [f64]),
+        mut solve: impl FnMut(&AxisFactor, Axis, &mut [f64]) -> usize,
         combine: impl Fn(&mut [f64], &[f64]),
     ) {
+        let kind = self.effective(kind);
+        let mut solve = |f: &AxisFactor, ax: Axis, x: &mut [f64]| {
+            let n = solve(f, ax, x);
+            self.solves.set(self.solves.get() + n);
+        };
         let dim = self.axes.len();
         // The axis of sub-step k of the forward sequence; the adjoint runs it backwards.
         let axis = |k: usize, len: usize| {
@@ -384,7 +444,7 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
         };
         self.with_factors(t_new, dt, kind, |fac| match kind {
             StepKind::Damped => {
-                let len = DAMPING_STEPS * dim;
+                let len = self.euler_substeps() * dim;
                 for k in 0..len {
                     let a = axis(k, len);
                     solve(&fac.damped[a], self.axes[a], x);
@@ -411,7 +471,17 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
     /// S = S₀(dt/2) S₁(dt) S₀(dt/2) in two dimensions, S_a(τ) = R(τ L_a) (see the module doc);
     /// a [`StepKind::Damped`] step is eight implicit Euler sub-steps of dt/8 instead.
     pub fn step(&self, t_new: f64, dt: f64, kind: StepKind, m: &mut [f64]) {
-        self.apply((t_new, dt), kind, false, m, |f, ax, x| solve(ax, f, x), |x, x0| combine(x, x0, 1, 1));
+        self.apply(
+            (t_new, dt),
+            kind,
+            false,
+            m,
+            |f, ax, x| {
+                solve(ax, f, x);
+                1
+            },
+            |x, x0| combine(x, x0, 1, 1),
+        );
     }
 
     /// One backward (Kolmogorov) step, the exact transpose of [`FokkerPlanck::step`]:
@@ -422,7 +492,10 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
             kind,
             true,
             a,
-            |f, ax, x| solve_transposed(ax, f, x),
+            |f, ax, x| {
+                solve_transposed(ax, f, x);
+                1
+            },
             |x, x0| combine(x, x0, 1, 1),
         );
     }
@@ -435,7 +508,10 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
             kind,
             false,
             x,
-            |f, ax, x| solve_batch(ax, f, x, nv, active),
+            |f, ax, x| {
+                solve_batch(ax, f, x, nv, active);
+                active
+            },
             |x, x0| combine(x, x0, nv, active),
         );
     }
@@ -455,7 +531,10 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
             kind,
             true,
             x,
-            |f, ax, x| solve_transposed_batch(ax, f, x, nv, active),
+            |f, ax, x| {
+                solve_transposed_batch(ax, f, x, nv, active);
+                active
+            },
             |x, x0| combine(x, x0, nv, active),
         );
     }
@@ -464,13 +543,28 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
 /// The number of implicit Euler sub-steps of a damped step.
 const DAMPING_STEPS: usize = 8;
 
-/// Which scheme a time step uses.
+/// The time scheme of the exact grid estimators (option `scheme`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+#[non_exhaustive]
+pub enum TimeScheme {
+    /// Second order: the two-stage TR-BDF2 step per axis (Strang splitting in two dimensions),
+    /// eight implicit Euler sub-steps after t0 and after every measurement (see the module doc).
+    #[default]
+    TrBdf2,
+    /// First order: one implicit Euler step per axis (Lie splitting in two dimensions); positive
+    /// at every step size, one tridiagonal solve per axis and step.
+    ImplicitEuler,
+}
+
+/// Which step a sweep asks for (the scheme decides what it is, [`TimeScheme`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum StepKind {
-    /// The second-order two-stage step.
+    /// The scheme's regular step: the two-stage step of TR-BDF2, one implicit Euler step.
     Smooth,
-    /// Eight implicit Euler sub-steps of dt/8 (positive, first order): the first step after a jump, which
-    /// damps the stiff modes a jump excites.
+    /// Eight implicit Euler sub-steps of dt/8 (positive, first order): the first step after a
+    /// jump, which damps the stiff modes a jump excites. With [`TimeScheme::ImplicitEuler`]
+    /// every step is one implicit Euler step of dt.
     Damped,
 }
 
@@ -695,6 +789,52 @@ mod tests {
         check(&Ou, &[1.0, 0.5], &dw, true);
         check(&VanDerPol, &[2.0, 0.3], &vdp, true);
         check(&Duffing, &Duffing::NOMINAL, &duf, false);
+    }
+
+    #[test]
+    fn implicit_euler_steps_are_positive_and_damped_substeps() {
+        // Identity: with TimeScheme::ImplicitEuler eight steps of dt/8 are the TR-BDF2 damped step
+        // of dt (Lie splitting in 2-D); every step keeps positivity, mass and the pairing; the
+        // solve counts are one per axis (implicit Euler), two per axis sub-step (two-stage step,
+        // Strang: three sub-steps in 2-D) and eight per axis (damped step).
+        let dw = Grid::try_new(GridSpec::new_1d(-2.5, 2.5, 37)).unwrap();
+        let vdp = Grid::try_new(GridSpec::new_2d([-3.0, -4.0], [3.0, 4.0], [13, 11])).unwrap();
+        fn check<S: Sde>(sde: &S, theta: &[f64], grid: &Grid) {
+            let dim = grid.dim();
+            let mut ie = FokkerPlanck::try_new(sde, theta, grid, &[0.0, 0.7]).unwrap();
+            ie = ie.with_scheme(TimeScheme::ImplicitEuler);
+            ie.prepare(&[0.01]);
+            let mut tr = FokkerPlanck::try_new(sde, theta, grid, &[0.0, 0.7]).unwrap();
+            tr.prepare(&[0.08]);
+            let n = grid.len();
+            let mut m: Vec<f64> = (0..n).map(|i| 1.0 + ((i * 7) % 5) as f64).collect();
+            let total: f64 = m.iter().sum();
+            m.iter_mut().for_each(|v| *v /= total);
+            let mut m_tr = m.clone();
+            tr.step(0.08, 0.08, StepKind::Damped, &mut m_tr);
+            assert_eq!(tr.solves(), 8 * dim);
+            tr.step(0.16, 0.08, StepKind::Smooth, &mut m_tr.clone());
+            assert_eq!(tr.solves(), 8 * dim + 2 * (2 * dim - 1));
+            let mut ms = vec![m.clone()];
+            for k in 1..=8 {
+                ie.step(0.01 * k as f64, 0.01, StepKind::Smooth, &mut m);
+                assert!(m.iter().all(|&v| v > 0.0), "step {k}");
+                assert_relative_eq!(m.iter().sum::<f64>(), 1.0, epsilon = 1e-13);
+                ms.push(m.clone());
+            }
+            assert_eq!(ie.solves(), 8 * dim);
+            for (x, y) in m.iter().zip(&m_tr) {
+                assert_relative_eq!(x, y, epsilon = 1e-15, max_relative = 1e-12);
+            }
+            let mut a: Vec<f64> = (0..n).map(|i| ((i * 3) % 4) as f64 - 1.0).collect();
+            let pair_end = dot(&a, &ms[8]);
+            for k in (0..8).rev() {
+                ie.step_adjoint(0.01 * (k + 1) as f64, 0.01, StepKind::Smooth, &mut a);
+                assert_relative_eq!(dot(&a, &ms[k]), pair_end, epsilon = 1e-13);
+            }
+        }
+        check(&DoubleWell, &[0.5], &dw);
+        check(&VanDerPol, &[2.0, 0.3], &vdp);
     }
 
     #[test]
