@@ -8,6 +8,16 @@
 //! RMSE: 600 cells on [−3, 3], dt = 0.005, output step 0.1 (`exact_mean_optimal_table_settings`).
 //! Default closure options (dispersion included). The record:
 //! `test_models::DoubleWellRecord::new(0, 40.0)` (x(0) = −1, seed 0, x0 ~ N(−1, 0.2²)).
+//! `exact_mean_optimal_implicit_euler` is the first `exact_mean_optimal` with the first-order
+//! scheme at its default step (output step / 4): the two schemes on the same grid.
+//!
+//! Group `exact_mean_optimal_equal_accuracy` (issue 34: the second-order exact estimator no
+//! slower than implicit Euler at the same accuracy): on the same record and grid (1000 cells on
+//! [−2.5, 2.5], output step 0.1), TR-BDF2 at its default step (output step / 2; max distance
+//! 1.3·10⁻³ to a reference with 4000 cells and dt = 0.00625) against implicit Euler with
+//! dt = output step / 40 = 0.0025, the largest step of the sequence output step / 4, / 8, …, / 32,
+//! / 40 at which it is as close (1.2·10⁻³; see docs/effective-action.md). The bench prints the
+//! tridiagonal solves of each (machine-independent; the time ratio is the figure of merit).
 //!
 //! Group `closure_lorenz63_t20` (issue target: the Gaussian closure on a Lorenz-63 record of
 //! T = 20 in at most 2 s, as a ratio to the UKS in the same run): the Gaussian KSP closure
@@ -20,7 +30,9 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 
-use onsager::action::{closure_estimate, mean_optimal, Closure, ClosureOptions, ExactOptions, GridSpec};
+use onsager::action::{
+    closure_estimate, mean_optimal, Closure, ClosureOptions, ExactOptions, GridSpec, TimeScheme,
+};
 use onsager::kalman::{estimate, gaussian_ksp, GaussianKspOptions, KalmanMethod, KalmanOptions};
 use onsager::model::library::{preset, Preset};
 use onsager::model::observation::{Noise, Param};
@@ -55,9 +67,33 @@ fn bench(c: &mut Criterion) {
     group.bench_function("exact_mean_optimal", |b| {
         b.iter(|| black_box(mean_optimal(&problem, &exact).expect("mean-optimal")))
     });
+    let euler = exact.clone().with_scheme(TimeScheme::ImplicitEuler);
+    group.bench_function("exact_mean_optimal_implicit_euler", |b| {
+        b.iter(|| black_box(mean_optimal(&problem, &euler).expect("mean-optimal")))
+    });
     let table = ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 600)).with_dt(0.005).with_output_step(0.1);
     group.bench_function("exact_mean_optimal_table_settings", |b| {
         b.iter(|| black_box(mean_optimal(&problem, &table).expect("mean-optimal")))
+    });
+    group.finish();
+
+    let second_order = exact.clone().with_output_step(0.1);
+    let first_order = second_order.clone().with_scheme(TimeScheme::ImplicitEuler).with_dt(0.0025);
+    for (name, options) in [("tr_bdf2_defaults", &second_order), ("implicit_euler_dt_0.0025", &first_order)] {
+        let mo = mean_optimal(&problem, options).expect("mean-optimal");
+        let solves = mo.details.tridiagonal_solves.expect("counted");
+        println!(
+            "exact_mean_optimal_equal_accuracy/{name}: {solves} tridiagonal solves, {} dual iterations",
+            mo.dual.iterations
+        );
+    }
+    let mut group = c.benchmark_group("exact_mean_optimal_equal_accuracy");
+    group.sample_size(10).warm_up_time(Duration::from_millis(1)).measurement_time(Duration::from_secs(1));
+    group.bench_function("tr_bdf2_defaults", |b| {
+        b.iter(|| black_box(mean_optimal(&problem, &second_order).expect("mean-optimal")))
+    });
+    group.bench_function("implicit_euler_dt_0.0025", |b| {
+        b.iter(|| black_box(mean_optimal(&problem, &first_order).expect("mean-optimal")))
     });
     group.finish();
 

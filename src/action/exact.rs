@@ -29,7 +29,7 @@ use crate::model::{Observation, Sde};
 use crate::{Error, Result};
 
 use super::dual::{ActionValue, DualData, DualOptions, DualSolution, EffectiveAction, History, Swept};
-use super::fokker_planck::{check_model_fits_grid, FokkerPlanck};
+use super::fokker_planck::{check_model_fits_grid, FokkerPlanck, StepKind, TimeScheme};
 use super::grid::{Grid, GridSpec};
 use super::mean_optimal::{DualDetails, DualStart, Plan, SdKind};
 
@@ -44,8 +44,11 @@ pub struct ExactOptions {
     /// four measurement sd on each side (at least 0.5), 400 cells in one dimension and 120 per
     /// axis in two.
     pub grid: Option<GridSpec>,
-    /// Time step of the implicit scheme. Default: the output step / 4.
+    /// Time step. Default: the output step / 2 with [`TimeScheme::TrBdf2`], the output step / 4
+    /// with [`TimeScheme::ImplicitEuler`].
     pub dt: Option<f64>,
+    /// The time scheme: second-order TR-BDF2 (default) or first-order implicit Euler.
+    pub scheme: TimeScheme,
     /// Step of the output grid. Default: the mean measurement spacing / 10 (the horizon / 10
     /// with a single measurement).
     /// The densities P and A are stored at every output time, so (output times) × (cells) is
@@ -65,6 +68,12 @@ impl ExactOptions {
     /// Sets the time step.
     pub fn with_dt(mut self, dt: f64) -> Self {
         self.dt = Some(dt);
+        self
+    }
+
+    /// Sets the time scheme.
+    pub fn with_scheme(mut self, scheme: TimeScheme) -> Self {
+        self.scheme = scheme;
         self
     }
 
@@ -327,7 +336,10 @@ impl TimeSteps {
         if !(output_step.is_finite() && output_step > 0.0) {
             return Err(invalid("output step", format!("must be positive and finite, got {output_step}")));
         }
-        let dt = options.dt.unwrap_or(output_step / 4.0);
+        let dt = options.dt.unwrap_or(match options.scheme {
+            TimeScheme::TrBdf2 => output_step / 2.0,
+            TimeScheme::ImplicitEuler => output_step / 4.0,
+        });
         if !(dt.is_finite() && dt > 0.0) {
             return Err(invalid("dt", format!("must be positive and finite, got {dt}")));
         }
@@ -481,7 +493,8 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
             })
             .collect();
         let probes = [t0, t0 + 0.37 * span + 0.1, t_end + 0.71];
-        let mut fp = FokkerPlanck::try_new(problem.sde, problem.theta, &grid, &probes)?;
+        let mut fp =
+            FokkerPlanck::try_new(problem.sde, problem.theta, &grid, &probes)?.with_scheme(options.scheme);
         let mut dts: Vec<f64> = substeps.iter().map(|s| s.1).collect();
         dts.sort_by(f64::total_cmp);
         dts.dedup();
@@ -532,10 +545,25 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
         self.substeps.iter().map(|s| s.0).sum()
     }
 
+    /// The tridiagonal solves of the sweeps so far ([`FokkerPlanck::solves`]).
+    pub fn solves(&self) -> usize {
+        self.fp.solves()
+    }
+
+    /// The scheme of step j (1-based) of the interval after event e: damped for the first step
+    /// after t0 and after every measurement, the second-order step otherwise.
+    fn step_kind(&self, e: usize, j: usize) -> StepKind {
+        if j == 1 && (e == 0 || self.meas_of_event[e].is_some()) {
+            StepKind::Damped
+        } else {
+            StepKind::Smooth
+        }
+    }
+
     fn propagate(&self, e: usize, m: &mut [f64], mut each: impl FnMut(&[f64])) {
         let (n, dt) = self.substeps[e];
         for j in 1..=n {
-            self.fp.step(self.times[e] + j as f64 * dt, dt, m);
+            self.fp.step(self.times[e] + j as f64 * dt, dt, self.step_kind(e, j), m);
             each(m);
         }
     }
@@ -543,7 +571,7 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
     fn propagate_back(&self, e: usize, a: &mut [f64], mut each: impl FnMut(&[f64], usize)) {
         let (n, dt) = self.substeps[e];
         for j in (1..=n).rev() {
-            self.fp.step_adjoint(self.times[e] + j as f64 * dt, dt, a);
+            self.fp.step_adjoint(self.times[e] + j as f64 * dt, dt, self.step_kind(e, j), a);
             each(a, j - 1);
         }
     }
@@ -645,6 +673,9 @@ type CrossCovariances = Vec<DMatrix<f64>>;
 pub struct SweepDiagnostics {
     /// Total mass Σ P after every implicit step of the forward sweep.
     pub mass: Vec<f64>,
+    /// The largest negative mass Σ max(−P, 0) after an implicit step of the forward sweep,
+    /// relative to the total (the second-order step keeps positivity only approximately).
+    pub negative_mass: f64,
     /// ⟨A, P⟩ after every implicit step of the backward sweep (paired with the stored P of the
     /// same step).
     pub pairing: Vec<f64>,
@@ -772,8 +803,11 @@ impl<'a, S: Sde + ?Sized> ExactAction<'a, S> {
         let g = &self.grid;
         let mut ps: Vec<Vec<f64>> = Vec::new();
         let mut mass = Vec::new();
+        let mut negative_mass = 0.0f64;
         let fw = g.forward(&self.log_weights(lambda), |p| {
-            mass.push(p.iter().sum());
+            let total: f64 = p.iter().sum();
+            negative_mass = negative_mass.max(p.iter().map(|&v| (-v).max(0.0)).sum::<f64>() / total);
+            mass.push(total);
             ps.push(p.to_vec());
         })?;
         // Index of the first step of each interval in `ps`.
@@ -808,7 +842,7 @@ impl<'a, S: Sde + ?Sized> ExactAction<'a, S> {
             let da = a_plus.iter().zip(&a_minus).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
             jumps.push((dp, da));
         }
-        Ok(SweepDiagnostics { mass, pairing, pairing_at_jumps, z_at_jumps, jumps })
+        Ok(SweepDiagnostics { mass, negative_mass, pairing, pairing_at_jumps, z_at_jumps, jumps })
     }
 
     /// The tangent sweeps of the covariances under the tilted measure: the Hessian ∇²F (`(I.87)`)
@@ -868,7 +902,8 @@ impl<'a, S: Sde + ?Sized> ExactAction<'a, S> {
             if ev > 0 && active > 0 {
                 let (n, dt) = g.substeps[ev - 1];
                 for jstep in 1..=n {
-                    g.fp.step_batch(g.times[ev - 1] + jstep as f64 * dt, dt, &mut t, m, active);
+                    let kind = g.step_kind(ev - 1, jstep);
+                    g.fp.step_batch(g.times[ev - 1] + jstep as f64 * dt, dt, kind, &mut t, m, active);
                 }
                 if let Some(j) = g.meas_of_event[ev] {
                     jump(&mut t, j, active);
@@ -917,7 +952,8 @@ impl<'a, S: Sde + ?Sized> ExactAction<'a, S> {
                 if ev + 1 < ne && active > 0 {
                     let (n, dt) = g.substeps[ev];
                     for jstep in (1..=n).rev() {
-                        g.fp.step_adjoint_batch(g.times[ev] + jstep as f64 * dt, dt, &mut u, m, active);
+                        let kind = g.step_kind(ev, jstep);
+                        g.fp.step_adjoint_batch(g.times[ev] + jstep as f64 * dt, dt, kind, &mut u, m, active);
                     }
                     for i in 0..ns {
                         let xi = &g.coords[i];
@@ -1057,7 +1093,8 @@ pub fn mean_optimal<S: Sde + ?Sized>(
     }
     let plan = Plan { dual: options.dual.clone(), stages: None, retry_from_zero: false, dispersion: true };
     let sol = super::mean_optimal::solve(&mut action, &data, (lambda0, DualStart::Ksp), &plan)?;
-    let details = sol.details(None, action.work(), &plan);
+    let mut details = sol.details(None, action.work(), &plan);
+    details.tridiagonal_solves = Some(ksp.solves + action.grid.solves());
     Ok(MeanOptimal {
         history: sol.history,
         sd: sol.sd,
@@ -1093,6 +1130,8 @@ pub struct KspSmoothing {
     pub solve_seconds: f64,
     /// Where the smoothed densities reach the grid's edge, if they do.
     pub edge: Option<GridEdge>,
+    /// Tridiagonal solves of the two sweeps ([`FokkerPlanck::solves`]).
+    pub solves: usize,
 }
 
 /// The Kushner–Stratonovich–Pardoux smoother on a grid with any measurement likelihood
@@ -1139,6 +1178,7 @@ pub fn ksp_smoother<S: Sde + ?Sized, O: Observation + ?Sized>(
         log_likelihood: fw.log_w.iter().sum(),
         solve_seconds: 0.0,
         edge: None,
+        solves: g.solves(),
     };
     for (a_ev, p_ev) in a.iter().zip(&fw.p) {
         let q: Vec<f64> = a_ev.iter().zip(p_ev).map(|(x, y)| x * y).collect();

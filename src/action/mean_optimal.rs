@@ -303,6 +303,10 @@ pub struct DualDetails {
     /// Accepted integration steps of those sweeps, when counted.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub rk_steps: Option<usize>,
+    /// Tridiagonal solves of the exact grid's sweeps (the KSP start, the dual and the dispersion;
+    /// one per vector and axis sub-step), a machine-independent measure of its work.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tridiagonal_solves: Option<usize>,
     /// The coarse first stage, when there was one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub coarse_stage: Option<CoarseStage>,
@@ -330,6 +334,7 @@ impl Solution {
             dual_start: self.start,
             sweeps: work.map_or(d.evaluations, |w| w.0),
             rk_steps: work.map(|w| w.1),
+            tridiagonal_solves: None,
             coarse_stage: self.coarse_stage,
             sd: self.sd_kind,
             history_failure: self.history_failure,

@@ -48,5 +48,6 @@ pub use exact::{
     mean_optimal_path_estimate, ExactAction, ExactGrid, ExactOptions, KspSmoothing, MeanOptimal,
     MeanOptimalOptions,
 };
+pub use fokker_planck::TimeScheme;
 pub use grid::{Grid, GridSpec};
 pub use mean_optimal::{DualDetails, DualStart, SdKind};

@@ -38,6 +38,15 @@ fn text_options_are_typed_and_nested() {
         }
         other => panic!("{other:?}"),
     }
+    // The exact estimators' time scheme.
+    match Estimator::parse("ksp:scheme=implicit-euler").unwrap() {
+        Estimator::Ksp(o) => assert_eq!(o.scheme, crate::action::TimeScheme::ImplicitEuler),
+        other => panic!("{other:?}"),
+    }
+    match Estimator::parse("mean-optimal:scheme=tr-bdf2").unwrap() {
+        Estimator::MeanOptimal(o) => assert_eq!(o.exact.scheme, crate::action::TimeScheme::TrBdf2),
+        other => panic!("{other:?}"),
+    }
     // A grid as a table, as in TOML files.
     let table = serde_json::json!({"grid": {"lo": -2.0, "hi": 2.0, "cells": 40}});
     let e = Estimator::from_options(Method::Ksp, table.as_object().unwrap()).unwrap();
@@ -50,6 +59,7 @@ fn text_options_are_typed_and_nested() {
         ("ksp:grid=\"lo=1,hi=0,cells=10\"", "grid", "lo < hi"),
         ("exp-closure:dual.tolerance=-1", "dual.tolerance", "positive"),
         ("mean-optimal:dual.nope=1", "dual", "nope"),
+        ("ksp:scheme=euler", "scheme", "implicit-euler"),
     ];
     for (text, option, allowed) in cases {
         match Estimator::parse(text) {
