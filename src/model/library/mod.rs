@@ -21,6 +21,7 @@
 mod double_well;
 mod double_well_2d;
 mod duffing;
+mod flight_path;
 mod holmes_rand;
 mod lorenz63;
 mod lorenz96;
@@ -34,6 +35,10 @@ mod tests;
 pub use double_well::DoubleWell;
 pub use double_well_2d::DoubleWell2d;
 pub use duffing::Duffing;
+pub use flight_path::{
+    rigid_body_kinematics, state as flight_state, FlightPath, FlightPathObservation, FlightPathSetup,
+    Inertia, MomentCoefficients, Position, SensorSd,
+};
 pub use holmes_rand::HolmesRand;
 pub use lorenz63::Lorenz63;
 pub use lorenz96::Lorenz96;
