@@ -1,31 +1,58 @@
-//! Flight-path reconstruction (`000_74b95e149527c64e.txt` Sec. 4.2) on synthetic records: for
-//! each replicate (seed 1, 2, …), simulate 30 s at 25 Hz of the flight-path model with known
-//! sensor biases ([`FlightPathSetup::TRUTH`]), then estimate the path jointly with the eight
-//! parameters by JME and MEE (Hermite–Simpson, step = sample period, started from the
-//! measurements), with the Laplace standard deviations.
+//! Flight-path reconstruction (`000_74b95e149527c64e.txt` Sec. 4.2).
 //!
-//! Prints one line per replicate and estimator (status, iterations, solve seconds) and, per
-//! estimator and bias, the truth, the mean estimate, the mean Laplace sd, the spread (sd of the
-//! estimates over the replicates), the ratio Laplace sd / spread, and the largest
+//! **Synthetic** (no `--data`): for each replicate (seed 1, 2, …), simulate 30 s at 25 Hz of the
+//! flight-path model with known sensor biases ([`FlightPathSetup::TRUTH`]), then estimate the
+//! path jointly with the eight parameters by JME and MEE (Hermite–Simpson, step = sample
+//! period, started from the measurements), with the Laplace standard deviations. Prints one
+//! line per replicate and estimator (status, iterations, solve seconds) and, per estimator and
+//! bias, the truth, the mean estimate, the mean Laplace sd, the spread (sd of the estimates
+//! over the replicates), the ratio Laplace sd / spread, and the largest
 //! |estimate − truth| / Laplace sd over the replicates.
 //!
+//! **Flight data** (`--data FILE`): reads a record in the ASCII layout of Jategaonkar's
+//! *Flight Vehicle System Identification* (ATTAS channels, [`FlightColumns::ATTAS`]), writes it
+//! as the project's measurement CSV with `--out`, estimates by JME and MEE with step = the
+//! sample period, and prints per estimator the status, iterations, solve seconds, the biases
+//! with their Laplace sds and the residual RMS of every channel against its range; the
+//! measured and reconstructed outputs are drawn per channel group (altitude, air data,
+//! attitude, rates, accelerations) as SVG and PNG in `--plots DIR` (default
+//! `flight-path-plots`).
+//!
 //! Run with `cargo run --release --example flight_path -- [--replicates N] [--t-end T]
-//! [--jme-only]` (defaults 20 replicates, T = 30 s, both estimators).
+//! [--jme-only] [--data FILE [--out CSV] [--plots DIR]]` (defaults 20 replicates, T = 30 s,
+//! both estimators).
 
-use onsager::model::library::{FlightPath, FlightPathSetup};
-use onsager::path::{Merit, PathDetails};
+use std::path::{Path, PathBuf};
+
+use onsager::data::Dataset;
+use onsager::model::library::{
+    read_flight_record, FlightColumns, FlightPath, FlightPathObservation, FlightPathSetup,
+};
+use onsager::path::{Merit, PathDetails, PathSolution};
+use onsager::plot::{LinePlot, Panels, Series, DATA};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 
-/// The command line: `--replicates N`, `--t-end T`, `--jme-only`.
+/// The command line: `--replicates N`, `--t-end T`, `--jme-only`, `--data FILE`, `--out CSV`,
+/// `--plots DIR`.
 struct Args {
     replicates: u64,
     t_end: f64,
     jme_only: bool,
+    data: Option<PathBuf>,
+    out: Option<PathBuf>,
+    plots: PathBuf,
 }
 
 fn parse_args() -> Result<Args, String> {
-    let mut args = Args { replicates: 20, t_end: 30.0, jme_only: false };
+    let mut args = Args {
+        replicates: 20,
+        t_end: 30.0,
+        jme_only: false,
+        data: None,
+        out: None,
+        plots: PathBuf::from("flight-path-plots"),
+    };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
         let mut value = |flag: &str| it.next().ok_or_else(|| format!("{flag} needs a value"));
@@ -39,7 +66,14 @@ fn parse_args() -> Result<Args, String> {
                 args.t_end = v.parse().map_err(|_| format!("--t-end: not a number: `{v}`"))?;
             }
             "--jme-only" => args.jme_only = true,
-            other => return Err(format!("unknown flag `{other}` (--replicates N, --t-end T, --jme-only)")),
+            "--data" => args.data = Some(value("--data")?.into()),
+            "--out" => args.out = Some(value("--out")?.into()),
+            "--plots" => args.plots = value("--plots")?.into(),
+            other => {
+                return Err(format!(
+                    "unknown flag `{other}` (--replicates N, --t-end T, --jme-only, --data FILE, --out CSV, --plots DIR)"
+                ))
+            }
         }
     }
     Ok(args)
@@ -99,11 +133,14 @@ fn main() -> onsager::Result<()> {
             std::process::exit(2);
         }
     };
-    let setup = FlightPathSetup { t_end: args.t_end, ..FlightPathSetup::new() };
     let mut merits = vec![("JME", Merit::OnsagerMachlup)];
     if !args.jme_only {
         merits.push(("MEE", Merit::Energy));
     }
+    if let Some(file) = &args.data {
+        return flight_data(file, &args, &merits);
+    }
+    let setup = FlightPathSetup { t_end: args.t_end, ..FlightPathSetup::new() };
     let mut tallies: Vec<Tally> = merits.iter().map(|_| Tally::default()).collect();
     println!(
         "flight-path: {} replicates, {} s at {} Hz, Hermite-Simpson, step {} s",
@@ -139,6 +176,125 @@ fn main() -> onsager::Result<()> {
     }
     for ((name, _), tally) in merits.iter().zip(&tallies) {
         print_table(name, tally, args.replicates);
+    }
+    Ok(())
+}
+
+/// Per output: display scale from SI, unit, and the channel group (plot file) it is drawn in.
+const DISPLAY: [(f64, &str, &str); 13] = [
+    (1.0, "m/s", "air-data"),
+    (57.295_779_513_082_32, "deg", "air-data"),
+    (57.295_779_513_082_32, "deg", "air-data"),
+    (57.295_779_513_082_32, "deg", "attitude"),
+    (57.295_779_513_082_32, "deg", "attitude"),
+    (57.295_779_513_082_32, "deg", "attitude"),
+    (1.0, "m", "altitude"),
+    (57.295_779_513_082_32, "deg/s", "rates"),
+    (57.295_779_513_082_32, "deg/s", "rates"),
+    (57.295_779_513_082_32, "deg/s", "rates"),
+    (1.0, "m/s^2", "accelerations"),
+    (1.0, "m/s^2", "accelerations"),
+    (1.0, "m/s^2", "accelerations"),
+];
+
+/// `--data FILE`: read the record, estimate by each of `merits`, print the tables and draw the
+/// channel groups.
+fn flight_data(file: &Path, args: &Args, merits: &[(&str, Merit)]) -> onsager::Result<()> {
+    let data = read_flight_record(file, &FlightColumns::ATTAS)?;
+    if let Some(out) = &args.out {
+        data.write_csv(out)?;
+        println!("wrote {}", out.display());
+    }
+    let setup = FlightPathSetup::new();
+    let dt = (data.times[data.times.len() - 1] - data.times[0]) / (data.times.len() - 1).max(1) as f64;
+    let setup = FlightPathSetup { sample_every: dt, ..setup };
+    println!(
+        "flight-path: {} ({} samples, t = {} .. {} s, step {dt:.4} s), Hermite-Simpson",
+        file.display(),
+        data.times.len(),
+        data.times[0],
+        data.times[data.times.len() - 1]
+    );
+    let mut solutions = Vec::new();
+    for (name, merit) in merits {
+        let solution = setup.estimate(&data, *merit)?;
+        print_flight_estimate(name, &setup, &data, &solution)?;
+        solutions.push((*name, solution));
+    }
+    plot_flight(&setup, &data, &solutions, &args.plots)?;
+    println!("\nplots in {}", args.plots.display());
+    Ok(())
+}
+
+/// One estimator's status, biases with Laplace sds and residual RMS per channel.
+fn print_flight_estimate(
+    name: &str,
+    setup: &FlightPathSetup,
+    data: &Dataset,
+    s: &PathSolution,
+) -> onsager::Result<()> {
+    let e = &s.estimate;
+    println!(
+        "\n{name}: {} after {} iterations, solve {:.1} s, {} grid nodes",
+        e.status,
+        e.iterations,
+        e.solve_seconds,
+        e.path.times.len()
+    );
+    if e.theta_sd.is_none() {
+        let sd = e.details.get::<PathDetails>().map(|d| d.sd.to_string()).unwrap_or_default();
+        println!("  no Laplace sd: {sd}");
+    }
+    println!("{:>5} {:>12} {:>11}", "param", "estimate", "Laplace sd");
+    for (i, p) in FlightPath::PARAMS.iter().enumerate() {
+        let sd = e.theta_sd.as_ref().map_or(f64::NAN, |s| s[i]);
+        println!("{p:>5} {:>12.6} {sd:>11.3e}", e.theta[i]);
+    }
+    let res = setup.residuals(data, &e.path, &e.theta)?;
+    println!("{:>8} {:>11} {:>11} {:>9}  (SI units)", "channel", "RMS", "range", "RMS/range");
+    for (j, out) in FlightPathObservation::OUTPUTS.iter().enumerate() {
+        println!("{out:>8} {:>11.4e} {:>11.4e} {:>9.4}", res.rms[j], res.range[j], res.rms[j] / res.range[j]);
+    }
+    Ok(())
+}
+
+/// Measured against reconstructed outputs, one figure per channel group (as the thesis's Figs.
+/// 4.18–4.22), in display units.
+fn plot_flight(
+    setup: &FlightPathSetup,
+    data: &Dataset,
+    solutions: &[(&str, PathSolution)],
+    dir: &Path,
+) -> onsager::Result<()> {
+    let outputs: Vec<Vec<[f64; 13]>> =
+        solutions.iter().map(|(_, s)| setup.outputs_along(&s.estimate.path, &s.estimate.theta)).collect();
+    for group in ["altitude", "air-data", "attitude", "rates", "accelerations"] {
+        let mut panels = Vec::new();
+        for (j, &(scale, unit, g)) in DISPLAY.iter().enumerate() {
+            if g != group {
+                continue;
+            }
+            let measured: Vec<f64> = data.values.iter().map(|row| row[j] * scale).collect();
+            let mut series =
+                vec![Series::points("measured", data.times.clone(), measured)
+                    .with_look(DATA, Default::default())];
+            for ((name, s), out) in solutions.iter().zip(&outputs) {
+                let y = out.iter().map(|o| o[j] * scale).collect();
+                series.push(Series::line(*name, s.estimate.path.times.clone(), y));
+            }
+            panels.push(LinePlot {
+                title: FlightPathObservation::OUTPUTS[j].to_string(),
+                x_label: "t (s)".into(),
+                y_label: unit.into(),
+                series,
+                legend: panels.is_empty(),
+                height: 320,
+                ..LinePlot::default()
+            });
+        }
+        let figure =
+            Panels { title: format!("flight path: {group}"), panels, columns: 1, ..Panels::default() };
+        figure.write(&dir.join(group))?;
     }
     Ok(())
 }

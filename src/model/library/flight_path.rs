@@ -15,6 +15,9 @@
 
 use rand::Rng;
 
+mod attas;
+pub use attas::{read_flight_record, read_flight_record_from, FlightColumns, Unit};
+
 use super::names;
 use crate::data::{Dataset, StatePath};
 use crate::estimate::EstimationProblem;
@@ -711,7 +714,8 @@ impl FlightPathSetup {
     }
 
     /// The estimation problem on `data` with θ starting at `theta`, estimating the θ
-    /// components `estimate`, with the initial time of the first measurement or 0.
+    /// components `estimate`, from the time of the first measurement (a flight record starts
+    /// at its recorded time, not at 0; 0 without data).
     pub fn problem<'a>(
         &'a self,
         data: &'a Dataset,
@@ -727,7 +731,7 @@ impl FlightPathSetup {
             x0_prior: &self.x0_prior,
             z0_prior: &self.z0_prior,
             data,
-            t0: crate::estimate::default_initial_time(data),
+            t0: data.times.first().copied().unwrap_or(0.0),
             seed: 0,
             max_memory: Default::default(),
         }
@@ -806,5 +810,59 @@ impl FlightPathSetup {
             .with_step(self.sample_every)
             .with_initial_path(self.initial_path(data));
         estimate_path(&problem, options)
+    }
+}
+
+/// Residuals of a reconstruction: per output of [`FlightPathObservation`], the root mean square
+/// of measured minus reconstructed output and the measured range (max − min), over the
+/// measurements present.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OutputResiduals {
+    /// RMS of y − ŷ per output (SI units).
+    pub rms: [f64; 13],
+    /// max y − min y per output (SI units).
+    pub range: [f64; 13],
+}
+
+impl FlightPathSetup {
+    /// The noise-free outputs ([`FlightPathObservation::outputs`]) along `path` (rows: the 6
+    /// noisy then the 16 clean states) with parameters `theta`, one row per path time.
+    pub fn outputs_along(&self, path: &StatePath, theta: &[f64]) -> Vec<[f64; 13]> {
+        path.values.iter().map(|row| self.observation.outputs(&row[6..22], theta)).collect()
+    }
+
+    /// [`OutputResiduals`] of the reconstruction `path` with `theta` against `data`, each
+    /// measurement compared with the path row at its time.
+    ///
+    /// # Errors
+    /// [`crate::Error::InvalidOption`] if a measurement time is not a time of `path` (within
+    /// 10⁻⁶ of the path's smallest spacing).
+    pub fn residuals(&self, data: &Dataset, path: &StatePath, theta: &[f64]) -> Result<OutputResiduals> {
+        let outputs = self.outputs_along(path, theta);
+        let spacing = path.times.windows(2).map(|w| w[1] - w[0]).fold(f64::INFINITY, f64::min);
+        let tol = if spacing.is_finite() { 1e-6 * spacing } else { 1e-9 };
+        let (mut sum, mut count) = ([0.0; 13], [0usize; 13]);
+        let (mut lo, mut hi) = ([f64::INFINITY; 13], [f64::NEG_INFINITY; 13]);
+        for (t, y) in data.times.iter().zip(&data.values) {
+            let k = path.times.partition_point(|&s| s < t - tol);
+            if k >= path.times.len() || (path.times[k] - t).abs() > tol {
+                return Err(crate::Error::InvalidOption {
+                    name: "path".into(),
+                    reason: format!("measurement time {t} is not a time of the reconstructed path"),
+                });
+            }
+            for (j, &yj) in y.iter().enumerate().take(13) {
+                if yj.is_finite() {
+                    sum[j] += (yj - outputs[k][j]).powi(2);
+                    count[j] += 1;
+                    lo[j] = lo[j].min(yj);
+                    hi[j] = hi[j].max(yj);
+                }
+            }
+        }
+        let rms =
+            std::array::from_fn(|j| if count[j] > 0 { (sum[j] / count[j] as f64).sqrt() } else { f64::NAN });
+        let range = std::array::from_fn(|j| if count[j] > 0 { hi[j] - lo[j] } else { f64::NAN });
+        Ok(OutputResiduals { rms, range })
     }
 }

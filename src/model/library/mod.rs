@@ -36,8 +36,9 @@ pub use double_well::DoubleWell;
 pub use double_well_2d::DoubleWell2d;
 pub use duffing::Duffing;
 pub use flight_path::{
-    rigid_body_kinematics, state as flight_state, FlightPath, FlightPathObservation, FlightPathSetup,
-    Inertia, MomentCoefficients, Position, SensorSd,
+    read_flight_record, read_flight_record_from, rigid_body_kinematics, state as flight_state, FlightColumns,
+    FlightPath, FlightPathObservation, FlightPathSetup, Inertia, MomentCoefficients, OutputResiduals,
+    Position, SensorSd, Unit,
 };
 pub use holmes_rand::HolmesRand;
 pub use lorenz63::Lorenz63;
