@@ -21,6 +21,7 @@
 mod double_well;
 mod double_well_2d;
 mod duffing;
+mod flight_oem;
 mod flight_path;
 mod holmes_rand;
 mod lorenz63;
@@ -35,6 +36,7 @@ mod tests;
 pub use double_well::DoubleWell;
 pub use double_well_2d::DoubleWell2d;
 pub use duffing::Duffing;
+pub use flight_oem::{output_error, OemEstimate, OemOptions, OEM_INPUTS, OEM_OUTPUTS, OEM_STATES};
 pub use flight_path::{
     read_flight_record, read_flight_record_from, rigid_body_kinematics, state as flight_state, FlightColumns,
     FlightPath, FlightPathObservation, FlightPathSetup, Inertia, MomentCoefficients, OutputResiduals,
