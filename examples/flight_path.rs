@@ -26,7 +26,8 @@ use std::path::{Path, PathBuf};
 
 use onsager::data::Dataset;
 use onsager::model::library::{
-    read_flight_record, FlightColumns, FlightPath, FlightPathObservation, FlightPathSetup,
+    output_error, read_flight_record, FlightColumns, FlightPath, FlightPathObservation, FlightPathSetup,
+    OemOptions, OEM_OUTPUTS,
 };
 use onsager::path::{Merit, PathDetails, PathSolution};
 use onsager::plot::{LinePlot, Panels, Series, DATA};
@@ -215,6 +216,7 @@ fn flight_data(file: &Path, args: &Args, merits: &[(&str, Merit)]) -> onsager::R
         data.times[0],
         data.times[data.times.len() - 1]
     );
+    print_oem(&setup, &data)?;
     let mut solutions = Vec::new();
     for (name, merit) in merits {
         let solution = setup.estimate(&data, *merit)?;
@@ -223,6 +225,28 @@ fn flight_data(file: &Path, args: &Args, merits: &[(&str, Merit)]) -> onsager::R
     }
     plot_flight(&setup, &data, &solutions, &args.plots)?;
     println!("\nplots in {}", args.plots.display());
+    Ok(())
+}
+
+/// The output-error method on the same record: biases with Cramér–Rao sds, residual sd per
+/// fitted output.
+fn print_oem(setup: &FlightPathSetup, data: &Dataset) -> onsager::Result<()> {
+    let begin = std::time::Instant::now();
+    let oem = output_error(&setup.model, &setup.observation, data, &OemOptions::default())?;
+    println!(
+        "\noem: {} after {} iterations, {:.2} s",
+        oem.status,
+        oem.iterations,
+        begin.elapsed().as_secs_f64()
+    );
+    println!("{:>5} {:>12} {:>11}", "param", "estimate", "CR sd");
+    for (i, p) in FlightPath::PARAMS[..6].iter().enumerate() {
+        println!("{p:>5} {:>12.6} {:>11.3e}", oem.biases[i], oem.bias_sd[i]);
+    }
+    println!("{:>8} {:>11}", "output", "residual sd");
+    for (k, out) in OEM_OUTPUTS.iter().enumerate() {
+        println!("{out:>8} {:>11.4e}", oem.residual_sd[k]);
+    }
     Ok(())
 }
 
