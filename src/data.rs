@@ -16,6 +16,8 @@ use std::path::{Path, PathBuf};
 
 use crate::{Error, Result};
 
+pub mod continuous;
+
 /// A table of measurements: one row per measurement time, NaN for a missing value.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Dataset {
@@ -125,7 +127,18 @@ impl Dataset {
     /// Parses measurement CSV from any reader; `path` names the source in errors and
     /// `outputs`, if given, are the names the columns must come from.
     pub fn from_reader<R: Read>(reader: R, path: &Path, outputs: Option<&[String]>) -> Result<Dataset> {
-        let table = read_table(reader, path)?;
+        Self::from_reader_at(reader, path, outputs, 0).map(|(data, _)| data)
+    }
+
+    /// As [`Dataset::from_reader`] for text that starts after `offset` lines of its file (errors
+    /// name the file's lines); also returns the file line of every row.
+    pub(crate) fn from_reader_at<R: Read>(
+        reader: R,
+        path: &Path,
+        outputs: Option<&[String]>,
+        offset: usize,
+    ) -> Result<(Dataset, Vec<usize>)> {
+        let table = read_table(reader, path, offset)?;
         let header = &table.header;
         let names: Vec<String> = header[1..].to_vec();
         // Map file columns to result columns.
@@ -139,7 +152,7 @@ impl Dataset {
                         None => {
                             return Err(data_err(
                                 path,
-                                1,
+                                offset + 1,
                                 Some(format!("{} ({name})", j + 2)),
                                 format!(
                                     "unknown output `{name}` (the model's outputs: {})",
@@ -165,20 +178,16 @@ impl Dataset {
         }
         let lines: Vec<usize> = table.rows.iter().map(|(l, _)| *l).collect();
         check_times(&times, path, |i| lines[i])?;
-        Ok(Dataset { names: out_names, times, values })
+        Ok((Dataset { names: out_names, times, values }, lines))
     }
 
     /// Writes the dataset as CSV; missing values are written as empty cells.
     pub fn write_csv(&self, path: impl AsRef<Path>) -> Result<()> {
         let path = path.as_ref();
-        let mut header = vec!["t".to_string()];
-        header.extend(self.names.iter().cloned());
-        let rows = self
-            .times
-            .iter()
-            .zip(&self.values)
-            .map(|(&t, row)| std::iter::once(t).chain(row.iter().copied()).collect::<Vec<f64>>());
-        write_table(path, &header, rows)
+        let io = |source| Error::Io { path: path.to_path_buf(), source };
+        let mut out = std::io::BufWriter::new(File::create(path).map_err(io)?);
+        write_rows(&mut out, path, self)?;
+        out.flush().map_err(io)
     }
 }
 
@@ -254,7 +263,7 @@ impl StatePath {
 
     /// Parses path CSV from any reader; `path` names the source in errors.
     pub fn from_reader<R: Read>(reader: R, path: &Path) -> Result<StatePath> {
-        let table = read_table(reader, path)?;
+        let table = read_table(reader, path, 0)?;
         let cols = &table.header[1..];
         let n_sd = cols.iter().filter(|c| c.starts_with("sd_")).count();
         let n = cols.len() - n_sd;
@@ -348,26 +357,28 @@ struct Table {
     rows: Vec<(usize, Vec<String>)>,
 }
 
-fn read_table<R: Read>(reader: R, path: &Path) -> Result<Table> {
+/// Reads a CSV table whose header is line `offset + 1` of the file `path`.
+fn read_table<R: Read>(reader: R, path: &Path, offset: usize) -> Result<Table> {
+    let header_line = offset + 1;
     let mut rdr =
         csv::ReaderBuilder::new().has_headers(true).flexible(true).trim(csv::Trim::All).from_reader(reader);
     let header: Vec<String> = rdr
         .headers()
-        .map_err(|e| data_err(path, 1, None, format!("cannot read the header: {e}")))?
+        .map_err(|e| data_err(path, header_line, None, format!("cannot read the header: {e}")))?
         .iter()
         .map(str::to_string)
         .collect();
     if header.is_empty() || header[0] != "t" {
-        return Err(data_err(path, 1, Some("1".into()), "the first column must be `t`"));
+        return Err(data_err(path, header_line, Some("1".into()), "the first column must be `t`"));
     }
     for (j, h) in header.iter().enumerate() {
         if h.is_empty() {
-            return Err(data_err(path, 1, Some((j + 1).to_string()), "empty column name"));
+            return Err(data_err(path, header_line, Some((j + 1).to_string()), "empty column name"));
         }
         if header[..j].contains(h) {
             return Err(data_err(
                 path,
-                1,
+                header_line,
                 Some(format!("{} ({h})", j + 1)),
                 format!("duplicate column `{h}`"),
             ));
@@ -376,10 +387,10 @@ fn read_table<R: Read>(reader: R, path: &Path) -> Result<Table> {
     let mut rows = Vec::new();
     for rec in rdr.records() {
         let rec = rec.map_err(|e| {
-            let line = e.position().map_or(0, |p| p.line() as usize);
+            let line = e.position().map_or(0, |p| p.line() as usize + offset);
             data_err(path, line, None, format!("malformed CSV: {e}"))
         })?;
-        let line = rec.position().map_or(0, |p| p.line() as usize);
+        let line = rec.position().map_or(0, |p| p.line() as usize + offset);
         if rec.len() == 1 && rec[0].is_empty() {
             continue; // blank line
         }
@@ -428,13 +439,37 @@ fn parse_cell(cell: &str, path: &Path, line: usize, col: usize, name: &str, miss
 fn write_table(path: &Path, header: &[String], rows: impl Iterator<Item = Vec<f64>>) -> Result<()> {
     let io = |source| Error::Io { path: path.to_path_buf(), source };
     let mut out = std::io::BufWriter::new(File::create(path).map_err(io)?);
+    write_table_to(&mut out, path, header, rows)?;
+    out.flush().map_err(io)
+}
+
+/// Writes the header and the rows to `out` (`path` names it in errors); NaN as an empty cell.
+fn write_table_to<W: Write>(
+    out: &mut W,
+    path: &Path,
+    header: &[String],
+    rows: impl Iterator<Item = Vec<f64>>,
+) -> Result<()> {
+    let io = |source| Error::Io { path: path.to_path_buf(), source };
     writeln!(out, "{}", header.join(",")).map_err(io)?;
     for row in rows {
         let cells: Vec<String> =
             row.iter().map(|v| if v.is_nan() { String::new() } else { format!("{v}") }).collect();
         writeln!(out, "{}", cells.join(",")).map_err(io)?;
     }
-    out.flush().map_err(io)
+    Ok(())
+}
+
+/// Writes the measurement CSV of `data` to `out` (`path` names it in errors).
+fn write_rows<W: Write>(out: &mut W, path: &Path, data: &Dataset) -> Result<()> {
+    let mut header = vec!["t".to_string()];
+    header.extend(data.names.iter().cloned());
+    let rows = data
+        .times
+        .iter()
+        .zip(&data.values)
+        .map(|(&t, row)| std::iter::once(t).chain(row.iter().copied()).collect::<Vec<f64>>());
+    write_table_to(out, path, &header, rows)
 }
 
 #[cfg(test)]

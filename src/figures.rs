@@ -53,6 +53,7 @@ pub fn method_look(m: Method) -> Look {
         Method::MeanOptimal => (WINE, Dash::Solid),
         Method::GaussianClosure => (CYAN, Dash::Solid),
         Method::ExpClosure => (ROSE, Dash::Solid),
+        Method::AreaClosure => (ROSE, Dash::Dashed),
         Method::DoubleExpClosure => (SAND, Dash::Solid),
         Method::KspClosure => (PURPLE, Dash::Solid),
         Method::GaussianKspClosure => (WINE, Dash::Dashed),

@@ -20,7 +20,8 @@
 //! externally supplied increments ([`BrownianIncrements`]), which can be coarse-grained
 //! ([`BrownianIncrements::coarsen`]) so that several step sizes are driven by one Brownian path.
 //! [`sample_measurements`] and [`sample_measurements_at`] draw measurements from a simulated
-//! path with an [`Observation`] model.
+//! path with an [`Observation`] model; [`sample_record`] draws a continuous-time record
+//! ([`ContinuousRecord`]) of a path's measured states.
 //!
 //! Reference: P. E. Kloeden and E. Platen, *Numerical Solution of Stochastic Differential
 //! Equations*, Springer, 1992 (cited by `000_74b95e149527c64e.txt` Sec. 4.1).
@@ -33,7 +34,9 @@ use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
+use crate::data::continuous::{cell_midpoints, ContinuousRecord};
 use crate::data::{Dataset, StatePath};
+use crate::model::observation::StateMeasurement;
 use crate::model::{check_len, Observation, Sde};
 use crate::{Error, Result};
 
@@ -625,6 +628,74 @@ pub fn sample_measurements_at<O: Observation + ?Sized, R: Rng + ?Sized>(
     Dataset::try_new(obs.output_names(), times.to_vec(), values)
 }
 
+/// Draws a continuous-time record dY = s[states] dt + R^{1/2} dW of the states that `obs`
+/// measures (`003_d2fc48a470e528fc.txt` (I.26), B the selection of `obs.states`) from `path`,
+/// seen on cells of width `cell` starting at the path's first time: each value is the cell
+/// average of the measured state (trapezoidal rule on the path's steps) plus an independent
+/// N(0, R/Δ) error, the increment of R^{1/2} W over the cell divided by Δ; the times are the
+/// cell midpoints ([`cell_midpoints`]), the names `obs.names`. `obs.noise` is not used.
+///
+/// Errors: [`Error::InvalidOption`] naming `every` when `cell` is not a positive integer
+/// multiple of the path's step (within 10⁻⁹ relative) or when fewer than two cells fit in the
+/// path's span, naming `R` when `intensity` is not positive and finite; those of
+/// [`sample_measurements_at`] for the path and the measured states; [`Error::NonFinite`] for a
+/// non-finite path value.
+pub fn sample_record<R: Rng + ?Sized>(
+    obs: &StateMeasurement,
+    path: &StatePath,
+    n_noisy: usize,
+    cell: f64,
+    intensity: f64,
+    rng: &mut R,
+) -> Result<ContinuousRecord> {
+    check_path(path, n_noisy)?;
+    if !(intensity.is_finite() && intensity > 0.0) {
+        return Err(invalid("R", format!("the intensity must be positive and finite, got {intensity}")));
+    }
+    if let Some(&i) = obs.states.iter().find(|&&i| i >= path.names.len()) {
+        return Err(invalid(
+            "states",
+            format!("state index {i} exceeds the path's {} states", path.names.len()),
+        ));
+    }
+    if path.times.len() < 2 {
+        return Err(invalid("path", "needs at least two times".into()));
+    }
+    let dt = path.times[1] - path.times[0];
+    let m = integer_ratio(cell, dt, "every", "the cell width / dt")?;
+    let t0 = path.times[0];
+    let times = cell_midpoints(t0, path.times[path.times.len() - 1], cell);
+    if times.len() < 2 {
+        return Err(invalid(
+            "every",
+            format!("the cell width {cell} leaves fewer than two cells in the path's span"),
+        ));
+    }
+    let sd = (intensity / cell).sqrt();
+    let mut values = Vec::with_capacity(times.len());
+    for (k, &mid) in times.iter().enumerate() {
+        let (a, b) = (k * m, (k + 1) * m);
+        let tol = 1e-6 * dt;
+        if b >= path.times.len() || (path.times[b] - (t0 + (k + 1) as f64 * cell)).abs() > tol {
+            return Err(invalid("path", format!("is not on a regular grid of step {dt} near cell {k}")));
+        }
+        let mut row = Vec::with_capacity(obs.states.len());
+        for &i in &obs.states {
+            let s = |j: usize| path.values[j][i];
+            let sum: f64 =
+                (a..b).map(|j| 0.5 * (s(j) + s(j + 1)) * (path.times[j + 1] - path.times[j])).sum();
+            if !sum.is_finite() {
+                return Err(Error::NonFinite { what: format!("path in the cell at t = {mid}") });
+            }
+            let e: f64 = StandardNormal.sample(rng);
+            row.push(sum / cell + sd * e);
+        }
+        values.push(row);
+    }
+    let data = Dataset::try_new(obs.names.clone(), times, values)?;
+    ContinuousRecord::try_new(intensity, data)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1049,5 +1120,54 @@ mod tests {
         assert_eq!(name(sample_measurements_at(&obs, &[0.3], &path, 1, &[0.105], &mut rng)), "times");
         assert_eq!(name(sample_measurements_at(&obs, &[0.3], &path, 1, &[0.2, 0.1], &mut rng)), "times");
         assert_eq!(name(sample_measurements_at(&obs, &[0.3], &path, 1, &[1.01], &mut rng)), "times");
+    }
+
+    #[test]
+    fn sample_record_is_the_cell_average_plus_noise_of_variance_r_over_delta() {
+        // A path x(t) = t², z = 1 on [0, 200] with step 0.01; cells of 0.1, R = 0.04.
+        let times: Vec<f64> = (0..=20_000).map(|i| i as f64 * 0.01).collect();
+        let path = StatePath {
+            names: vec!["x".into(), "z".into()],
+            values: times.iter().map(|&t| vec![t * t, 1.0]).collect(),
+            times,
+            sd: None,
+        };
+        let obs = StateMeasurement::new(
+            vec![0],
+            vec!["y".into()],
+            crate::model::observation::Noise::Gaussian { sigma: crate::model::Param::Fixed(1.0) },
+        );
+        let (cell, r) = (0.1, 0.04);
+        let rec = sample_record(&obs, &path, 1, cell, r, &mut StdRng::seed_from_u64(3)).unwrap();
+        assert_eq!(rec.data.len(), 2000);
+        assert_relative_eq!(rec.data.times[0], 0.05, epsilon = 1e-12);
+        assert_relative_eq!(rec.cell(), cell, epsilon = 1e-12);
+        assert_eq!(rec.intensity, r);
+        // The trapezoidal cell average of t² on [a, a + Δ] with 10 steps of h:
+        // a² + aΔ + Δ²/3 + h²Δ/(6Δ)·… = (exact average) + h²/6.
+        let residuals: Vec<f64> = rec
+            .data
+            .times
+            .iter()
+            .zip(&rec.data.values)
+            .map(|(&t, v)| {
+                let a = t - cell / 2.0;
+                v[0] - (a * a + a * cell + cell * cell / 3.0 + 0.01 * 0.01 / 6.0)
+            })
+            .collect();
+        let n = residuals.len() as f64;
+        let mean = residuals.iter().sum::<f64>() / n;
+        let var = residuals.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (n - 1.0);
+        // Standard errors: mean √(0.4/2000) = 0.014, variance 0.4·√(2/2000) = 0.013.
+        assert!(mean.abs() < 0.05, "mean {mean}");
+        assert!((var - r / cell).abs() < 0.05, "variance {var} vs R/Δ = {}", r / cell);
+        let name = |res: Result<ContinuousRecord>| match res {
+            Err(Error::InvalidOption { name, .. }) => name,
+            other => panic!("expected InvalidOption, got {other:?}"),
+        };
+        let mut rng = StdRng::seed_from_u64(1);
+        assert_eq!(name(sample_record(&obs, &path, 1, 0.015, r, &mut rng)), "every");
+        assert_eq!(name(sample_record(&obs, &path, 1, 150.0, r, &mut rng)), "every");
+        assert_eq!(name(sample_record(&obs, &path, 1, cell, 0.0, &mut rng)), "R");
     }
 }

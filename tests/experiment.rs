@@ -87,7 +87,7 @@ fn results_do_not_depend_on_the_number_of_threads() {
     run(&experiment, &options(&one, true, 1), &|_| {}).unwrap();
     run(&experiment, &options(&two, true, 2), &|_| {}).unwrap();
     let (a, b) = (row_set(&one), row_set(&two));
-    assert_eq!(a.len(), 14); // 2 replicates × 7 estimators
+    assert_eq!(a.len(), 16); // 2 replicates × 8 estimators
     assert_eq!(a, b);
     for d in [one, two] {
         let _ = std::fs::remove_dir_all(d);
@@ -199,7 +199,7 @@ fn cli_lists_runs_and_fails_with_exit_code_1() {
         .unwrap();
     assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
     // Not a terminal: plain progress lines on stderr, one per row.
-    assert_eq!(String::from_utf8_lossy(&ok.stderr).lines().filter(|l| l.starts_with('[')).count(), 7);
+    assert_eq!(String::from_utf8_lossy(&ok.stderr).lines().filter(|l| l.starts_with('[')).count(), 8);
     assert!(out.join("summary.json").exists());
     let spec = out.join("bad.toml");
     std::fs::write(&spec, "name = \"bad\"\n[model]\nname = \"ou\"\nmodle = 1\n").unwrap();

@@ -31,7 +31,7 @@ fn limits_reach_each_iterating_methods_own_options() {
                 (&o["max_iterations"], &o["tolerance"])
             }
             Method::Pem => (&o["max_iterations"], &o["gradient_tolerance"]),
-            Method::MeanOptimal | Method::GaussianClosure | Method::ExpClosure => {
+            Method::MeanOptimal | Method::GaussianClosure | Method::ExpClosure | Method::AreaClosure => {
                 (&o["dual"]["max_iterations"], &o["dual"]["tolerance"])
             }
             _ => {

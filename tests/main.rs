@@ -1,9 +1,11 @@
 //! Integration tests of `onsager`: one test binary, one module per area.
 
 mod action;
+mod area;
 mod baselines;
 mod cli;
 mod closure;
+mod continuous;
 mod estimators;
 mod experiment;
 mod fuzz;

@@ -162,8 +162,8 @@ pub fn print_table(c: &Comparison, with_truth: bool, bistable: bool) {
 /// Runs `onsager compare`; `Ok(false)` when an estimator did not converge or failed
 /// numerically; an error (after writing the table and files) when an estimator could not run.
 pub fn run(args: &CompareArgs) -> Result<bool> {
-    let preset = args.model.preset()?;
-    let data = super::read_data(&args.data, &preset)?;
+    let mut preset = args.model.preset()?;
+    let data = super::read_data(&args.data, &mut preset, args.model.likelihood.is_some())?;
     let truth = args.truth.as_ref().map(StatePath::read_csv).transpose()?;
     if let (Some(t), Some(file)) = (&truth, &args.truth) {
         super::warn_if_truth_short(t, file, &data);

@@ -201,8 +201,8 @@ pub struct Setup {
 impl Setup {
     /// Reads the data and resolves the flags.
     pub fn new(args: &EstimateArgs) -> Result<Setup> {
-        let preset = args.model.preset()?;
-        let data = super::read_data(&args.data, &preset)?;
+        let mut preset = args.model.preset()?;
+        let data = super::read_data(&args.data, &mut preset, args.model.likelihood.is_some())?;
         let estimate = parameter_indices(&preset, &args.estimate)?;
         Ok(Setup { preset, data, estimate })
     }

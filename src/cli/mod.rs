@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 
+use onsager::data::continuous::ContinuousRecord;
 use onsager::data::{Dataset, StatePath};
 use onsager::estimator::{Estimator, IterationLimits};
 use onsager::model::library::{self, Preset};
@@ -265,10 +266,41 @@ fn blame_param(p: &Preset, defaults: &Preset, set: &[(String, f64)], e: Error) -
     e
 }
 
-/// Reads `--data` for the outputs of `preset`. Errors: those of the reader; a file without a
-/// single measured value (every output missing on every line).
-pub fn read_data(file: &Path, preset: &Preset) -> Result<Dataset> {
-    let data = Dataset::read_csv_for(file, &preset.observation.output_names())?;
+/// Reads `--data` for the outputs of `preset`. A continuous-time record (first line
+/// `# continuous: R=…`, [`ContinuousRecord`]) is read as its cell averages, and the preset's
+/// likelihood becomes the record's, Gaussian with variance R/Δ (a note says so);
+/// `likelihood_flag` says whether `--likelihood` was given, which contradicts a record. Errors:
+/// those of the readers; `--likelihood` with a record; a file without a single measured value
+/// (every output missing on every line).
+pub fn read_data(file: &Path, preset: &mut Preset, likelihood_flag: bool) -> Result<Dataset> {
+    let outputs = preset.observation.output_names();
+    let data = if ContinuousRecord::is_record_file(file)? {
+        let record = ContinuousRecord::read_csv_for(file, &outputs)?;
+        if likelihood_flag {
+            return Err(Error::InvalidOption {
+                name: "--likelihood".into(),
+                reason: format!(
+                    "{} is a continuous record, whose likelihood is set by its intensity: Gaussian with \
+                     variance R/Δ = {}; drop --likelihood",
+                    file.display(),
+                    record.variance()
+                ),
+            });
+        }
+        preset.observation.noise = record.noise();
+        outln!(
+            "note: {} is a continuous record (R = {}, cells of {}): {} cell averages, each a measurement \
+             with variance R/Δ = {}",
+            file.display(),
+            record.intensity,
+            record.cell(),
+            record.data.len(),
+            record.variance()
+        );
+        record.data
+    } else {
+        Dataset::read_csv_for(file, &outputs)?
+    };
     if data.values.iter().flatten().all(|v| v.is_nan()) {
         return Err(Error::InvalidOption {
             name: "--data".into(),

@@ -31,6 +31,13 @@ pub struct SimulateArgs {
     /// Seed of the random number generator.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Write a continuous-time record of intensity R (dY = x dt + R^{1/2} dW of the measured
+    /// states; docs/effective-action.md, "Continuous-time records") instead of discrete
+    /// measurements: the cell averages on cells of width `--sample-every` from t = 0, at the
+    /// cell midpoints, under the first line `# continuous: R=<R>`. The model's likelihood is
+    /// not used.
+    #[arg(long, value_name = "R", allow_negative_numbers = true)]
+    pub continuous: Option<f64>,
     /// Where to write the measurements.
     #[arg(long, default_value = "out/data.csv")]
     pub out: PathBuf,
@@ -40,8 +47,14 @@ pub struct SimulateArgs {
 }
 
 /// The preset's settings and the flags of `onsager simulate` that set them.
-const SIMULATE_FLAGS: &[(&str, &str)] =
-    &[("t_end", "--t-end"), ("dt", "--dt"), ("sample_every", "--sample-every"), ("first_sample", "--t-end")];
+const SIMULATE_FLAGS: &[(&str, &str)] = &[
+    ("t_end", "--t-end"),
+    ("dt", "--dt"),
+    ("sample_every", "--sample-every"),
+    ("every", "--sample-every"),
+    ("first_sample", "--t-end"),
+    ("R", "--continuous"),
+];
 
 /// Runs `onsager simulate`.
 pub fn run(args: &SimulateArgs) -> Result<()> {
@@ -57,9 +70,27 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     }
     p.validate().map_err(|e| super::as_flags(e, SIMULATE_FLAGS))?;
     let mut rng = StdRng::seed_from_u64(args.seed);
-    let (path, data) = p.simulate(args.scheme, &mut rng).map_err(|e| super::as_flags(e, SIMULATE_FLAGS))?;
-    create_parent(&args.out)?;
-    data.write_csv(&args.out)?;
+    let flags = |e| super::as_flags(e, SIMULATE_FLAGS);
+    let (path, written) = match args.continuous {
+        None => {
+            let (path, data) = p.simulate(args.scheme, &mut rng).map_err(flags)?;
+            create_parent(&args.out)?;
+            data.write_csv(&args.out)?;
+            (path, format!("{} measurements of {}", data.len(), data.names.join(", ")))
+        }
+        Some(r) => {
+            let (path, record) = p.simulate_record(args.scheme, r, &mut rng).map_err(flags)?;
+            create_parent(&args.out)?;
+            record.write_csv(&args.out)?;
+            let what = format!(
+                "a continuous record of {} (R = {r}): {} cell averages on cells of {}",
+                record.data.names.join(", "),
+                record.data.len(),
+                record.cell()
+            );
+            (path, what)
+        }
+    };
     outln!(
         "simulated `{}` to t = {} with {} steps of {} ({}), seed {}",
         p.name,
@@ -69,7 +100,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         args.scheme,
         args.seed
     );
-    outln!("wrote {} measurements of {} to {}", data.len(), data.names.join(", "), args.out.display());
+    outln!("wrote {written} to {}", args.out.display());
     if let Some(truth) = &args.truth {
         create_parent(truth)?;
         path.write_csv(truth)?;

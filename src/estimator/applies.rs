@@ -41,6 +41,7 @@ impl Estimator {
     ///   state measured directly);
     /// - `exp-closure`: one or two states (moments up to degree 6 in two); `ksp-closure`, `double-exp-closure`: one noisy state;
     ///   `gaussian-closure`, `gaussian-ksp-closure`: any number of states, clean states too;
+    ///   `area-closure`: one noisy state and one scalar measured output;
     /// - `pem`: parameters to estimate;
     /// - Gaussian measurement errors for every method except `ksp`, `jme`, `mee` and `particle`.
     ///
@@ -98,6 +99,15 @@ impl Estimator {
                 return no(format!(
                     "in two states the exponential closure takes moments up to degree 6, not {}",
                     c.family.moments
+                ))
+            }
+            Estimator::AreaClosure(_) if n != 1 || dims.noisy != 1 => {
+                return no(format!("it takes one-state noisy models (one moment variable), the model has {n} states"))
+            }
+            Estimator::AreaClosure(_) if problem.observation.states.len() != 1 => {
+                return no(format!(
+                    "it takes one scalar measured output (the area rules, 003 II.19-II.23), the measurement has {}",
+                    problem.observation.states.len()
                 ))
             }
             Estimator::KspClosure(_) | Estimator::DoubleExpClosure(_) if n != 1 || dims.noisy != 1 => {

@@ -36,6 +36,7 @@ use serde::de::DeserializeOwned;
 use serde::{Deserialize, Deserializer, Serialize};
 use serde_json::{Map, Value};
 
+use crate::action::closure::area::AreaClosure;
 use crate::action::closure::om::MomentPathOptions;
 use crate::action::closure::{Closure, ExponentialFamily, GaussianFamily};
 use crate::action::exact::{ExactOptions, MeanOptimalOptions};
@@ -184,6 +185,10 @@ estimators! {
     /// (`003 (II.36)–(II.53)`).
     ExpClosure, "exp-closure", Closure<ExponentialFamily>,
         "exponential-family closure, polynomial moments up to degree `moments`, 1-D or 2-D (003 II.36-II.53)";
+    /// Scalar area-rule closure: one state, one moment M = x, one measured output
+    /// (`003 (II.17)–(II.35)`).
+    AreaClosure, "area-closure", AreaClosure,
+        "scalar area-rule closure: one state, the tilt exp(theta x) of the stationary density, one measured output (003 II.17-II.35)";
     /// Closure of the KSP smoother (`003 (II.64)–(II.65)`).
     KspClosure, "ksp-closure", MomentPathOptions,
         "closure of the KSP smoother (003 II.64-II.65)";
@@ -249,6 +254,7 @@ impl Method {
                 | Method::MeanOptimal
                 | Method::GaussianClosure
                 | Method::ExpClosure
+                | Method::AreaClosure
                 | Method::KspClosure
                 | Method::DoubleExpClosure
         )
@@ -383,6 +389,7 @@ impl Estimator {
             Estimator::ExpClosure(o) => {
                 set(&mut o.options.dual.max_iterations, &mut o.options.dual.tolerance)
             }
+            Estimator::AreaClosure(o) => set(&mut o.dual.max_iterations, &mut o.dual.tolerance),
             Estimator::KspClosure(o) | Estimator::DoubleExpClosure(o) => {
                 set(&mut o.max_iterations, &mut o.tolerance)
             }

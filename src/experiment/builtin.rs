@@ -11,9 +11,11 @@ pub const BUILTIN: &[(&str, &str)] = &[
     ("duffing-outliers", include_str!("../../experiments/duffing-outliers.toml")),
     ("holmes-rand-quantized", include_str!("../../experiments/holmes-rand-quantized.toml")),
     ("double-well-jumps", include_str!("../../experiments/double-well-jumps.toml")),
+    ("double-well-branch", include_str!("../../experiments/double-well-branch.toml")),
     ("lorenz63-smoothing", include_str!("../../experiments/lorenz63-smoothing.toml")),
     ("lorenz96-smoothing", include_str!("../../experiments/lorenz96-smoothing.toml")),
     ("closures-2d", include_str!("../../experiments/closures-2d.toml")),
+    ("double-well-continuous", include_str!("../../experiments/double-well-continuous.toml")),
 ];
 
 /// The TOML text of the built-in experiment `name`; [`Error::UnknownName`] (kind

@@ -21,7 +21,7 @@ use crate::estimate::{EstimationProblem, PathEstimate, RowStatus};
 use crate::estimator::Method;
 use crate::figures::EstimatorLooks;
 use crate::metrics;
-use crate::simulate::{sample_measurements_at, simulate, SimulateOptions};
+use crate::simulate::{sample_measurements_at, sample_record, simulate, SimulateOptions};
 use crate::{Error, Result};
 
 /// The first columns of `results.csv`, before the metrics and the parameter estimates.
@@ -268,7 +268,10 @@ pub fn simulate_replicate(scenario: &Scenario, seed: u64) -> Result<(StatePath, 
     let s0 = scenario.initial.iter().map(|pr| pr.sample(&mut rng)).collect::<Result<Vec<f64>>>()?;
     let options = SimulateOptions::new(0.0, p.t_end, p.dt).with_scheme(scenario.scheme);
     let truth = simulate(&p.model, &p.theta, &s0[..n_noisy], &s0[n_noisy..], &options, &mut rng)?;
-    let data = sample_measurements_at(&p.observation, &p.theta, &truth, n_noisy, &scenario.times, &mut rng)?;
+    let data = match scenario.continuous {
+        Some(r) => sample_record(&p.observation, &truth, n_noisy, p.sample_every, r, &mut rng)?.data,
+        None => sample_measurements_at(&p.observation, &p.theta, &truth, n_noisy, &scenario.times, &mut rng)?,
+    };
     Ok((truth, data))
 }
 
@@ -479,6 +482,11 @@ impl Shared<'_> {
                     let c =
                         self.theta_cols.iter().position(|n| *n == names[k]).expect("a column per parameter");
                     row.theta[c] = Some(est.theta[k]);
+                }
+                if !est.status.is_success() {
+                    if let Some(reason) = est.details.json().get("dual_reason").and_then(|v| v.as_str()) {
+                        messages.insert(0, reason.to_string());
+                    }
                 }
                 row.message = messages.join("; ");
             }

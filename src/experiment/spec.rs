@@ -152,7 +152,10 @@ pub struct MeasurementSpec {
     /// Explicit measurement times (instead of `every` and `first`).
     pub times: Option<Vec<f64>>,
     /// Likelihood the measurements are drawn from (syntax of `--likelihood`; default: the
-    /// preset's).
+    /// preset's), or `continuous:R=<intensity>` for a continuous-time record of the measured
+    /// states seen on cells of width `every` from t = 0 (the cell averages at the cell
+    /// midpoints, [`crate::simulate::sample_record`]), whose likelihood is Gaussian with
+    /// variance R/`every`.
     pub generate: Option<String>,
     /// Likelihood the estimators use (default: `generate`); an estimator may override it.
     pub estimate: Option<String>,
@@ -237,8 +240,12 @@ pub struct Scenario {
     pub initial: Vec<Prior>,
     /// Integration scheme.
     pub scheme: Scheme,
-    /// Measurement times.
+    /// Measurement times (of a continuous record: the cell midpoints).
     pub times: Vec<f64>,
+    /// The intensity R of a continuous-time record (`measurements.generate =
+    /// "continuous:R=…"`), on cells of width `truth.sample_every`; `None` for discrete
+    /// measurements.
+    pub continuous: Option<f64>,
     /// The estimators.
     pub estimators: Vec<ScenarioEstimator>,
     /// The metrics.
@@ -614,6 +621,80 @@ fn parse_state_priors(map: &BTreeMap<String, String>, p: &Preset, key: &str) -> 
     Ok(priors)
 }
 
+/// The intensity R of `measurements.generate = "continuous:R=<value>"` (positive, finite); the
+/// record's times are its cells', so `measurements.times` and `measurements.first` are errors.
+fn parse_continuous(spec: &str, m: &MeasurementSpec) -> Result<f64> {
+    let key = "measurements.generate";
+    if m.times.is_some() || m.first.is_some() {
+        return Err(invalid(
+            key,
+            "a continuous record covers [0, t_end] in cells of `measurements.every`; drop `times` and `first`",
+        ));
+    }
+    let rest = spec.trim_start_matches("continuous:").trim();
+    let value = rest
+        .strip_prefix("R=")
+        .ok_or_else(|| invalid(key, format!("`{spec}`: expected `continuous:R=<intensity>`")))?;
+    match value.trim().parse::<f64>() {
+        Ok(r) if r.is_finite() && r > 0.0 => Ok(r),
+        _ => Err(invalid(key, format!("`{spec}`: the intensity R must be a positive finite number"))),
+    }
+}
+
+/// The measurement times of a scenario: the cells' midpoints of a continuous record, the
+/// explicit `measurements.times`, or the preset's grid (`every`, `first`).
+fn scenario_times(m: &MeasurementSpec, p: &Preset, continuous: Option<f64>) -> Result<Vec<f64>> {
+    match &m.times {
+        _ if continuous.is_some() => {
+            let times = crate::data::continuous::cell_midpoints(0.0, p.t_end, p.sample_every);
+            if times.len() < 2 {
+                return Err(invalid(
+                    "measurements.every",
+                    format!(
+                        "a continuous record needs at least two cells of {} in [0, {}]",
+                        p.sample_every, p.t_end
+                    ),
+                ));
+            }
+            Ok(times)
+        }
+        Some(t) => {
+            if m.every.is_some() || m.first.is_some() {
+                return Err(invalid(
+                    "measurements.times",
+                    "give either `times` or `every`/`first`, not both",
+                ));
+            }
+            if t.is_empty() || t.iter().any(|&x| !(x.is_finite() && (0.0..=p.t_end).contains(&x))) {
+                return Err(invalid(
+                    "measurements.times",
+                    format!("must be non-empty and within [0, {}]", p.t_end),
+                ));
+            }
+            if t.windows(2).any(|w| w[1] <= w[0]) {
+                return Err(invalid("measurements.times", "must be strictly increasing"));
+            }
+            Ok(t.clone())
+        }
+        None => {
+            // Checked before the times are allocated: a tiny `every` would ask for more times
+            // than memory holds.
+            let count = (p.t_end - p.first_sample) / p.sample_every;
+            if count > MAX_MEASUREMENT_TIMES as f64 {
+                return Err(invalid(
+                    "measurements.every",
+                    format!(
+                        "{} gives {count:.3e} measurement times on [{}, {}]; at most \
+                         {MAX_MEASUREMENT_TIMES} are allowed",
+                        p.sample_every, p.first_sample, p.t_end
+                    ),
+                ));
+            }
+            Ok(p.measurement_times())
+        }
+    }
+}
+
 /// Measures the `states` (by name) of the preset `p` (`measurements.states`).
 fn measure_states(p: &mut Preset, states: &[String]) -> Result<()> {
     let names = p.model.state_names();
@@ -676,48 +757,23 @@ impl Scenario {
             }
             p.first_sample = f;
         }
-        let times = match &m.times {
-            Some(t) => {
-                if m.every.is_some() || m.first.is_some() {
-                    return Err(invalid(
-                        "measurements.times",
-                        "give either `times` or `every`/`first`, not both",
-                    ));
-                }
-                if t.is_empty() || t.iter().any(|&x| !(x.is_finite() && (0.0..=p.t_end).contains(&x))) {
-                    return Err(invalid(
-                        "measurements.times",
-                        format!("must be non-empty and within [0, {}]", p.t_end),
-                    ));
-                }
-                if t.windows(2).any(|w| w[1] <= w[0]) {
-                    return Err(invalid("measurements.times", "must be strictly increasing"));
-                }
-                t.clone()
-            }
-            None => {
-                // Checked before the times are allocated: a tiny `every` would ask for more times
-                // than memory holds.
-                let count = (p.t_end - p.first_sample) / p.sample_every;
-                if count > MAX_MEASUREMENT_TIMES as f64 {
-                    return Err(invalid(
-                        "measurements.every",
-                        format!(
-                            "{} gives {count:.3e} measurement times on [{}, {}]; at most \
-                             {MAX_MEASUREMENT_TIMES} are allowed",
-                            p.sample_every, p.first_sample, p.t_end
-                        ),
-                    ));
-                }
-                p.measurement_times()
-            }
+        let continuous = match m.generate.as_deref().map(str::trim) {
+            Some(g) if g.starts_with("continuous:") => Some(parse_continuous(g, m)?),
+            _ => None,
         };
+        let times = scenario_times(m, &p, continuous)?;
         if let Some(states) = &m.states {
             measure_states(&mut p, states)?;
         }
         let initial = parse_state_priors(&sim.initial, &p, "simulation.initial")?;
         let estimator_x0 = parse_state_priors(&m.x0_prior, &p, "measurements.x0_prior")?;
         let generate = match &m.generate {
+            _ if continuous.is_some() => {
+                let r = continuous.expect("checked");
+                Noise::Gaussian {
+                    sigma: crate::model::observation::Param::Fixed((r / p.sample_every).sqrt()),
+                }
+            }
             Some(s) => parse_noise(s, &p, "measurements.generate")?,
             None => p.observation.noise.clone(),
         };
@@ -787,6 +843,6 @@ impl Scenario {
             metrics.push(metric);
         }
         let scheme = sim.scheme.unwrap_or(Scheme::ItoTaylor15);
-        Ok(Scenario { name, vars, truth, initial, scheme, times, estimators, metrics, spec })
+        Ok(Scenario { name, vars, truth, initial, scheme, times, continuous, estimators, metrics, spec })
     }
 }

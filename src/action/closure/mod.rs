@@ -12,10 +12,13 @@
 //!   [`EffectiveAction`](super::dual::EffectiveAction), so the dual estimator
 //!   ([`maximize_dual`](super::dual::maximize_dual)) and the ensemble dispersion
 //!   ([`super::dispersion`]) are those of the exact grid;
-//! - [`closure_estimate`]: the estimator as a [`PathEstimate`].
+//! - [`closure_estimate`]: the estimator as a [`PathEstimate`];
+//! - [`area`]: the scalar area-rule closure (one state, one moment, one measured output,
+//!   `(II.17)–(II.35)`), its own [`EffectiveAction`](super::dual::EffectiveAction).
 //!
 //! See `docs/closures.md`.
 
+pub mod area;
 pub mod drift;
 mod jet;
 pub mod om;
@@ -116,11 +119,11 @@ pub struct ClosureOptions {
     /// `dual.tolerance` alone (see `docs/closures.md`, "The dual's tolerance, its shortest step
     /// and its fallbacks").
     pub dual_matched_to_sweeps: bool,
-    /// Which stationary point of the dual is the estimate: `continuation` (default), the one
-    /// on the branch from the prior followed in the measurement precision, a function of the
-    /// data alone (none when the branch folds); `filter`, the maximum Newton's method reaches
-    /// from the closure's filter (retried from λ = 0). See `docs/closures.md`, "Which
-    /// stationary point".
+    /// Which stationary point of the dual is the estimate: `filter` (default), the maximum
+    /// Newton's method reaches from the closure's filter (retried from λ = 0); `continuation`,
+    /// the one on the branch from the prior followed in the measurement precision, a function
+    /// of the data alone (none when the branch is lost or ends at a saddle). See
+    /// `docs/closures.md`, "Which stationary point".
     pub branch: BranchRule,
     /// Options of the dual maximisation.
     pub dual: DualOptions,
@@ -428,8 +431,21 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
         }
     };
     let details = sol.details(Some(closure.family.describe()), action.work(), &plan);
-    Ok(PathEstimate {
-        method: F::METHOD,
+    Ok(dual_path_estimate(problem, F::METHOD, sol, details, start))
+}
+
+/// The [`PathEstimate`] of a dual closure from its solution: the history as the path with the
+/// solution's sd, θ as given (nothing estimated), the dual's status and iterations, the time
+/// since `start`.
+pub(crate) fn dual_path_estimate<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    method: Method,
+    sol: mean_optimal::Solution,
+    details: mean_optimal::DualDetails,
+    start: Instant,
+) -> PathEstimate {
+    PathEstimate {
+        method,
         path: crate::data::StatePath {
             names: problem.sde.state_names(),
             times: sol.history.times,
@@ -444,7 +460,7 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
         iterations: sol.dual.iterations,
         solve_seconds: start.elapsed().as_secs_f64(),
         details: Details::new(details),
-    })
+    }
 }
 
 #[cfg(test)]

@@ -379,16 +379,54 @@ impl Preset {
         scheme: crate::simulate::Scheme,
         rng: &mut R,
     ) -> Result<(StatePath, Dataset)> {
-        use crate::simulate::{sample_measurements_at, simulate, SimulateOptions};
+        let path = self.simulate_path(scheme, rng)?;
+        let times = self.measurement_times();
+        let data = crate::simulate::sample_measurements_at(
+            &self.observation,
+            &self.theta,
+            &path,
+            self.dims().noisy,
+            &times,
+            rng,
+        )?;
+        Ok((path, data))
+    }
+
+    /// Simulates the path as [`Preset::simulate`] and draws a continuous-time record of
+    /// intensity `intensity` of the measured states on cells of width `sample_every` from t = 0
+    /// ([`crate::simulate::sample_record`]) instead of discrete measurements. Errors: as
+    /// [`Preset::simulate`] and [`crate::simulate::sample_record`].
+    pub fn simulate_record<R: rand::Rng + ?Sized>(
+        &self,
+        scheme: crate::simulate::Scheme,
+        intensity: f64,
+        rng: &mut R,
+    ) -> Result<(StatePath, crate::data::continuous::ContinuousRecord)> {
+        let path = self.simulate_path(scheme, rng)?;
+        let record = crate::simulate::sample_record(
+            &self.observation,
+            &path,
+            self.dims().noisy,
+            self.sample_every,
+            intensity,
+            rng,
+        )?;
+        Ok((path, record))
+    }
+
+    /// The initial states drawn from the priors and the path on [0, `t_end`] (the first draws
+    /// of [`Preset::simulate`]).
+    fn simulate_path<R: rand::Rng + ?Sized>(
+        &self,
+        scheme: crate::simulate::Scheme,
+        rng: &mut R,
+    ) -> Result<StatePath> {
+        use crate::simulate::{simulate, SimulateOptions};
         self.validate()?;
         let x0 = self.x0_prior.iter().map(|p| p.sample(rng)).collect::<Result<Vec<f64>>>()?;
         let z0 = self.z0_prior.iter().map(|p| p.sample(rng)).collect::<Result<Vec<f64>>>()?;
         let options = SimulateOptions::new(0.0, self.t_end, self.dt).with_scheme(scheme);
-        let path = simulate(&self.model, &self.theta, &x0, &z0, &options, rng)?;
-        let times = self.measurement_times();
-        let data =
-            sample_measurements_at(&self.observation, &self.theta, &path, self.dims().noisy, &times, rng)?;
-        Ok((path, data))
+        simulate(&self.model, &self.theta, &x0, &z0, &options, rng)
     }
 }
 
