@@ -261,15 +261,15 @@ fn flight_path_jme_recovers_the_biases() {
     assert!(e.status.is_success(), "{}", e.status);
     let why = e.details.get::<onsager::path::PathDetails>().map(|d| d.sd.to_string()).unwrap_or_default();
     let sd = e.theta_sd.unwrap_or_else(|| panic!("no Laplace sd: {why}"));
-    for i in 0..6 {
-        let z = (e.theta[i] - FlightPathSetup::TRUTH[i]) / sd[i];
+    for (i, &sdi) in sd.iter().enumerate().take(6) {
+        let z = (e.theta[i] - FlightPathSetup::TRUTH[i]) / sdi;
         assert!(
             z.abs() < 3.0,
             "{}: {} vs {} (sd {})",
             FlightPath::PARAMS[i],
             e.theta[i],
             FlightPathSetup::TRUTH[i],
-            sd[i]
+            sdi
         );
     }
 }
@@ -307,12 +307,12 @@ fn flight_record_converts_units() {
     let row = &data.values[1];
     let rad = 2f64.to_radians();
     assert_eq!(row[0], 2.0); // airspeed m/s
-    for j in 1..=5 {
-        assert!((row[j] - rad).abs() < 1e-15, "{j}: {}", row[j]); // alpha, beta, phi, theta, psi
+    for (j, v) in row.iter().enumerate().take(6).skip(1) {
+        assert!((v - rad).abs() < 1e-15, "{j}: {v}"); // alpha, beta, phi, theta, psi
     }
     assert!((row[6] - 0.6096).abs() < 1e-12); // altitude 2 ft
-    for j in 7..=9 {
-        assert!((row[j] - rad).abs() < 1e-15); // rates deg/s
+    for v in &row[7..=9] {
+        assert!((v - rad).abs() < 1e-15); // rates deg/s
     }
     assert_eq!(&row[10..], &[2.0, 2.0, 2.0]); // accelerations m/s^2
 }

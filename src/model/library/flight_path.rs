@@ -390,10 +390,10 @@ impl Sde for FlightPath {
         theta: &[f64],
         out: &mut DriftDerivatives,
     ) -> bool {
-        for i in 0..6 {
+        for (i, &xi) in x.iter().enumerate().take(6) {
             let ik = 22 + if i < 3 { Self::K_A } else { Self::K_M };
             out.first(i, i, -theta[ik - 22]);
-            out.first(i, ik, -x[i]);
+            out.first(i, ik, -xi);
             out.second(i, i, ik, -1.0);
         }
         rigid_body_kinematics_derivatives(&self.inertia.coefficients(), self.gravity, z, out);
