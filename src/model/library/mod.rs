@@ -21,6 +21,8 @@
 mod double_well;
 mod double_well_2d;
 mod duffing;
+mod flight_oem;
+mod flight_path;
 mod holmes_rand;
 mod lorenz63;
 mod lorenz96;
@@ -34,6 +36,12 @@ mod tests;
 pub use double_well::DoubleWell;
 pub use double_well_2d::DoubleWell2d;
 pub use duffing::Duffing;
+pub use flight_oem::{output_error, OemEstimate, OemOptions, OEM_INPUTS, OEM_OUTPUTS, OEM_STATES};
+pub use flight_path::{
+    read_flight_record, read_flight_record_from, rigid_body_kinematics, state as flight_state, FlightColumns,
+    FlightPath, FlightPathObservation, FlightPathSetup, Inertia, MomentCoefficients, OutputResiduals,
+    Position, SensorSd, Unit,
+};
 pub use holmes_rand::HolmesRand;
 pub use lorenz63::Lorenz63;
 pub use lorenz96::Lorenz96;

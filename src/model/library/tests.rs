@@ -661,3 +661,123 @@ fn declared_drift_polynomial_degrees_are_exact() {
     // every model but tanh and the pendulum is a polynomial
     assert_eq!(declared.len(), crate::test_models::MODEL_FILES.len() - 2);
 }
+
+/// The flight-path model (`000_74b95e149527c64e.txt` Sec. 4.2) at a random point near level
+/// flight: w = (x, z, θ).
+fn flight_point<R: Rng + ?Sized>(rng: &mut R) -> Vec<f64> {
+    let mut w: Vec<f64> = (0..30).map(|_| uniform(rng, -0.5, 0.5)).collect();
+    w[6 + flight_state::H] = uniform(rng, 4000.0, 6000.0);
+    w[6 + flight_state::U] = uniform(rng, 80.0, 120.0);
+    w[6 + flight_state::AZ] = uniform(rng, -10.5, -9.0);
+    w[22 + FlightPath::K_A] = uniform(rng, 0.5, 2.0);
+    w[22 + FlightPath::K_M] = uniform(rng, 0.5, 2.0);
+    w
+}
+
+/// [f; h; div_x f] of the flight-path model as a function of w = (x, z, θ).
+struct FlightOutputs(FlightPath);
+
+impl crate::model::ad::VectorFn for FlightOutputs {
+    fn dim_in(&self) -> usize {
+        30
+    }
+    fn dim_out(&self) -> usize {
+        23
+    }
+    fn eval<D: Scalar>(&self, w: &[D], out: &mut [D]) {
+        let (x, z, th) = (&w[..6], &w[6..22], &w[22..]);
+        let t = D::from(0.0);
+        self.0.drift(t, x, z, th, &mut out[..6]);
+        self.0.clean_drift(t, x, z, th, &mut out[6..22]);
+        out[22] = self.0.divergence(t, x, z, th);
+    }
+}
+
+/// The flight-path drift's automatic Jacobian equals central differences, and its closed-form
+/// first and second derivatives equal automatic differentiation.
+#[test]
+fn flight_path_drift_derivatives_match_differences_and_ad() {
+    use crate::model::ad::{hessians_into, VectorFn};
+    use crate::model::{packed_index, DriftDerivatives};
+    let model = FlightPath::default();
+    let outputs = FlightOutputs(model);
+    let mut rng = StdRng::seed_from_u64(37);
+    for _ in 0..20 {
+        let w = flight_point(&mut rng);
+        let f = |w: &[f64]| {
+            let mut out = vec![0.0; 23];
+            outputs.eval(w, &mut out);
+            out
+        };
+        let (mut value, mut jac, mut hess) = (vec![0.0; 23], vec![0.0; 23 * 30], vec![0.0; 23 * 900]);
+        hessians_into(&outputs, &w, &mut value, &mut jac, &mut hess);
+        assert_close(
+            &DMatrix::from_column_slice(23, 30, &jac),
+            &fd_jacobian(&f, 23, &w),
+            "flight-path Jacobian",
+        );
+        let cols: Vec<usize> = (0..30).collect();
+        let tri = 30 * 31 / 2;
+        let (mut cj, mut ch) = (vec![0.0; 23 * 30], vec![0.0; 23 * tri]);
+        let mut out = DriftDerivatives::new(&cols, 30, 23, &mut cj, &mut ch);
+        assert!(model.drift_derivatives(0.0, &w[..6], &w[6..22], &w[22..], &mut out));
+        for o in 0..23 {
+            for i in 0..30 {
+                let (u, v) = (cj[o + i * 23], jac[o + i * 23]);
+                assert!(relative_eq!(u, v, epsilon = 1e-10, max_relative = 1e-10), "d{o}/d{i}: {u} vs {v}");
+                for j in 0..=i {
+                    let (u, v) = (ch[o * tri + packed_index(30, i, j)], hess[o * 900 + i + j * 30]);
+                    assert!(
+                        relative_eq!(u, v, epsilon = 1e-10, max_relative = 1e-10),
+                        "d2{o}/d{i}d{j}: {u} vs {v}"
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// The flight-path log-likelihood's automatic gradient equals central differences.
+#[test]
+fn flight_path_log_likelihood_gradient_matches_central_differences() {
+    struct Ll<'a>(&'a FlightPathObservation, Vec<f64>);
+    impl crate::model::ad::ScalarFn for Ll<'_> {
+        fn dim_in(&self) -> usize {
+            30
+        }
+        fn eval<D: Scalar>(&self, w: &[D]) -> D {
+            self.0.log_likelihood(0.0, &self.1, &w[..6], &w[6..22], &w[22..])
+        }
+    }
+    let obs = FlightPathObservation::default();
+    let mut rng = StdRng::seed_from_u64(38);
+    for _ in 0..20 {
+        let w = flight_point(&mut rng);
+        let mut y = vec![0.0; 13];
+        obs.sample(0.0, &w[..6], &w[6..22], &w[22..], &mut rng, &mut y);
+        let ll = Ll(&obs, y);
+        let (_, grad) = crate::model::ad::gradient(&ll, &w);
+        let f = |w: &[f64]| vec![crate::model::ad::ScalarFn::eval(&ll, w)];
+        assert_close(&row(&grad), &fd_jacobian(&f, 1, &w), "flight-path log-likelihood gradient");
+    }
+}
+
+/// Steady level flight (φ = θ = 0, no rotation, no moments, no jerk, a_z = −g, the rest 0) is
+/// an equilibrium of the rigid-body kinematics, and the measurements are then the airspeed,
+/// α = β = 0 up to the nose boom's offsets, and the biases plus −g on the z accelerometer.
+#[test]
+fn steady_level_flight_is_an_equilibrium() {
+    let model = FlightPath::default();
+    let mut z = [0.0; 16];
+    z[flight_state::H] = 5000.0;
+    z[flight_state::U] = 100.0;
+    z[flight_state::AZ] = -model.gravity;
+    let mut zdot = [1.0; 16];
+    rigid_body_kinematics(&model.inertia.coefficients(), model.gravity, &z, &[0.0; 6], &mut zdot);
+    assert!(zdot.iter().all(|&v| v.abs() < 1e-14), "{zdot:?}");
+    let theta = FlightPathSetup::TRUTH;
+    let y = FlightPathObservation::default().outputs(&z, &theta);
+    assert_eq!(y[0], 100.0);
+    assert_eq!((y[1], y[2]), (0.0, 0.0));
+    assert_eq!(y[12], -model.gravity + theta[5]);
+}
