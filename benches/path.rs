@@ -28,7 +28,7 @@ use onsager::estimate::EstimationProblem;
 use onsager::model::library::preset;
 use onsager::nlp::{AutoLdlt, LinearSolver, NlpOptions};
 use onsager::path::{
-    estimate_path, estimate_path_with, regression_theta_guess, spline_guess, Merit, PathOptions,
+    estimate_path, estimate_path_with, regression_theta_guess, spline_guess, Laplace, Merit, PathOptions,
     Transcription,
 };
 use onsager::test_models::{model_file, van_der_pol_student_t, PresetRecord};
@@ -47,7 +47,7 @@ fn van_der_pol(c: &mut Criterion) {
             b.iter(|| {
                 let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson)
                     .with_step(0.005)
-                    .with_laplace(false)
+                    .with_laplace(Laplace::Off)
                     .with_initial_path(guess.clone())
                     .with_nlp(NlpOptions::default().with_linear_solver(solver));
                 black_box(estimate_path(&problem, options).unwrap())
@@ -62,7 +62,7 @@ fn van_der_pol(c: &mut Criterion) {
         b.iter(|| {
             let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson)
                 .with_step(0.005)
-                .with_laplace(false)
+                .with_laplace(Laplace::Off)
                 .with_initial_path(guess.clone());
             black_box(estimate_path(&file_problem, options).unwrap())
         })
@@ -74,7 +74,7 @@ fn van_der_pol(c: &mut Criterion) {
         b.iter(|| {
             let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson)
                 .with_step(0.005)
-                .with_laplace(false)
+                .with_laplace(Laplace::Off)
                 .with_initial_path(guess.clone());
             black_box(estimate_path_with(&problem, options, &mut kept).unwrap())
         })
@@ -100,7 +100,7 @@ fn duffing_joint_36k(c: &mut Criterion) {
         b.iter(|| {
             let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson)
                 .with_step(step)
-                .with_laplace(false)
+                .with_laplace(Laplace::Off)
                 .with_initial_path(guess.clone());
             black_box(estimate_path(&problem, options).unwrap())
         })

@@ -15,7 +15,9 @@
 
 use onsager::estimate::EstimationProblem;
 use onsager::model::library::preset;
-use onsager::path::{estimate_path, regression_theta_guess, spline_guess, Merit, PathOptions, Transcription};
+use onsager::path::{
+    estimate_path, regression_theta_guess, spline_guess, Laplace, Merit, PathOptions, Transcription,
+};
 use onsager::test_models::PresetRecord;
 
 /// The estimated parameters, in the order printed.
@@ -68,7 +70,7 @@ fn main() -> onsager::Result<()> {
         let mut seconds = 0.0;
         for (m, (_, merit)) in merits.iter().enumerate() {
             let options = PathOptions::new(*merit, Transcription::HermiteSimpson)
-                .with_laplace(false)
+                .with_laplace(Laplace::Off)
                 .with_initial_path(guess.clone());
             let est = estimate_path(&problem, options)?.estimate;
             seconds += est.solve_seconds;

@@ -17,7 +17,9 @@
 use onsager::estimate::EstimationProblem;
 use onsager::model::library::preset;
 use onsager::nlp::{LinearSolver, NlpOptions};
-use onsager::path::{estimate_path, regression_theta_guess, spline_guess, Merit, PathOptions, Transcription};
+use onsager::path::{
+    estimate_path, regression_theta_guess, spline_guess, Laplace, Merit, PathOptions, Transcription,
+};
 use onsager::test_models::PresetRecord;
 
 /// Default pieces per measurement interval (0.1 / 36 ≈ 0.00278).
@@ -45,7 +47,7 @@ fn main() -> onsager::Result<()> {
     let guess = spline_guess(&p.model, &start.theta, &p.observation.states, data, &times)?;
     let options = PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson)
         .with_step(step)
-        .with_laplace(false)
+        .with_laplace(Laplace::Off)
         .with_initial_path(guess)
         .with_nlp(NlpOptions::default().with_linear_solver(solver));
     let begin = std::time::Instant::now();

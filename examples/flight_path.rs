@@ -1,7 +1,8 @@
 //! Flight-path reconstruction (`000_74b95e149527c64e.txt` Sec. 4.2).
 //!
 //! **Synthetic** (no `--data`): for each replicate (seed 1, 2, …), simulate 30 s at 25 Hz of the
-//! flight-path model with known sensor biases ([`FlightPathSetup::TRUTH`]), then estimate the
+//! flight-path model with known sensor biases ([`FlightPathSetup::TRUTH`]), conditioned on
+//! staying in the flight envelope ([`FlightPathSetup::simulate_in_envelope`]), then estimate the
 //! path jointly with the eight parameters by JME and MEE (Hermite–Simpson, step = sample
 //! period, started from the measurements), with the Laplace standard deviations. Prints one
 //! line per replicate and estimator (status, iterations, solve seconds) and, per estimator and
@@ -18,16 +19,24 @@
 //! attitude, rates, accelerations) as SVG and PNG in `--plots DIR` (default
 //! `flight-path-plots`).
 //!
+//! On a flight record the noise levels are measured from the record
+//! (`FlightPathSetup::for_record`: sensor sds from third differences, σ_a and σ_m from the
+//! roughness of the specific forces and rates); `--sigma-a S`, `--sigma-m S` and
+//! `--sensor-sd OUTPUT=SD` (repeatable, OUTPUT one of the measurement CSV's columns) override
+//! them.
+//!
 //! Run with `cargo run --release --example flight_path -- [--replicates N] [--t-end T]
-//! [--jme-only] [--data FILE [--out CSV] [--plots DIR]]` (defaults 20 replicates, T = 30 s,
-//! both estimators).
+//! [--jme-only] [--data FILE [--out CSV] [--plots DIR] [--sigma-a S] [--sigma-m S]
+//! [--sensor-sd OUTPUT=SD]...]` (defaults 20 replicates, T = 30 s, both estimators).
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use onsager::data::Dataset;
+use onsager::estimate::progress;
 use onsager::model::library::{
     output_error, read_flight_record, FlightColumns, FlightPath, FlightPathObservation, FlightPathSetup,
-    OemOptions, OEM_OUTPUTS,
+    OemEstimate, OemOptions, OEM_OUTPUTS,
 };
 use onsager::path::{Merit, PathDetails, PathSolution};
 use onsager::plot::{LinePlot, Panels, Series, DATA};
@@ -43,6 +52,9 @@ struct Args {
     data: Option<PathBuf>,
     out: Option<PathBuf>,
     plots: PathBuf,
+    sigma_a: Option<f64>,
+    sigma_m: Option<f64>,
+    sensor_sd: Vec<(usize, f64)>,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -53,6 +65,9 @@ fn parse_args() -> Result<Args, String> {
         data: None,
         out: None,
         plots: PathBuf::from("flight-path-plots"),
+        sigma_a: None,
+        sigma_m: None,
+        sensor_sd: Vec::new(),
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -70,9 +85,33 @@ fn parse_args() -> Result<Args, String> {
             "--data" => args.data = Some(value("--data")?.into()),
             "--out" => args.out = Some(value("--out")?.into()),
             "--plots" => args.plots = value("--plots")?.into(),
+            "--sensor-sd" => {
+                let v = value("--sensor-sd")?;
+                let (name, sd) = v.split_once('=').ok_or_else(|| format!("--sensor-sd: expected OUTPUT=SD, got `{v}`"))?;
+                let j = FlightPathObservation::OUTPUTS.iter().position(|o| *o == name).ok_or_else(|| {
+                    format!("--sensor-sd: unknown output `{name}` (one of {})", FlightPathObservation::OUTPUTS.join(", "))
+                })?;
+                let x: f64 = sd.parse().map_err(|_| format!("--sensor-sd {name}: not a number: `{sd}`"))?;
+                if !(x > 0.0 && x.is_finite()) {
+                    return Err(format!("--sensor-sd {name}: must be positive and finite, got {sd}"));
+                }
+                args.sensor_sd.push((j, x));
+            }
+            "--sigma-a" | "--sigma-m" => {
+                let v = value(&flag)?;
+                let x: f64 = v.parse().map_err(|_| format!("{flag}: not a number: `{v}`"))?;
+                if !(x > 0.0 && x.is_finite()) {
+                    return Err(format!("{flag}: must be positive and finite, got {v}"));
+                }
+                if flag == "--sigma-a" {
+                    args.sigma_a = Some(x);
+                } else {
+                    args.sigma_m = Some(x);
+                }
+            }
             other => {
                 return Err(format!(
-                    "unknown flag `{other}` (--replicates N, --t-end T, --jme-only, --data FILE, --out CSV, --plots DIR)"
+                    "unknown flag `{other}` (--replicates N, --t-end T, --jme-only, --data FILE, --out CSV, --plots DIR, --sigma-a S, --sigma-m S, --sensor-sd OUTPUT=SD)"
                 ))
             }
         }
@@ -152,9 +191,9 @@ fn main() -> onsager::Result<()> {
     );
     for seed in 1..=args.replicates {
         let mut rng = StdRng::seed_from_u64(seed);
-        let (_, data) = setup.simulate(&mut rng)?;
+        let (_, data) = setup.simulate_in_envelope(&mut rng, 100)?;
         for ((name, merit), tally) in merits.iter().zip(&mut tallies) {
-            let solution = setup.estimate(&data, *merit)?;
+            let solution = with_progress(name, || setup.estimate(&data, *merit))?;
             let e = &solution.estimate;
             println!(
                 "seed {seed:>3} {name}: {} after {} iterations, {:.1} s",
@@ -171,6 +210,13 @@ fn main() -> onsager::Result<()> {
                 _ => {
                     let sd = e.details.get::<PathDetails>().map(|d| d.sd.to_string()).unwrap_or_default();
                     println!("  not tallied: {sd}");
+                    if let Some(d) = e.details.get::<PathDetails>() {
+                        println!(
+                            "  NLP {} after {} iterations: constraint violation {:.2e}, optimality error {:.2e}",
+                            d.nlp_status, d.nlp_iterations, d.primal_infeasibility, d.dual_infeasibility
+                        );
+                    }
+                    println!("  theta {:?}", e.theta);
                 }
             }
         }
@@ -179,6 +225,19 @@ fn main() -> onsager::Result<()> {
         print_table(name, tally, args.replicates);
     }
     Ok(())
+}
+
+/// Runs `solve`, reporting every 10th NLP iteration on stderr.
+fn with_progress<R>(name: &str, solve: impl FnOnce() -> R) -> R {
+    let name = name.to_string();
+    let observer: progress::Observer = Arc::new(move |event| {
+        if let progress::ProgressEvent::Iteration { iteration, merit } = event {
+            if iteration % 10 == 0 {
+                eprintln!("  {name} iteration {iteration}: merit {merit:.6e}");
+            }
+        }
+    });
+    progress::observe(observer, solve)
 }
 
 /// Per output: display scale from SI, unit, and the channel group (plot file) it is drawn in.
@@ -206,23 +265,40 @@ fn flight_data(file: &Path, args: &Args, merits: &[(&str, Merit)]) -> onsager::R
         data.write_csv(out)?;
         println!("wrote {}", out.display());
     }
-    let setup = FlightPathSetup::new();
-    let dt = (data.times[data.times.len() - 1] - data.times[0]) / (data.times.len() - 1).max(1) as f64;
-    let setup = FlightPathSetup { sample_every: dt, ..setup };
+    let mut setup = FlightPathSetup::for_record(&data)?;
+    if let Some(s) = args.sigma_a {
+        setup.model.sigma_a = s;
+    }
+    if let Some(s) = args.sigma_m {
+        setup.model.sigma_m = s;
+    }
+    for &(j, sd) in &args.sensor_sd {
+        setup.observation.sd.0[j] = sd;
+    }
     println!(
-        "flight-path: {} ({} samples, t = {} .. {} s, step {dt:.4} s), Hermite-Simpson",
+        "flight-path: {} ({} samples, t = {} .. {} s, step {:.4} s), Hermite-Simpson",
         file.display(),
         data.times.len(),
         data.times[0],
-        data.times[data.times.len() - 1]
+        data.times[data.times.len() - 1],
+        setup.sample_every
     );
-    print_oem(&setup, &data)?;
+    println!(
+        "sigma_a {:.4} m/s^3/sqrt(s), sigma_m {:.4} rad/s^3/sqrt(s)",
+        setup.model.sigma_a, setup.model.sigma_m
+    );
+    println!("{:>8} {:>11}  (SI units)", "output", "sensor sd");
+    for (out, sd) in FlightPathObservation::OUTPUTS.iter().zip(setup.observation.sd.per_output()) {
+        println!("{out:>8} {sd:>11.4e}");
+    }
+    let oem = print_oem(&setup, &data)?;
     let mut solutions = Vec::new();
     for (name, merit) in merits {
-        let solution = setup.estimate(&data, *merit)?;
+        let solution = with_progress(name, || setup.estimate(&data, *merit))?;
         print_flight_estimate(name, &setup, &data, &solution)?;
         solutions.push((*name, solution));
     }
+    print_bias_table(&oem, &solutions);
     plot_flight(&setup, &data, &solutions, &args.plots)?;
     println!("\nplots in {}", args.plots.display());
     Ok(())
@@ -230,7 +306,7 @@ fn flight_data(file: &Path, args: &Args, merits: &[(&str, Merit)]) -> onsager::R
 
 /// The output-error method on the same record: biases with Cramér–Rao sds, residual sd per
 /// fitted output.
-fn print_oem(setup: &FlightPathSetup, data: &Dataset) -> onsager::Result<()> {
+fn print_oem(setup: &FlightPathSetup, data: &Dataset) -> onsager::Result<OemEstimate> {
     let begin = std::time::Instant::now();
     let oem = output_error(&setup.model, &setup.observation, data, &OemOptions::default())?;
     println!(
@@ -247,7 +323,29 @@ fn print_oem(setup: &FlightPathSetup, data: &Dataset) -> onsager::Result<()> {
     for (k, out) in OEM_OUTPUTS.iter().enumerate() {
         println!("{out:>8} {:>11.4e}", oem.residual_sd[k]);
     }
-    Ok(())
+    Ok(oem)
+}
+
+/// The biases of the OEM and of each estimator side by side, with the difference to the OEM
+/// in units of the estimator's sd and of the combined sd √(sd² + sd_OEM²).
+fn print_bias_table(oem: &OemEstimate, solutions: &[(&str, PathSolution)]) {
+    println!("\nbiases: estimate +- sd; difference to the OEM in sds (estimator's, combined)");
+    for (i, p) in FlightPath::PARAMS[..6].iter().enumerate() {
+        let mut line = format!("{p:>5}  OEM {:>10.6} +- {:.1e}", oem.biases[i], oem.bias_sd[i]);
+        for (name, s) in solutions {
+            let e = &s.estimate;
+            let sd = e.theta_sd.as_ref().map_or(f64::NAN, |v| v[i]);
+            let d = e.theta[i] - oem.biases[i];
+            let combined = (sd * sd + oem.bias_sd[i] * oem.bias_sd[i]).sqrt();
+            line += &format!(
+                " | {name} {:>10.6} +- {sd:.1e} ({:.1}, {:.1})",
+                e.theta[i],
+                d.abs() / sd,
+                d.abs() / combined
+            );
+        }
+        println!("{line}");
+    }
 }
 
 /// One estimator's status, biases with Laplace sds and residual RMS per channel.

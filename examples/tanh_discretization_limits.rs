@@ -11,7 +11,7 @@
 use onsager::data::{Dataset, StatePath};
 use onsager::estimate::EstimationProblem;
 use onsager::model::library::preset;
-use onsager::path::{estimate_path, Merit, PathOptions, Transcription};
+use onsager::path::{estimate_path, Laplace, Merit, PathOptions, Transcription};
 
 fn main() -> onsager::Result<()> {
     let p = preset("tanh")?;
@@ -39,7 +39,7 @@ fn main() -> onsager::Result<()> {
     let solve = |merit: Merit, transcription: Transcription, n: usize| -> onsager::Result<Vec<f64>> {
         let options = PathOptions::new(merit, transcription)
             .with_step(5.0 / n as f64)
-            .with_laplace(false)
+            .with_laplace(Laplace::Off)
             .with_initial_path(guess.clone());
         let sol = estimate_path(&problem, options)?;
         if !sol.estimate.status.is_success() {

@@ -16,7 +16,9 @@
 //! PATH --method jme --likelihood student-t:nu=4,scale=0.5 --step 0.005 --report R.json`).
 
 use onsager::nlp::{AutoLdlt, BandLdlt, FaerLdlt, KktSolver, LinearSolver, NlpOptions};
-use onsager::path::{estimate_path, estimate_path_with, spline_guess, Merit, PathOptions, Transcription};
+use onsager::path::{
+    estimate_path, estimate_path_with, spline_guess, Laplace, Merit, PathOptions, Transcription,
+};
 use onsager::test_models::van_der_pol_student_t;
 
 fn main() -> onsager::Result<()> {
@@ -62,7 +64,7 @@ fn main() -> onsager::Result<()> {
     for run in 0..repeats {
         let options = PathOptions::new(merit, Transcription::HermiteSimpson)
             .with_step(0.005)
-            .with_laplace(false)
+            .with_laplace(Laplace::Off)
             .with_initial_path(guess.clone())
             .with_nlp(NlpOptions::default().with_linear_solver(solver));
         let start = std::time::Instant::now();

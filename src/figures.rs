@@ -425,6 +425,7 @@ fn no_sd_reason(e: &PathEstimate) -> String {
         Some(LaplaceSd::NotSolved) => "the solve did not succeed".into(),
         Some(LaplaceSd::NotAMaximum) => "not a strict maximum".into(),
         Some(LaplaceSd::Off) => "Laplace sd not asked for".into(),
+        Some(LaplaceSd::ParametersOnly) => "Laplace sd of the parameters only".into(),
         Some(LaplaceSd::Computed) => "none reported".into(),
         None => match e.details["sd"].as_str() {
             Some(what) => what.to_string(),

@@ -9,7 +9,7 @@ use onsager::data::Dataset;
 use onsager::kalman::linear::{kalman_rts, LinearGaussianModel};
 use onsager::model::library::{preset, Preset};
 use onsager::model::Prior;
-use onsager::path::{estimate_path, Merit, PathOptions, Transcription};
+use onsager::path::{estimate_path, Laplace, Merit, PathOptions, Transcription};
 use onsager::test_models::{cosine_data, van_der_pol_student_t, PresetRecord};
 use onsager::Status;
 
@@ -186,7 +186,7 @@ fn tanh_euler_converges_to_mee_and_trapezoidal_to_om() {
     let solve = |merit: Merit, transcription: Transcription, n: usize| -> Vec<f64> {
         let options = PathOptions::new(merit, transcription)
             .with_step(5.0 / n as f64)
-            .with_laplace(false)
+            .with_laplace(Laplace::Off)
             .with_initial_path(guess.clone());
         let sol = estimate_path(&prob, options).unwrap();
         assert_eq!(sol.estimate.status, Status::Converged);
@@ -238,7 +238,7 @@ fn van_der_pol_student_t_converges_quickly() {
         for merit in [Merit::OnsagerMachlup, Merit::Energy] {
             let options = PathOptions::new(merit, Transcription::HermiteSimpson)
                 .with_step(0.005)
-                .with_laplace(false)
+                .with_laplace(Laplace::Off)
                 .with_initial_path(guess.clone());
             let sol = estimate_path(&prob, options).unwrap();
             println!(

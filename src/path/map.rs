@@ -5,8 +5,8 @@
 use serde::{Deserialize, Serialize};
 
 use super::{
-    default_step, estimate_path, regression_theta_guess, spline_guess, LaplaceSd, Merit, PathDetails,
-    PathOptions, Transcription,
+    default_step, estimate_path, regression_theta_guess, spline_guess, Laplace, LaplaceSd, Merit,
+    PathDetails, PathOptions, Transcription,
 };
 use crate::data::StatePath;
 use crate::estimate::{flag_degenerate, Details, EstimationProblem, Method, MethodRun, Status};
@@ -173,7 +173,7 @@ pub fn map_estimate<S: Sde + ?Sized>(
     if skipped {
         notes
             .push(format!("skipping the Laplace sd ({states} node states > {})", options.laplace_max_states));
-        path_options = path_options.with_laplace(false);
+        path_options = path_options.with_laplace(Laplace::Off);
     }
     let mut estimate = estimate_path(problem, path_options)?.estimate;
     if skipped {

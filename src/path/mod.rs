@@ -189,9 +189,9 @@ pub struct PathOptions {
     /// The initial state path, interpolated linearly onto the grid (default: zeros). Build it
     /// with [`spline_guess`] (000 Sec. 4.1; what the CLI uses) or [`interpolation_guess`].
     pub initial_path: Option<StatePath>,
-    /// Whether to compute the Laplace standard deviations of the path and of the estimated θ
-    /// (default: true); see [`PathSolution`].
-    pub laplace: bool,
+    /// Which Laplace standard deviations to compute (default: of the path and of the
+    /// estimated θ); see [`PathSolution`].
+    pub laplace: Laplace,
     /// Options of the NLP solver (default: its defaults).
     pub nlp: NlpOptions,
 }
@@ -203,7 +203,7 @@ impl Default for PathOptions {
             transcription: Transcription::HermiteSimpson,
             step: None,
             initial_path: None,
-            laplace: true,
+            laplace: Laplace::PathAndParameters,
             nlp: NlpOptions::default(),
         }
     }
@@ -227,8 +227,8 @@ impl PathOptions {
         self
     }
 
-    /// Sets whether to compute the Laplace standard deviations.
-    pub fn with_laplace(mut self, laplace: bool) -> Self {
+    /// Sets which Laplace standard deviations to compute.
+    pub fn with_laplace(mut self, laplace: Laplace) -> Self {
         self.laplace = laplace;
         self
     }
@@ -240,9 +240,24 @@ impl PathOptions {
     }
 }
 
+/// Which Laplace standard deviations a path-space MAP solve computes. Each sd is one solve
+/// with the factorised KKT matrix (`laplace.rs`): the parameters cost one solve each, the
+/// path one per node and state, which dominates the whole estimate on long grids of many
+/// states (the 22-state flight-path model on 751 nodes: 16,522 solves, minutes against
+/// seconds for the NLP).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Laplace {
+    /// None.
+    Off,
+    /// Of the estimated θ only.
+    Parameters,
+    /// Of the path at every node and of the estimated θ.
+    PathAndParameters,
+}
+
 /// The full result of a path-space MAP solve.
 ///
-/// When [`PathOptions::laplace`] is set and the solve succeeded, the path's `sd` and
+/// When [`PathOptions::laplace`] asks for them and the solve succeeded, the path's `sd` and
 /// `theta_sd` are the Laplace standard deviations: square roots of the diagonal of the inverse
 /// reduced Hessian of −J at the optimum, from solves with the factorised KKT matrix (see
 /// `laplace.rs`); they are absent when the KKT matrix does not have the inertia of a strict
@@ -489,16 +504,21 @@ pub fn estimate_path_with<S: Sde + ?Sized, O: Observation + ?Sized, K: nlp::KktS
     let n_nodes = nlp_problem.grid().intervals + 1;
     let ne = problem.estimate.len();
     let (mut path_sd, mut theta_sd) = (None, None);
-    let mut sd = if options.laplace { LaplaceSd::NotSolved } else { LaplaceSd::Off };
-    if options.laplace && solution.report.status.is_success() {
+    let mut sd = if options.laplace == Laplace::Off { LaplaceSd::Off } else { LaplaceSd::NotSolved };
+    if options.laplace != Laplace::Off && solution.report.status.is_success() {
         let n = nlp_problem.num_variables();
-        let wanted: Vec<usize> = (0..n_nodes * ns).chain(n - ne..n).collect();
+        let path_nodes = if options.laplace == Laplace::PathAndParameters { n_nodes } else { 0 };
+        let wanted: Vec<usize> = (0..path_nodes * ns).chain(n - ne..n).collect();
         sd = LaplaceSd::NotAMaximum;
         if let Some(var) = laplace::laplace_variances(&mut nlp_problem, w, &solution.lambda, &wanted, kkt) {
             let sd_all: Vec<f64> = var.iter().map(|v| v.sqrt()).collect();
-            path_sd = Some(sd_all[..n_nodes * ns].chunks(ns).map(|c| c.to_vec()).collect());
-            theta_sd = Some(sd_all[n_nodes * ns..].to_vec());
-            sd = LaplaceSd::Computed;
+            theta_sd = Some(sd_all[path_nodes * ns..].to_vec());
+            sd = if path_nodes > 0 {
+                path_sd = Some(sd_all[..n_nodes * ns].chunks(ns).map(|c| c.to_vec()).collect());
+                LaplaceSd::Computed
+            } else {
+                LaplaceSd::ParametersOnly
+            };
         }
     }
     let parts = nlp_problem.merit_parts(w);
@@ -611,8 +631,10 @@ pub struct PathDetails {
 pub enum LaplaceSd {
     /// The Laplace sd: square roots of the diagonal of the inverse reduced Hessian of −J.
     Computed,
-    /// Not asked for ([`PathOptions::laplace`] off).
+    /// Not asked for ([`Laplace::Off`]).
     Off,
+    /// Of the estimated θ only ([`Laplace::Parameters`]); the path has none.
+    ParametersOnly,
     /// Skipped by [`map_estimate`] because the grid has more node states than the option
     /// `laplace_max_states` allows.
     Skipped {
@@ -632,6 +654,7 @@ impl std::fmt::Display for LaplaceSd {
         match self {
             LaplaceSd::Computed => f.write_str("Laplace"),
             LaplaceSd::Off => f.write_str("none: not asked for"),
+            LaplaceSd::ParametersOnly => f.write_str("none for the path: Laplace sd of the parameters only"),
             LaplaceSd::Skipped { max_states: 0, .. } => f.write_str("none: laplace_max_states = 0"),
             LaplaceSd::Skipped { node_states, max_states } => {
                 write!(

@@ -273,6 +273,32 @@ fn multipliers_satisfy_stationarity_at_the_optimum() {
     assert!(norm < 1e-6, "‖∇f + Jᵀλ‖∞ = {norm}");
 }
 
+/// `Laplace::Parameters` gives the same θ sds as `Laplace::PathAndParameters` (the same
+/// diagonal entries of the same inverse) and no path sd, with the reason in the details.
+#[test]
+fn parameter_only_laplace_sd_equals_the_full_one() {
+    let p = preset("duffing").unwrap();
+    let data = data_for(&p, &[0.0, 0.3, 0.6, 0.9]);
+    let estimate = [0, 1, 2];
+    let prob = p.problem(&data, &estimate);
+    let options = |laplace| {
+        PathOptions::new(Merit::OnsagerMachlup, Transcription::HermiteSimpson)
+            .with_step(0.1)
+            .with_laplace(laplace)
+    };
+    let full = estimate_path(&prob, options(Laplace::PathAndParameters)).unwrap().estimate;
+    let only = estimate_path(&prob, options(Laplace::Parameters)).unwrap().estimate;
+    let (a, b) = (full.theta_sd.unwrap(), only.theta_sd.unwrap());
+    assert_eq!(a.len(), 3);
+    for (x, y) in a.iter().zip(&b) {
+        assert_relative_eq!(x, y, max_relative = 1e-10);
+    }
+    assert!(full.path.sd.is_some() && only.path.sd.is_none());
+    assert_eq!(only.details.get::<PathDetails>().unwrap().sd, LaplaceSd::ParametersOnly);
+    let off = estimate_path(&prob, options(Laplace::Off)).unwrap().estimate;
+    assert!(off.theta_sd.is_none() && off.path.sd.is_none());
+}
+
 /// Non-convergence is a status, not an error: two iterations are not enough for Duffing.
 #[test]
 fn iteration_limit_is_a_status() {
@@ -343,7 +369,7 @@ fn band_and_faer_kkt_solvers_give_the_same_estimate() {
             let run = |solver| {
                 let options = PathOptions::new(merit, transcription)
                     .with_step(0.025)
-                    .with_laplace(false)
+                    .with_laplace(Laplace::Off)
                     .with_nlp(NlpOptions::default().with_linear_solver(solver));
                 estimate_path(&prob, options).unwrap()
             };

@@ -16,7 +16,9 @@
 use rand::Rng;
 
 mod attas;
+mod tuning;
 pub use attas::{read_flight_record, read_flight_record_from, FlightColumns, Unit};
+pub use tuning::{integrated_noise_intensity, noise_sd, ROUGHNESS_LAG};
 
 use super::names;
 use crate::data::{Dataset, StatePath};
@@ -24,7 +26,7 @@ use crate::estimate::EstimationProblem;
 use crate::model::observation::{Noise, Observation, Param};
 use crate::model::prior::Prior;
 use crate::model::{Dims, DriftDerivatives, Scalar, Sde};
-use crate::path::{estimate_path, Merit, PathOptions, PathSolution, Transcription};
+use crate::path::{estimate_path, Laplace, Merit, PathOptions, PathSolution, Transcription};
 use crate::Result;
 
 /// Moments of inertia of a rigid aircraft, kg·m², body axes, symmetric about the x–z plane.
@@ -330,6 +332,18 @@ impl Default for FlightPath {
 }
 
 impl FlightPath {
+    /// The specific forces (a_x, a_y, a_z) that make u̇ = v̇ = ẇ = 0 in
+    /// [`rigid_body_kinematics`] at clean state `z` (steady flight: the forces balance gravity
+    /// and the rotation of the body axes): a_x = qw − rv + g sin θ,
+    /// a_y = ru − pw − g cos θ sin φ, a_z = pv − qu − g cos θ cos φ.
+    pub fn trim_forces(&self, z: &[f64]) -> [f64; 3] {
+        use state::*;
+        let g = self.gravity;
+        let (p, q, r, u, v, w) = (z[P], z[Q], z[R], z[U], z[V], z[W]);
+        let (sp, cp, st, ct) = (z[PHI].sin(), z[PHI].cos(), z[THETA].sin(), z[THETA].cos());
+        [q * w - r * v + g * st, r * u - p * w - g * ct * sp, p * v - q * u - g * ct * cp]
+    }
+
     /// Parameter names, in the order of θ.
     pub const PARAMS: [&'static str; 8] = ["b_p", "b_q", "b_r", "b_ax", "b_ay", "b_az", "k_a", "k_m"];
     /// Index of the first bias (b_p) in θ; the six biases are θ[0..6].
@@ -431,59 +445,39 @@ pub struct Position {
     pub z: f64,
 }
 
-/// Standard deviations of the 13 sensors' noise, in SI units (rad, rad/s, m, m/s, m/s²).
+/// Standard deviations of the 13 sensors' noise, in SI units (rad, rad/s, m, m/s, m/s²), in
+/// the order of [`FlightPathObservation::OUTPUTS`].
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SensorSd {
-    /// Airspeed (m/s).
-    pub airspeed: f64,
-    /// Angle of attack α and sideslip β (rad).
-    pub flow_angles: f64,
-    /// Attitude φ, θ, ψ (rad).
-    pub attitude: f64,
-    /// Altitude (m).
-    pub altitude: f64,
-    /// Rates p, q, r (rad/s).
-    pub rates: f64,
-    /// Accelerations (m/s²).
-    pub accelerations: f64,
-}
+pub struct SensorSd(pub [f64; 13]);
 
 impl Default for SensorSd {
     /// Airspeed 0.2 m/s, α and β 0.003 rad (0.17°), attitude 0.002 rad (0.11°), altitude
-    /// 0.5 m, rates 0.002 rad/s (0.11°/s), accelerations 0.05 m/s²: our choice, of the order
-    /// of the scatter of the ATTAS channels about a smooth curve.
+    /// 0.5 m, rates 0.002 rad/s (0.11°/s), accelerations 0.05 m/s²: our choice for synthetic
+    /// records. A flight record's own levels: [`FlightPathSetup::for_record`].
     fn default() -> Self {
-        SensorSd {
-            airspeed: 0.2,
-            flow_angles: 0.003,
-            attitude: 0.002,
-            altitude: 0.5,
-            rates: 0.002,
-            accelerations: 0.05,
-        }
+        SensorSd::grouped(0.2, 0.003, 0.002, 0.5, 0.002, 0.05)
     }
 }
 
 impl SensorSd {
+    /// One sd per group of sensors: airspeed (m/s), flow angles α and β (rad), attitude
+    /// φ, θ, ψ (rad), altitude (m), rates p, q, r (rad/s), accelerations (m/s²).
+    pub const fn grouped(
+        airspeed: f64,
+        flow_angles: f64,
+        attitude: f64,
+        altitude: f64,
+        rates: f64,
+        accelerations: f64,
+    ) -> SensorSd {
+        let (f, a, r, c) = (flow_angles, attitude, rates, accelerations);
+        SensorSd([airspeed, f, f, a, a, a, altitude, r, r, r, c, c, c])
+    }
+
     /// The sd of each output of [`FlightPathObservation`], in the order of
     /// [`FlightPathObservation::OUTPUTS`].
     pub fn per_output(&self) -> [f64; 13] {
-        let s = self;
-        [
-            s.airspeed,
-            s.flow_angles,
-            s.flow_angles,
-            s.attitude,
-            s.attitude,
-            s.attitude,
-            s.altitude,
-            s.rates,
-            s.rates,
-            s.rates,
-            s.accelerations,
-            s.accelerations,
-            s.accelerations,
-        ]
+        self.0
     }
 }
 
@@ -647,15 +641,16 @@ impl FlightPathSetup {
     /// θ = [`FlightPathSetup::TRUTH`], 30 s at 25 Hz (the ATTAS record's length and rate),
     /// simulation step 0.004 s. Simulated initial states: jerks from their stationary laws
     /// N(0, σ²/(2k)); φ ~ N(0, 0.05²),
-    /// θ ~ N(0.05, 0.02²), ψ ~ N(0, 0.1²) rad; rates and moments N(0, 0.01²); h ~ N(5000, 10²)
-    /// m; u ~ N(100, 2²), v ~ N(0, 1), w ~ N(5, 1) m/s; a_x ~ N(0.5, 0.1²), a_y ~ N(0, 0.1²),
-    /// a_z ~ N(−9.8, 0.1²) m/s² (near steady level flight of a transport aircraft).
+    /// θ ~ N(0.05, 0.02²), ψ ~ N(0, 0.1²) rad; rates N(0, 0.001²) rad/s and moments
+    /// N(0, 0.001²) rad/s²; h ~ N(5000, 10²) m; u ~ N(100, 2²), v ~ N(0, 1), w ~ N(5, 1) m/s;
+    /// specific forces N(0, 0.05²) m/s² about the trim values of that state
+    /// ([`FlightPath::trim_forces`]): near steady flight of a transport aircraft.
     pub fn new() -> FlightPathSetup {
         let wide = |n: usize| vec![Prior::gaussian(0.0, 1e3); n];
         let n = Prior::gaussian;
         let mut theta_prior = vec![Prior::gaussian(0.0, 10.0); 6];
         theta_prior.extend([Prior::gamma(10.0, 1.0 / 9.0), Prior::gamma(10.0, 1.0 / 9.0)]);
-        let (a, r) = (n(0.0, 0.01), n(0.0, 0.01));
+        let (a, r) = (n(0.0, 1e-3), n(0.0, 1e-3));
         let model = FlightPath::default();
         FlightPathSetup {
             model,
@@ -683,9 +678,9 @@ impl FlightPathSetup {
                 n(100.0, 2.0),
                 n(0.0, 1.0),
                 n(5.0, 1.0),
-                n(0.5, 0.1),
-                n(0.0, 0.1),
-                n(-9.8, 0.1),
+                n(0.0, 0.05),
+                n(0.0, 0.05),
+                n(0.0, 0.05),
             ],
             t_end: 30.0,
             dt: 0.004,
@@ -699,18 +694,62 @@ impl FlightPathSetup {
         (0..=n).map(|k| k as f64 * self.sample_every).collect()
     }
 
-    /// Simulates a record: initial states from `x0_sim`, `z0_sim`, the path by Euler–Maruyama
+    /// Simulates a record: initial states from `x0_sim`, `z0_sim` (the specific forces of
+    /// `z0_sim` added to [`FlightPath::trim_forces`] of the drawn state), the path by Euler–Maruyama
     /// with step `dt`, measurements at [`FlightPathSetup::measurement_times`], all from `rng`
     /// in this order. Errors: as [`crate::simulate::simulate`].
     pub fn simulate<R: Rng + ?Sized>(&self, rng: &mut R) -> Result<(StatePath, Dataset)> {
         use crate::simulate::{sample_measurements_at, simulate, SimulateOptions};
         let x0 = self.x0_sim.iter().map(|p| p.sample(rng)).collect::<Result<Vec<f64>>>()?;
-        let z0 = self.z0_sim.iter().map(|p| p.sample(rng)).collect::<Result<Vec<f64>>>()?;
+        let mut z0 = self.z0_sim.iter().map(|p| p.sample(rng)).collect::<Result<Vec<f64>>>()?;
+        let trim = self.model.trim_forces(&z0);
+        for (k, f) in trim.into_iter().enumerate() {
+            z0[state::AX + k] += f;
+        }
         let options = SimulateOptions::new(0.0, self.t_end, self.dt);
         let path = simulate(&self.model, &self.theta, &x0, &z0, &options, rng)?;
         let data =
             sample_measurements_at(&self.observation, &self.theta, &path, 6, &self.measurement_times(), rng)?;
         Ok((path, data))
+    }
+
+    /// A record whose path stays in the flight envelope ([`FlightPathSetup::in_envelope`]):
+    /// [`FlightPathSetup::simulate`] repeated with `rng` until its path does, at most `tries`
+    /// times. The kinematics have no aerodynamic restoring forces, so an unconditioned draw
+    /// can stall or fly backwards within 30 s (u through 0 makes α jump by π); the records of
+    /// this method are draws of the model conditioned on the envelope.
+    ///
+    /// # Errors
+    /// As [`FlightPathSetup::simulate`]; [`crate::Error::InvalidOption`] when no draw of
+    /// `tries` stays in the envelope.
+    pub fn simulate_in_envelope<R: Rng + ?Sized>(
+        &self,
+        rng: &mut R,
+        tries: usize,
+    ) -> Result<(StatePath, Dataset)> {
+        for _ in 0..tries {
+            let (path, data) = self.simulate(rng)?;
+            if path.values.iter().all(|row| Self::in_envelope(&row[6..])) {
+                return Ok((path, data));
+            }
+        }
+        Err(crate::Error::InvalidOption {
+            name: "flight envelope".into(),
+            reason: format!(
+                "none of {tries} simulated records stays in the envelope; lower sigma_a or sigma_m"
+            ),
+        })
+    }
+
+    /// Whether clean state `z` is away from the model's singularities: u ≥ 30 m/s and
+    /// |v|, |w| ≤ u (α and β by `atan2` continuous and below 45°), |θ| ≤ 0.8 rad (tan θ and
+    /// sec θ of the kinematics bounded). This is the estimators' envelope, wider than an
+    /// aircraft's: it admits large sideslip, which the kinematics produce where the specific
+    /// forces do not follow a turn.
+    pub fn in_envelope(z: &[f64]) -> bool {
+        use state::*;
+        let u = z[U];
+        u >= 30.0 && z[V].abs() <= u && z[W].abs() <= u && z[THETA].abs() <= 0.8
     }
 
     /// The estimation problem on `data` with θ starting at `theta`, estimating the θ
@@ -801,14 +840,16 @@ impl FlightPathSetup {
     /// The path-space MAP estimate of `merit` (JME: Onsager–Machlup; MEE: energy) on `data`,
     /// joint with all eight parameters, by Hermite–Simpson with step `sample_every`, started
     /// from [`FlightPathSetup::initial_path`] and θ = (0, …, 0, 1, 1) (biases zero, k at the
-    /// mode of its prior), with the Laplace standard deviations.
+    /// mode of its prior), with the Laplace standard deviations of θ ([`Laplace::Parameters`]:
+    /// those of the path would cost one KKT solve per node and state).
     pub fn estimate(&self, data: &Dataset, merit: Merit) -> Result<PathSolution> {
         let theta = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0];
         let estimate: Vec<usize> = (0..8).collect();
         let problem = self.problem(data, &theta, &estimate);
         let options = PathOptions::new(merit, Transcription::HermiteSimpson)
             .with_step(self.sample_every)
-            .with_initial_path(self.initial_path(data));
+            .with_initial_path(self.initial_path(data))
+            .with_laplace(Laplace::Parameters);
         estimate_path(&problem, options)
     }
 }

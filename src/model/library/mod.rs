@@ -38,9 +38,9 @@ pub use double_well_2d::DoubleWell2d;
 pub use duffing::Duffing;
 pub use flight_oem::{output_error, OemEstimate, OemOptions, OEM_INPUTS, OEM_OUTPUTS, OEM_STATES};
 pub use flight_path::{
-    read_flight_record, read_flight_record_from, rigid_body_kinematics, state as flight_state, FlightColumns,
-    FlightPath, FlightPathObservation, FlightPathSetup, Inertia, MomentCoefficients, OutputResiduals,
-    Position, SensorSd, Unit,
+    integrated_noise_intensity, noise_sd, read_flight_record, read_flight_record_from, rigid_body_kinematics,
+    state as flight_state, FlightColumns, FlightPath, FlightPathObservation, FlightPathSetup, Inertia,
+    MomentCoefficients, OutputResiduals, Position, SensorSd, Unit, ROUGHNESS_LAG,
 };
 pub use holmes_rand::HolmesRand;
 pub use lorenz63::Lorenz63;
