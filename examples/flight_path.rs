@@ -4,9 +4,9 @@
 //! flight-path model with known sensor biases ([`FlightPathSetup::TRUTH`]), conditioned on
 //! staying in the flight envelope ([`FlightPathSetup::simulate_in_envelope`]), then estimate the
 //! path jointly with the eight parameters by JME and MEE (Hermite–Simpson, step = sample
-//! period, started from the measurements), with the Laplace standard deviations. Prints one
-//! line per replicate and estimator (status, iterations, solve seconds) and, per estimator and
-//! bias, the truth, the mean estimate, the mean Laplace sd, the spread (sd of the estimates
+//! period, started from the measurements), with the Laplace standard deviations of the
+//! parameters. Prints one line per replicate and estimator (status, iterations, solve seconds)
+//! and, per estimator and bias, the truth, the mean estimate, the mean Laplace sd, the spread (sd of the estimates
 //! over the replicates), the ratio Laplace sd / spread, and the largest
 //! |estimate − truth| / Laplace sd over the replicates.
 //!
@@ -19,11 +19,10 @@
 //! attitude, rates, accelerations) as SVG and PNG in `--plots DIR` (default
 //! `flight-path-plots`).
 //!
-//! On a flight record the noise levels are measured from the record
-//! (`FlightPathSetup::for_record`: sensor sds from third differences, σ_a and σ_m from the
-//! roughness of the specific forces and rates); `--sigma-a S`, `--sigma-m S` and
-//! `--sensor-sd OUTPUT=SD` (repeatable, OUTPUT one of the measurement CSV's columns) override
-//! them.
+//! On a flight record the noise levels are measured from the record (`RecordLevels::measure`:
+//! sensor sds from third differences, σ_a and σ_m from the roughness of the specific forces and
+//! rates); `--sigma-a S`, `--sigma-m S` and `--sensor-sd OUTPUT=SD` (repeatable, OUTPUT one of
+//! the measurement CSV's columns) override them, also where they cannot be measured.
 //!
 //! Run with `cargo run --release --example flight_path -- [--replicates N] [--t-end T]
 //! [--jme-only] [--data FILE [--out CSV] [--plots DIR] [--sigma-a S] [--sigma-m S]
@@ -36,7 +35,7 @@ use onsager::data::Dataset;
 use onsager::estimate::progress;
 use onsager::model::library::{
     output_error, read_flight_record, FlightColumns, FlightPath, FlightPathObservation, FlightPathSetup,
-    OemEstimate, OemOptions, OEM_OUTPUTS,
+    OemEstimate, OemOptions, RecordLevels, OEM_OUTPUTS,
 };
 use onsager::path::{Merit, PathDetails, PathSolution};
 use onsager::plot::{LinePlot, Panels, Series, DATA};
@@ -180,6 +179,10 @@ fn main() -> onsager::Result<()> {
     if let Some(file) = &args.data {
         return flight_data(file, &args, &merits);
     }
+    if args.sigma_a.is_some() || args.sigma_m.is_some() || !args.sensor_sd.is_empty() {
+        eprintln!("error: --sigma-a, --sigma-m and --sensor-sd set the levels of a flight record: use them with --data");
+        std::process::exit(2);
+    }
     let setup = FlightPathSetup { t_end: args.t_end, ..FlightPathSetup::new() };
     let mut tallies: Vec<Tally> = merits.iter().map(|_| Tally::default()).collect();
     println!(
@@ -265,16 +268,13 @@ fn flight_data(file: &Path, args: &Args, merits: &[(&str, Merit)]) -> onsager::R
         data.write_csv(out)?;
         println!("wrote {}", out.display());
     }
-    let mut setup = FlightPathSetup::for_record(&data)?;
-    if let Some(s) = args.sigma_a {
-        setup.model.sigma_a = s;
-    }
-    if let Some(s) = args.sigma_m {
-        setup.model.sigma_m = s;
-    }
+    let mut levels = RecordLevels::measure(&data)?;
+    levels.sigma_a = args.sigma_a.or(levels.sigma_a);
+    levels.sigma_m = args.sigma_m.or(levels.sigma_m);
     for &(j, sd) in &args.sensor_sd {
-        setup.observation.sd.0[j] = sd;
+        levels.sensor_sd.0[j] = sd;
     }
+    let setup = levels.setup()?;
     println!(
         "flight-path: {} ({} samples, t = {} .. {} s, step {:.4} s), Hermite-Simpson",
         file.display(),

@@ -203,7 +203,7 @@ impl Default for PathOptions {
             transcription: Transcription::HermiteSimpson,
             step: None,
             initial_path: None,
-            laplace: Laplace::PathAndParameters,
+            laplace: Laplace::default(),
             nlp: NlpOptions::default(),
         }
     }
@@ -245,13 +245,14 @@ impl PathOptions {
 /// path one per node and state, which dominates the whole estimate on long grids of many
 /// states (the 22-state flight-path model on 751 nodes: 16,522 solves, minutes against
 /// seconds for the NLP).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Laplace {
     /// None.
     Off,
     /// Of the estimated θ only.
     Parameters,
-    /// Of the path at every node and of the estimated θ.
+    /// Of the path at every node and of the estimated θ (the default).
+    #[default]
     PathAndParameters,
 }
 

@@ -18,7 +18,7 @@ use rand::Rng;
 mod attas;
 mod tuning;
 pub use attas::{read_flight_record, read_flight_record_from, FlightColumns, Unit};
-pub use tuning::{integrated_noise_intensity, noise_sd, ROUGHNESS_LAG};
+pub use tuning::{integrated_noise_intensity, noise_sd, RecordLevels, ROUGHNESS_LAG};
 
 use super::names;
 use crate::data::{Dataset, StatePath};
@@ -333,15 +333,17 @@ impl Default for FlightPath {
 
 impl FlightPath {
     /// The specific forces (a_x, a_y, a_z) that make u̇ = v̇ = ẇ = 0 in
-    /// [`rigid_body_kinematics`] at clean state `z` (steady flight: the forces balance gravity
-    /// and the rotation of the body axes): a_x = qw − rv + g sin θ,
-    /// a_y = ru − pw − g cos θ sin φ, a_z = pv − qu − g cos θ cos φ.
+    /// [`rigid_body_kinematics`] at clean state `z` (16 values; steady flight: the forces
+    /// balance gravity and the rotation of the body axes): a_x = qw − rv + g sin θ,
+    /// a_y = ru − pw − g cos θ sin φ, a_z = pv − qu − g cos θ cos φ, computed as minus the
+    /// kinematics' u̇, v̇, ẇ without forces, so that the sum is exactly zero.
     pub fn trim_forces(&self, z: &[f64]) -> [f64; 3] {
         use state::*;
-        let g = self.gravity;
-        let (p, q, r, u, v, w) = (z[P], z[Q], z[R], z[U], z[V], z[W]);
-        let (sp, cp, st, ct) = (z[PHI].sin(), z[PHI].cos(), z[THETA].sin(), z[THETA].cos());
-        [q * w - r * v + g * st, r * u - p * w - g * ct * sp, p * v - q * u - g * ct * cp]
+        let mut free = z[..16].to_vec();
+        free[AX..=AZ].fill(0.0);
+        let mut out = [0.0; 16];
+        rigid_body_kinematics(&self.inertia.coefficients(), self.gravity, &free, &[0.0; 6], &mut out);
+        [-out[U], -out[V], -out[W]]
     }
 
     /// Parameter names, in the order of θ.
@@ -615,7 +617,9 @@ pub struct FlightPathSetup {
     pub z0_prior: Vec<Prior>,
     /// Distribution of the noisy initial state in simulations.
     pub x0_sim: Vec<Prior>,
-    /// Distribution of the clean initial state in simulations.
+    /// Distribution of the clean initial state in simulations; for the specific forces
+    /// a_x, a_y, a_z, of their offsets from [`FlightPath::trim_forces`] at the drawn state
+    /// (N(0, σ²) means steady flight up to σ).
     pub z0_sim: Vec<Prior>,
     /// Final time of simulations (s); the path starts at t = 0.
     pub t_end: f64,
@@ -659,10 +663,10 @@ impl FlightPathSetup {
             theta_prior,
             x0_prior: wide(6),
             z0_prior: wide(16),
-            x0_sim: [model.sigma_a; 3]
+            x0_sim: [(model.sigma_a, FlightPath::K_A); 3]
                 .into_iter()
-                .chain([model.sigma_m; 3])
-                .map(|sigma| n(0.0, sigma / (2.0 * Self::TRUTH[FlightPath::K_A]).sqrt()))
+                .chain([(model.sigma_m, FlightPath::K_M); 3])
+                .map(|(sigma, k)| n(0.0, sigma / (2.0 * Self::TRUTH[k]).sqrt()))
                 .collect(),
             z0_sim: vec![
                 n(0.0, 0.05),
@@ -715,7 +719,7 @@ impl FlightPathSetup {
 
     /// A record whose path stays in the flight envelope ([`FlightPathSetup::in_envelope`]):
     /// [`FlightPathSetup::simulate`] repeated with `rng` until its path does, at most `tries`
-    /// times. The kinematics have no aerodynamic restoring forces, so an unconditioned draw
+    /// times (at least once). The kinematics have no aerodynamic restoring forces, so an unconditioned draw
     /// can stall or fly backwards within 30 s (u through 0 makes α jump by π); the records of
     /// this method are draws of the model conditioned on the envelope.
     ///
@@ -727,7 +731,7 @@ impl FlightPathSetup {
         rng: &mut R,
         tries: usize,
     ) -> Result<(StatePath, Dataset)> {
-        for _ in 0..tries {
+        for _ in 0..tries.max(1) {
             let (path, data) = self.simulate(rng)?;
             if path.values.iter().all(|row| Self::in_envelope(&row[6..])) {
                 return Ok((path, data));
@@ -741,7 +745,7 @@ impl FlightPathSetup {
         })
     }
 
-    /// Whether clean state `z` is away from the model's singularities: u ≥ 30 m/s and
+    /// Whether clean state `z` (16 values) is away from the model's singularities: u ≥ 30 m/s and
     /// |v|, |w| ≤ u (α and β by `atan2` continuous and below 45°), |θ| ≤ 0.8 rad (tan θ and
     /// sec θ of the kinematics bounded). This is the estimators' envelope, wider than an
     /// aircraft's: it admits large sideslip, which the kinematics produce where the specific

@@ -40,7 +40,7 @@ pub use flight_oem::{output_error, OemEstimate, OemOptions, OEM_INPUTS, OEM_OUTP
 pub use flight_path::{
     integrated_noise_intensity, noise_sd, read_flight_record, read_flight_record_from, rigid_body_kinematics,
     state as flight_state, FlightColumns, FlightPath, FlightPathObservation, FlightPathSetup, Inertia,
-    MomentCoefficients, OutputResiduals, Position, SensorSd, Unit, ROUGHNESS_LAG,
+    MomentCoefficients, OutputResiduals, Position, RecordLevels, SensorSd, Unit, ROUGHNESS_LAG,
 };
 pub use holmes_rand::HolmesRand;
 pub use lorenz63::Lorenz63;

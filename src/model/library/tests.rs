@@ -781,3 +781,29 @@ fn steady_level_flight_is_an_equilibrium() {
     assert_eq!((y[1], y[2]), (0.0, 0.0));
     assert_eq!(y[12], -model.gravity + theta[5]);
 }
+
+/// At the trim forces of any state the velocities are stationary: u̇ = v̇ = ẇ = 0 exactly, and
+/// the forces have their closed form (a_x = qw − rv + g sin θ, a_y = ru − pw − g cos θ sin φ,
+/// a_z = pv − qu − g cos θ cos φ).
+#[test]
+fn trim_forces_make_the_velocities_stationary() {
+    use flight_state::*;
+    let model = FlightPath::default();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+    for _ in 0..20 {
+        let w = flight_point(&mut rng);
+        let mut z = w[6..22].to_vec();
+        let trim = model.trim_forces(&z);
+        z[AX..=AZ].copy_from_slice(&trim);
+        let mut zdot = [1.0; 16];
+        rigid_body_kinematics(&model.inertia.coefficients(), model.gravity, &z, &[0.0; 6], &mut zdot);
+        assert_eq!([zdot[U], zdot[V], zdot[W]], [0.0; 3]);
+        let g = model.gravity;
+        let (p, q, r, u, v, wv) = (z[P], z[Q], z[R], z[U], z[V], z[W]);
+        let (sp, cp, st, ct) = (z[PHI].sin(), z[PHI].cos(), z[THETA].sin(), z[THETA].cos());
+        let closed = [q * wv - r * v + g * st, r * u - p * wv - g * ct * sp, p * v - q * u - g * ct * cp];
+        for (a, b) in trim.iter().zip(closed) {
+            assert!((a - b).abs() < 1e-12 * (1.0 + b.abs()), "{a} vs {b}");
+        }
+    }
+}
