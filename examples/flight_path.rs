@@ -90,18 +90,10 @@ fn parse_args() -> Result<Args, String> {
                 let j = FlightPathObservation::OUTPUTS.iter().position(|o| *o == name).ok_or_else(|| {
                     format!("--sensor-sd: unknown output `{name}` (one of {})", FlightPathObservation::OUTPUTS.join(", "))
                 })?;
-                let x: f64 = sd.parse().map_err(|_| format!("--sensor-sd {name}: not a number: `{sd}`"))?;
-                if !(x > 0.0 && x.is_finite()) {
-                    return Err(format!("--sensor-sd {name}: must be positive and finite, got {sd}"));
-                }
-                args.sensor_sd.push((j, x));
+                args.sensor_sd.push((j, positive(&format!("--sensor-sd {name}"), sd)?));
             }
             "--sigma-a" | "--sigma-m" => {
-                let v = value(&flag)?;
-                let x: f64 = v.parse().map_err(|_| format!("{flag}: not a number: `{v}`"))?;
-                if !(x > 0.0 && x.is_finite()) {
-                    return Err(format!("{flag}: must be positive and finite, got {v}"));
-                }
+                let x = positive(&flag, &value(&flag)?)?;
                 if flag == "--sigma-a" {
                     args.sigma_a = Some(x);
                 } else {
@@ -116,6 +108,15 @@ fn parse_args() -> Result<Args, String> {
         }
     }
     Ok(args)
+}
+
+/// `text` as a positive finite number, or the error naming `what`.
+fn positive(what: &str, text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(x) if x > 0.0 && x.is_finite() => Ok(x),
+        Ok(_) => Err(format!("{what}: must be positive and finite, got {text}")),
+        Err(_) => Err(format!("{what}: not a number: `{text}`")),
+    }
 }
 
 /// Mean and sample sd (NaN for fewer than two values).
