@@ -508,6 +508,41 @@ fn quadratic_exponential_closure_in_2d_is_the_gaussian_closure_on_a_linear_model
     }
 }
 
+#[test]
+fn a_failed_sweep_is_reported_with_where_and_why() {
+    // The quartic family on a box whose nodes are 7.5 apart cannot hold a density of sd 0.3:
+    // the estimate is a numerical failure whose report says where the sweep failed and why.
+    let obs = gaussian_measurement(0, 0.2);
+    let data = Dataset::try_new(vec!["y".into()], vec![0.5, 1.0], vec![vec![0.4], vec![0.2]]).unwrap();
+    let x0 = [Prior::gaussian(0.5, 0.3), Prior::gaussian(-0.3, 0.3)];
+    let problem = EstimationProblem {
+        sde: &DampedRotation,
+        observation: &obs,
+        theta: &[],
+        theta_prior: &[],
+        estimate: &[],
+        x0_prior: &x0,
+        z0_prior: &[],
+        data: &data,
+        t0: 0.0,
+        seed: 0,
+        max_memory: Default::default(),
+    };
+    let coarse = ExponentialFamily::of_degree(4).with_domain(&[(-30.0, 30.0), (-30.0, 30.0)]).with_panels(2);
+    let e =
+        Estimator::ExpClosure(Closure::new(coarse, ClosureOptions::new())).run(&problem).unwrap().estimate;
+    assert_eq!(e.status, Status::NumericalFailure);
+    let why =
+        e.details.json().get("sweep_failure").and_then(|v| v.as_str()).expect("a sweep failure").to_string();
+    assert!(why.starts_with("at t = 0"), "{why}");
+    assert!(why.contains("nodes") && why.contains("panels"), "{why}");
+    // A converged estimate has none.
+    let fine = ExponentialFamily::of_degree(4).with_domain(&[(-2.5, 3.5), (-3.0, 3.0)]);
+    let e = Estimator::ExpClosure(Closure::new(fine, ClosureOptions::new())).run(&problem).unwrap().estimate;
+    assert_eq!(e.status, Status::Converged);
+    assert!(e.details.json().get("sweep_failure").is_none());
+}
+
 /// RMSE over the output grid.
 fn rmse(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
     (a.iter().zip(b).map(|(x, y)| (x[0] - y[0]).powi(2)).sum::<f64>() / a.len() as f64).sqrt()

@@ -128,6 +128,12 @@ pub trait EffectiveAction {
         Ok(self.hessian(lambda)?.map(|h| (history, h)))
     }
 
+    /// Where and why the last sweep that had no value failed, in words for the report (a
+    /// closure's first unrealizable stage, say); `None` by default or when none failed.
+    fn last_failure(&self) -> Option<&str> {
+        None
+    }
+
     /// The sweeps' relative and absolute tolerances, for an action whose sweeps have them (an
     /// adaptive integrator); `None` by default.
     fn tolerances(&self) -> Option<(f64, f64)> {

@@ -104,6 +104,9 @@ pub struct Solution {
     pub coarse_stage: Option<CoarseStage>,
     /// Why the history has no value at λ*, if so (the path is then empty).
     pub history_failure: Option<SweepFailure>,
+    /// For a `NumericalFailure`: where and why the last sweep that failed failed
+    /// ([`EffectiveAction::last_failure`]).
+    pub sweep_failure: Option<String>,
 }
 
 /// The first stage's dual tolerance (optimality residual).
@@ -230,7 +233,13 @@ pub fn solve<A: EffectiveAction + ?Sized>(
             }
         };
     let status = if history_failure.is_some() { Status::NumericalFailure } else { dual.status };
-    Ok(Solution { history, sd, sd_kind, dual, status, start, coarse_stage, history_failure })
+    let sweep_failure = failure_of(action, status);
+    Ok(Solution { history, sd, sd_kind, dual, status, start, coarse_stage, history_failure, sweep_failure })
+}
+
+/// [`EffectiveAction::last_failure`] of `action` for an estimate that ended `NumericalFailure`.
+fn failure_of<A: EffectiveAction + ?Sized>(action: &A, status: Status) -> Option<String> {
+    (status == Status::NumericalFailure).then(|| action.last_failure().map(str::to_owned)).flatten()
 }
 
 /// The mean-optimal estimate at the stationary point connected to the prior by the curve of
@@ -271,6 +280,7 @@ pub fn solve_on_branch<A: EffectiveAction + ?Sized>(
     if let Some(why) = lost {
         sol.dual.reason = Some(why);
         (sol.dual.status, sol.status) = (Status::NumericalFailure, Status::NumericalFailure);
+        sol.sweep_failure = failure_of(action, sol.status);
     }
     Ok(sol)
 }
@@ -315,6 +325,9 @@ pub struct DualDetails {
     /// Why the history has no value at λ*, if so.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub history_failure: Option<SweepFailure>,
+    /// For a `numerical-failure`: where and why the last sweep that failed failed.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sweep_failure: Option<String>,
 }
 
 impl Solution {
@@ -338,6 +351,7 @@ impl Solution {
             coarse_stage: self.coarse_stage,
             sd: self.sd_kind,
             history_failure: self.history_failure,
+            sweep_failure: self.sweep_failure.clone(),
         }
     }
 }

@@ -260,6 +260,14 @@ fn print_summary(est: &PathEstimate, problem: &CliProblem<'_>) {
         est.iterations,
         est.solve_seconds
     );
+    if !est.status.is_success() {
+        let details = est.details.json();
+        for key in ["dual_reason", "sweep_failure"] {
+            if let Some(why) = details.get(key).and_then(|v| v.as_str()) {
+                outln!("  {}: {why}", key.replace('_', " "));
+            }
+        }
+    }
     let names = problem.sde.param_names();
     for (k, &i) in est.estimated.iter().enumerate() {
         let sd = est.theta_sd.as_ref().map_or(String::new(), |sd| format!(" ± {:.4}", sd[k]));

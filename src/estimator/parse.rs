@@ -65,9 +65,15 @@ pub(super) fn typed<T: EstimatorOptions>(method: Method, options: &Map<String, V
     Ok(value)
 }
 
-/// A command-line value: a boolean, an integer, a number, a list of numbers `a;b;c`, or text.
+/// A command-line value: a boolean, an integer, a number, a list of numbers `a;b;c`, a JSON
+/// array (`[-3,3]`, `[[-3,3],[-4,4]]`), or text.
 fn value_of(text: &str) -> Value {
     let t = text.trim();
+    if t.starts_with('[') {
+        if let Ok(list @ Value::Array(_)) = serde_json::from_str::<Value>(t) {
+            return list;
+        }
+    }
     if let Ok(b) = t.parse::<bool>() {
         return Value::Bool(b);
     }

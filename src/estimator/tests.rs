@@ -47,6 +47,21 @@ fn text_options_are_typed_and_nested() {
         Estimator::MeanOptimal(o) => assert_eq!(o.exact.scheme, crate::action::TimeScheme::TrBdf2),
         other => panic!("{other:?}"),
     }
+    // A domain as a JSON array on the command line: one interval for one state, or a list.
+    for (text, domain) in [
+        ("exp-closure:domain=\"[-3.5,3.5]\"", vec![(-3.5, 3.5)]),
+        ("exp-closure:domain=-3.5;3.5", vec![(-3.5, 3.5)]),
+        ("exp-closure:domain=\"[[-3,3],[-4.5,4.5]]\"", vec![(-3.0, 3.0), (-4.5, 4.5)]),
+    ] {
+        match Estimator::parse(text).unwrap() {
+            Estimator::ExpClosure(o) => assert_eq!(o.family.domain, domain, "{text}"),
+            other => panic!("{other:?}"),
+        }
+    }
+    match Estimator::parse("area-closure:domain=\"[-2,2]\"").unwrap() {
+        Estimator::AreaClosure(o) => assert_eq!(o.domain, Some((-2.0, 2.0))),
+        other => panic!("{other:?}"),
+    }
     // A grid as a table, as in TOML files.
     let table = serde_json::json!({"grid": {"lo": -2.0, "hi": 2.0, "cells": 40}});
     let e = Estimator::from_options(Method::Ksp, table.as_object().unwrap()).unwrap();
@@ -60,6 +75,7 @@ fn text_options_are_typed_and_nested() {
         ("exp-closure:dual.tolerance=-1", "dual.tolerance", "positive"),
         ("mean-optimal:dual.nope=1", "dual", "nope"),
         ("ksp:scheme=euler", "scheme", "implicit-euler"),
+        ("exp-closure:domain=\"[[1,2,3]]\"", "domain", "list of intervals"),
     ];
     for (text, option, allowed) in cases {
         match Estimator::parse(text) {

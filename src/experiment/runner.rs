@@ -484,8 +484,11 @@ impl Shared<'_> {
                     row.theta[c] = Some(est.theta[k]);
                 }
                 if !est.status.is_success() {
-                    if let Some(reason) = est.details.json().get("dual_reason").and_then(|v| v.as_str()) {
-                        messages.insert(0, reason.to_string());
+                    let details = est.details.json();
+                    for key in ["sweep_failure", "dual_reason"] {
+                        if let Some(reason) = details.get(key).and_then(|v| v.as_str()) {
+                            messages.insert(0, reason.to_string());
+                        }
                     }
                 }
                 row.message = messages.join("; ");

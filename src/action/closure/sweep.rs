@@ -243,6 +243,8 @@ struct RkWork {
     stages: Vec<f64>,
     arg: Vec<f64>,
     k1_time: Option<f64>,
+    /// Why the last stage that could not be evaluated could not.
+    trouble: Option<String>,
 }
 
 impl RkWork {
@@ -254,6 +256,7 @@ impl RkWork {
             stages: vec![0.0; 6 * r],
             arg: vec![0.0; r],
             k1_time: None,
+            trouble: None,
         }
     }
 }
@@ -368,6 +371,8 @@ pub struct ClosureAction<D: ClosureDrift> {
     keep_hessians: bool,
     sweeps: usize,
     steps: usize,
+    /// Where and why the last sweep that failed failed.
+    last_failure: Option<String>,
 }
 
 impl<D: ClosureDrift> std::fmt::Debug for ClosureAction<D> {
@@ -392,9 +397,22 @@ impl Events {
     }
 }
 
-/// How the forward sweep failed (a numerical outcome).
+/// How a sweep failed (a numerical outcome): where and why, in words for the report
+/// ([`EffectiveAction::last_failure`]).
 #[derive(Debug, Clone)]
-struct SweepFailure;
+struct SweepFailure(String);
+
+impl SweepFailure {
+    /// A failure at time `t` of the sweep.
+    fn at(t: f64, why: impl std::fmt::Display) -> Self {
+        let t = match t.abs() {
+            0.0 => "0".to_string(),
+            a if a >= 1e-3 => format!("{t:.4}"),
+            _ => format!("{t:.2e}"),
+        };
+        SweepFailure(format!("at t = {t}: {why}"))
+    }
+}
 
 /// The moment paths of [`ClosureAction::moment_paths`] at the output times.
 #[derive(Debug, Clone, PartialEq)]
@@ -465,6 +483,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             keep_hessians,
             sweeps: 0,
             steps: 0,
+            last_failure: None,
         })
     }
 
@@ -533,7 +552,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
     #[inline(always)]
     fn rk_step_sized(&self, r: usize, t: f64, y: &[f64], h: f64, work: &mut RkWork) -> Option<f64> {
         let rr = r * r;
-        let RkWork { k, jac, hess, stages, arg, .. } = work;
+        let RkWork { k, jac, hess, stages, arg, trouble, .. } = work;
         stages[..r].copy_from_slice(y);
         for i in 1..7 {
             for a in 0..r {
@@ -545,7 +564,10 @@ impl<D: ClosureDrift> ClosureAction<D> {
             let ki = &mut k[i * r..(i + 1) * r];
             let ji = &mut jac[i * rr..(i + 1) * rr];
             let hi = if self.keep_hessians { &mut hess[i * rr * r..(i + 1) * rr * r] } else { &mut [][..] };
-            self.stage_derivatives(t + C[i] * h, arg, ki, ji, hi).ok()?;
+            if let Err(e) = self.stage_derivatives(t + C[i] * h, arg, ki, ji, hi) {
+                *trouble = Some(e.0);
+                return None;
+            }
         }
         // The seventh stage argument is the fifth-order solution (FSAL).
         let y_new = &*arg;
@@ -619,7 +641,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             work.k1_time = None;
             let hess = if self.keep_hessians { &mut work.hess[..rr * r] } else { &mut [][..] };
             self.stage_derivatives(tc, y, &mut work.k[..r], &mut work.jac[..rr], hess)
-                .map_err(|_| SweepFailure)?;
+                .map_err(|e| SweepFailure::at(tc, e.0))?;
             work.k1_time = Some(tc);
         }
         while tc < t_end {
@@ -669,7 +691,12 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 }
             }
             if h < 1e-13 * span.max(1.0) || rejections > 10_000 || steps.len() - first_step > 2_000_000 {
-                return Err(SweepFailure);
+                let why = match work.trouble.take() {
+                    Some(why) => format!("{why} (the steps fell to {h:.1e})"),
+                    None if steps.len() - first_step > 2_000_000 => "more than 2,000,000 steps".to_string(),
+                    None => format!("the error control rejected {rejections} steps, down to {h:.1e}"),
+                };
+                return Err(SweepFailure::at(tc, why));
             }
         }
         Ok(())
@@ -726,7 +753,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 out.steps.start.push(out.steps.len());
             }
             out.lambda_minus.push(y.clone());
-            let mut m = self.drift.moments(&y).map_err(|_| SweepFailure)?;
+            let te = events.times[e];
+            let mut m = self.drift.moments(&y).map_err(|why| SweepFailure::at(te, why.0))?;
             if let Some(k) = events.meas[e] {
                 let before = m;
                 let lk = choose(k, &y)?;
@@ -734,7 +762,10 @@ impl<D: ClosureDrift> ClosureAction<D> {
                     y[a] += lk[b];
                 }
                 work.k1_time = None;
-                m = self.drift.moments(&y).map_err(|_| SweepFailure)?;
+                m = self
+                    .drift
+                    .moments(&y)
+                    .map_err(|why| SweepFailure::at(te, format!("after the jump, {}", why.0)))?;
                 out.f += m.log_partition - before.log_partition;
                 out.mu_minus.push(before.mean);
                 out.cov_minus.push(before.covariance);
@@ -745,7 +776,10 @@ impl<D: ClosureDrift> ClosureAction<D> {
         }
         self.step_hint.store(out.steps.len(), Relaxed);
         if !out.f.is_finite() {
-            return Err(SweepFailure);
+            return Err(SweepFailure::at(
+                events.times[ne - 1],
+                "the log-partition increments are not finite",
+            ));
         }
         Ok(out)
     }
@@ -817,7 +851,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                         } else {
                             self.drift
                                 .w_second_with_jacobian(ti, yi, ki, &mut w, ji, hi)
-                                .map_err(|_| SweepFailure)?;
+                                .map_err(|why| SweepFailure::at(ti, why.0))?;
                         }
                         &*ji
                     } else {
@@ -841,8 +875,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 }
             }
         }
-        if out.iter().flatten().any(|v| !v.is_finite()) {
-            return Err(SweepFailure);
+        if let Some(e) = out.iter().position(|g| g.iter().any(|v| !v.is_finite())) {
+            return Err(SweepFailure::at(events.times[e], "the adjoint is not finite"));
         }
         Ok((out, derivs))
     }
@@ -993,7 +1027,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             self.cache = Some((l, fw, g0));
         }
         if out.values.iter().any(|v| !v.is_finite()) {
-            return Err(SweepFailure);
+            return Err(SweepFailure("the tangents of the sweep are not finite".into()));
         }
         Ok((base, out))
     }
@@ -1191,6 +1225,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let events = self.fit_events.clone();
         let measured = self.measured.clone();
         let drift = &self.drift;
+        let meas_times = &self.meas_times;
         let r_dim = drift.n_params();
         let mut choose = |k: usize, y: &[f64]| -> std::result::Result<Vec<f64>, SweepFailure> {
             let idx: Vec<usize> = (0..s).filter(|&b| !data.r[k * s + b].is_nan()).collect();
@@ -1200,7 +1235,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 for (b, &a) in measured.iter().enumerate() {
                     yy[a] += lk[b];
                 }
-                let m = drift.moments(&yy).map_err(|_| SweepFailure)?;
+                let m = drift.moments(&yy).map_err(|why| SweepFailure::at(meas_times[k], why.0))?;
                 let na = idx.len();
                 let mut jac = DMatrix::zeros(na, na);
                 let mut g = nalgebra::DVector::zeros(na);
@@ -1214,28 +1249,35 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 }
                 let scale: f64 = idx.iter().map(|&b| data.variance[k * s + b]).fold(0.0, f64::max);
                 if g.iter().any(|v| !v.is_finite()) {
-                    return Err(SweepFailure);
+                    return Err(SweepFailure::at(meas_times[k], "the filter's jump is not finite"));
                 }
                 if g.amax() <= 1e-12 * (1.0 + scale) {
                     break;
                 }
-                let d = jac.cholesky().ok_or(SweepFailure)?.solve(&g);
+                let d = jac
+                    .cholesky()
+                    .ok_or_else(|| {
+                        SweepFailure::at(meas_times[k], "the filter's jump has no positive curvature")
+                    })?
+                    .solve(&g);
                 for (i, &b) in idx.iter().enumerate() {
                     lk[b] -= d[i];
                 }
             }
             if lk.iter().any(|v| !v.is_finite()) {
-                return Err(SweepFailure);
+                return Err(SweepFailure::at(meas_times[k], "the filter's jump is not finite"));
             }
             chosen[k * s..(k + 1) * s].copy_from_slice(&lk);
             Ok(lk)
         };
         self.sweeps += 1;
-        let fw = self.forward_with(&events, &mut choose).ok()?;
+        let fw = self.forward_with(&events, &mut choose);
+        let fw = self.failed(fw)?;
         self.steps += fw.steps.len();
         // The sweep is the forward sweep of F at the chosen multipliers: with its adjoint (no
         // drift evaluations) it is the cached evaluation there.
-        let (g, _) = self.backward(&events, &fw, false).ok()?;
+        let g = self.backward(&events, &fw, false);
+        let (g, _) = self.failed(g)?;
         self.cache = Some((chosen.clone(), fw, g));
         Some(chosen)
     }
@@ -1246,10 +1288,14 @@ impl<D: ClosureDrift> ClosureAction<D> {
     pub fn moment_paths(&mut self, lambda: &[f64]) -> Result<Swept<MomentPaths>> {
         self.check(lambda)?;
         let events = self.out_events.clone();
-        let Ok((fw, g, _)) = self.value(&events, lambda, false) else {
-            return Ok(Err(Failure::Unrealizable));
-        };
+        let value = self.value(&events, lambda, false);
+        let Some((fw, g, _)) = self.failed(value) else { return Ok(Err(Failure::Unrealizable)) };
         Ok(Ok(MomentPaths { m: Self::moments_at_events(&fw, &g), mu: fw.mu, times: events.times }))
+    }
+
+    /// The value of a sweep, or `None` with its failure kept as [`EffectiveAction::last_failure`].
+    fn failed<T>(&mut self, swept: std::result::Result<T, SweepFailure>) -> Option<T> {
+        swept.map_err(|SweepFailure(why)| self.last_failure = Some(why)).ok()
     }
 
     /// The linear moment of every state (index into M).
@@ -1284,14 +1330,15 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
             }
         }
         let events = self.fit_events.clone();
-        match self.value(&events, lambda, false) {
-            Ok((fw, g, _)) => {
+        let value = self.value(&events, lambda, false);
+        match self.failed(value) {
+            Some((fw, g, _)) => {
                 let z = self.z_of(&events, &fw, &g);
                 let value = fw.f;
                 self.cache = Some((lambda.to_vec(), fw, g));
                 Ok(ActionValue { value, z })
             }
-            Err(SweepFailure) => Ok(ActionValue { value: f64::NAN, z: vec![f64::NAN; lambda.len()] }),
+            None => Ok(ActionValue { value: f64::NAN, z: vec![f64::NAN; lambda.len()] }),
         }
     }
 
@@ -1301,7 +1348,8 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
     fn hessian(&mut self, lambda: &[f64]) -> Result<Swept<DMatrix<f64>>> {
         self.check(lambda)?;
         let events = self.fit_events.clone();
-        let Ok((_, tangents)) = self.tangents(&events, lambda) else { return Ok(Err(Failure::Unrealizable)) };
+        let tangents = self.tangents(&events, lambda);
+        let Some((_, tangents)) = self.failed(tangents) else { return Ok(Err(Failure::Unrealizable)) };
         let m = lambda.len();
         let event_of: Vec<usize> =
             events.meas.iter().enumerate().filter_map(|(e, mm)| mm.map(|_| e)).collect();
@@ -1319,15 +1367,15 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
         let events = self.out_events.clone();
         let lin = self.linear_moments()?;
         let (m, cr) = if cross {
-            let Ok((m, t)) = self.tangents(&events, lambda) else { return Ok(Err(Failure::Unrealizable)) };
+            let tangents = self.tangents(&events, lambda);
+            let Some((m, t)) = self.failed(tangents) else { return Ok(Err(Failure::Unrealizable)) };
             let nm = lambda.len();
             let cr =
                 (0..m.len()).map(|e| DMatrix::from_fn(n, nm, |i, j| t.at(j, e)[lin[i]])).collect::<Vec<_>>();
             (m, Some(cr))
         } else {
-            let Ok((fw, g, _)) = self.value(&events, lambda, false) else {
-                return Ok(Err(Failure::Unrealizable));
-            };
+            let value = self.value(&events, lambda, false);
+            let Some((fw, g, _)) = self.failed(value) else { return Ok(Err(Failure::Unrealizable)) };
             (Self::moments_at_events(&fw, &g), None)
         };
         let sq: Vec<Option<usize>> = (0..n).map(|i| self.drift.square_index(i)).collect();
@@ -1376,6 +1424,10 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
 
     fn tolerances(&self) -> Option<(f64, f64)> {
         Some(ClosureAction::tolerances(self))
+    }
+
+    fn last_failure(&self) -> Option<&str> {
+        self.last_failure.as_deref()
     }
 
     fn set_tolerances(&mut self, rtol: f64, atol: f64) -> Result<()> {

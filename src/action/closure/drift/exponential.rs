@@ -547,7 +547,14 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
                 cov[b * r + a] = cab;
             }
         }
-        z.c.factor(cov, r)?;
+        z.c.factor(cov, r).map_err(|Unrealizable(why)| {
+            let top = z.p.iter().copied().fold(0.0, f64::max);
+            let held = z.p.iter().filter(|&&pk| pk > 1e-9 * top).count();
+            Unrealizable(format!(
+                "{why}: the density has {held} of the {all} nodes above 1e-9 of its peak, for {r} moments \
+                 (nodes that do not resolve the density: more `panels` or a `domain` closer to it)"
+            ))
+        })?;
         z.w.clear();
         z.w.extend_from_slice(v);
         z.c.solve(&mut z.w);
@@ -751,7 +758,9 @@ pub struct ExponentialFamily {
     /// Support of the family (its quadrature grid): one interval [a, b] per state, or empty for
     /// the default: per state, the range of its data and of its initial prior (mean ± 5 sd),
     /// widened by half its width plus 1 on each side. Set it for a state that is not measured
-    /// and whose range the prior does not cover.
+    /// and whose range the prior does not cover. On the command line, `domain=[a,b]` (one
+    /// state) or `domain=[[a,b],[c,d]]`.
+    #[serde(deserialize_with = "intervals")]
     pub domain: Vec<(f64, f64)>,
     /// Panels × 8 Gauss–Legendre points per dimension of the fixed box (`nodes = box`). Default
     /// 12 (96 nodes in 1-D; the double-well estimates of `benches/closure.rs` agree with 24
@@ -784,6 +793,20 @@ pub enum NodeRule {
     /// A grid centred and scaled by the density's mean and covariance, moved with it and
     /// refined to `density_tolerance` (`density_panels`, `density_width`).
     Density,
+}
+
+/// A `domain`: one interval [a, b] (a one-state family) or a list of them, one per state.
+fn intervals<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Vec<(f64, f64)>, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged, expecting = "an interval [a, b] or a list of intervals [[a, b], [c, d]]")]
+    enum Domain {
+        One((f64, f64)),
+        Many(Vec<(f64, f64)>),
+    }
+    Ok(match Domain::deserialize(d)? {
+        Domain::One(interval) => vec![interval],
+        Domain::Many(list) => list,
+    })
 }
 
 impl Default for ExponentialFamily {
