@@ -350,13 +350,17 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
             }
             let width = if moved { opts.width } else { frame.width * 1.5 };
             if width > MAX_DENSITY_WIDTH {
-                return Err(Unrealizable(format!(
-                    "the density reaches the boundary of its nodes at ±{MAX_DENSITY_WIDTH} standard deviations"
-                )));
+                return Err(unbounded(
+                    &nodes.family,
+                    lambda,
+                    format!("the density reaches the boundary of its nodes at ±{MAX_DENSITY_WIDTH} standard deviations"),
+                ));
             }
             let chol = onsager_closures::cholesky(&cov, n)
                 .map_err(|_| Unrealizable("the density's covariance is not positive definite".into()))?;
-            let (family, panels) = self.refined(lambda, &mean, &chol, width, opts)?;
+            let (family, panels) = self
+                .refined(lambda, &mean, &chol, width, opts)
+                .map_err(|Unrealizable(why)| unbounded(&nodes.family, lambda, why))?;
             *nodes = Nodes::try_new(family, &self.diffusion, Some(Frame::new(mean, chol, width, panels, n)))?;
         }
         Err(Unrealizable("the nodes that follow the density did not settle in 8 moves".into()))
@@ -396,6 +400,49 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
             opts.tolerance
         )))
     }
+}
+
+/// `why` the nodes cannot hold the density at λ, with the reason no nodes can when its density
+/// is not normalizable ([`top_form_max`] ≥ 0).
+fn unbounded(family: &Exponential, lambda: &[f64], why: String) -> Unrealizable {
+    match family.exponents().map(|e| top_form_max(e, lambda)) {
+        Some(top) if top >= 0.0 => Unrealizable(format!(
+            "{why}: the density is not normalizable (the highest-degree terms of λ·M reach {top:.3e} \
+             ≥ 0 on the unit circle, so it grows without bound there); nodes that follow the density \
+             need a normalizable one, the fixed box (`nodes = box`) truncates it to its domain"
+        )),
+        _ => Unrealizable(why),
+    }
+}
+
+/// The largest value on the unit sphere of the highest-degree terms of λ·M, for the polynomial
+/// family with `exponents` in one or two states (the terms of the highest degree with a
+/// non-zero coefficient; 720 directions in 2-D). exp(λ·M) is normalizable on Rⁿ when this is
+/// negative (an even degree with a negative definite form).
+fn top_form_max(exponents: &[Vec<u32>], lambda: &[f64]) -> f64 {
+    let degree = |e: &Vec<u32>| e.iter().sum::<u32>();
+    let Some(top) = exponents.iter().zip(lambda).filter(|(_, &l)| l != 0.0).map(|(e, _)| degree(e)).max()
+    else {
+        return 0.0;
+    };
+    let form = |x: &[f64]| -> f64 {
+        exponents
+            .iter()
+            .zip(lambda)
+            .filter(|(e, _)| degree(e) == top)
+            .map(|(e, &l)| l * e.iter().zip(x).map(|(&p, &xi)| xi.powi(p as i32)).product::<f64>())
+            .sum()
+    };
+    let directions: Vec<Vec<f64>> = match exponents.first().map_or(0, Vec::len) {
+        1 => vec![vec![1.0], vec![-1.0]],
+        _ => (0..720)
+            .map(|k| {
+                let a = std::f64::consts::PI * k as f64 / 360.0;
+                vec![a.cos(), a.sin()]
+            })
+            .collect(),
+    };
+    directions.iter().map(|x| form(x)).fold(f64::NEG_INFINITY, f64::max)
 }
 
 /// The Jacobi-scaled Cholesky factor of a moment covariance C (entries of very different
@@ -1129,6 +1176,30 @@ mod tests {
     /// the drift works on the nodes of non-zero probability only (most of the grid has
     /// probability 0 under the e⁻⁵⁰ cut), and W = C⁻¹V still holds against the family's
     /// own all-node quadrature, with ∂W/∂λ and ∇²(κᵀW) against finite differences.
+    #[test]
+    fn the_top_form_decides_normalizability() {
+        // The quartic monomials of two states, in the family's order: x, y, x², xy, y², x³, …, y⁴.
+        let exps = onsager_closures::Polynomial::try_new(2, 4).unwrap().exponents().to_vec();
+        let at = |terms: &[((u32, u32), f64)]| -> Vec<f64> {
+            exps.iter()
+                .map(|e| terms.iter().find(|((i, j), _)| e[..] == [*i, *j]).map_or(0.0, |t| t.1))
+                .collect()
+        };
+        // −(x² + y²)² is −1 on the unit circle; with a positive quadratic part it still decides.
+        let ring = at(&[((4, 0), -1.0), ((2, 2), -2.0), ((0, 4), -1.0), ((2, 0), 5.0)]);
+        assert!((top_form_max(&exps, &ring) + 1.0).abs() < 1e-12);
+        // x⁴ − 2y⁴ reaches 1 at (1, 0): not normalizable.
+        assert!((top_form_max(&exps, &at(&[((4, 0), 1.0), ((0, 4), -2.0)])) - 1.0).abs() < 1e-12);
+        // An odd top degree (x³, the quartic terms zero) is never normalizable.
+        assert!(top_form_max(&exps, &at(&[((3, 0), -0.5), ((0, 2), -1.0)])) > 0.0);
+        // A Gaussian: the quadratic terms decide.
+        assert!(top_form_max(&exps, &at(&[((2, 0), -0.5), ((1, 1), 0.3), ((0, 2), -0.5)])) < 0.0);
+        // One state: the sign of the top coefficient, and the parity of its degree.
+        let one = onsager_closures::Polynomial::try_new(1, 4).unwrap().exponents().to_vec();
+        assert_eq!(top_form_max(&one, &[0.0, 1.0, 0.0, -2.0]), -2.0);
+        assert_eq!(top_form_max(&one, &[0.0, -1.0, 0.5, 0.0]), 0.5);
+    }
+
     #[test]
     fn exponential_drift_on_the_nodes_with_mass_of_a_concentrated_density() {
         let family = Exponential::quartic(-6.0, 6.0).unwrap();
