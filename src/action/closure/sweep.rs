@@ -675,6 +675,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                         work.hess.copy_within(6 * rr * r..7 * rr * r, 0);
                     }
                     work.k1_time = Some(tc + C[6] * hh);
+                    work.trouble = None;
                     tc = if last { t_end } else { tc + hh };
                     let fac = if err == 0.0 { 5.0 } else { (0.9 * err.powf(-0.2)).clamp(0.2, 5.0) };
                     // A step shortened to end on the event leaves the proposal h standing.

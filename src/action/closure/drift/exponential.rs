@@ -417,8 +417,8 @@ fn unbounded(family: &Exponential, lambda: &[f64], why: String) -> Unrealizable 
 
 /// The largest value on the unit sphere of the highest-degree terms of λ·M, for the polynomial
 /// family with `exponents` in one or two states (the terms of the highest degree with a
-/// non-zero coefficient; 720 directions in 2-D). exp(λ·M) is normalizable on Rⁿ when this is
-/// negative (an even degree with a negative definite form).
+/// non-zero coefficient; 720 directions in 2-D; NaN in more states). exp(λ·M) is normalizable
+/// on Rⁿ when this is negative (an even degree with a negative definite form).
 fn top_form_max(exponents: &[Vec<u32>], lambda: &[f64]) -> f64 {
     let degree = |e: &Vec<u32>| e.iter().sum::<u32>();
     let Some(top) = exponents.iter().zip(lambda).filter(|(_, &l)| l != 0.0).map(|(e, _)| degree(e)).max()
@@ -435,12 +435,13 @@ fn top_form_max(exponents: &[Vec<u32>], lambda: &[f64]) -> f64 {
     };
     let directions: Vec<Vec<f64>> = match exponents.first().map_or(0, Vec::len) {
         1 => vec![vec![1.0], vec![-1.0]],
-        _ => (0..720)
+        2 => (0..720)
             .map(|k| {
                 let a = std::f64::consts::PI * k as f64 / 360.0;
                 vec![a.cos(), a.sin()]
             })
             .collect(),
+        _ => return f64::NAN,
     };
     directions.iter().map(|x| form(x)).fold(f64::NEG_INFINITY, f64::max)
 }
