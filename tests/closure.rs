@@ -462,6 +462,27 @@ fn unsupported_combinations_are_clear_errors() {
     assert!(err.to_string().contains("degree 2 to 6"), "{err}");
 }
 
+/// The problem of `DampedRotation` with measurements `obs` of `data` and initial prior `x0`.
+fn damped_rotation_problem<'a>(
+    obs: &'a StateMeasurement,
+    x0: &'a [Prior],
+    data: &'a Dataset,
+) -> EstimationProblem<'a, DampedRotation, StateMeasurement> {
+    EstimationProblem {
+        sde: &DampedRotation,
+        observation: obs,
+        theta: &[],
+        theta_prior: &[],
+        estimate: &[],
+        x0_prior: x0,
+        z0_prior: &[],
+        data,
+        t0: 0.0,
+        seed: 0,
+        max_memory: Default::default(),
+    }
+}
+
 #[test]
 fn quadratic_exponential_closure_in_2d_is_the_gaussian_closure_on_a_linear_model() {
     // The degree-2 polynomial family in 2-D is the Gaussian family (restricted to a wide grid),
@@ -476,19 +497,7 @@ fn quadratic_exponential_closure_in_2d_is_the_gaussian_closure_on_a_linear_model
     let times = [0.5, 1.0, 1.5, 2.0, 2.5, 3.0];
     let data = sample_measurements_at(&obs, &[], &path, 1, &times, &mut rng).unwrap();
     let x0 = [Prior::gaussian(0.5, 0.3), Prior::gaussian(-0.3, 0.3)];
-    let problem = EstimationProblem {
-        sde: &DampedRotation,
-        observation: &obs,
-        theta: &[],
-        theta_prior: &[],
-        estimate: &[],
-        x0_prior: &x0,
-        z0_prior: &[],
-        data: &data,
-        t0: 0.0,
-        seed: 0,
-        max_memory: Default::default(),
-    };
+    let problem = damped_rotation_problem(&obs, &x0, &data);
     let options = ClosureOptions::new().with_tolerances(1e-9, 1e-11).with_dispersion(false);
     let g = closure_estimate(&problem, &ClosureKind::Gaussian, &options).unwrap();
     let on_box = ExponentialFamily::of_degree(2).with_domain(&[(-3.5, 3.5), (-3.5, 3.5)]);
@@ -515,19 +524,7 @@ fn a_failed_sweep_is_reported_with_where_and_why() {
     let obs = gaussian_measurement(0, 0.2);
     let data = Dataset::try_new(vec!["y".into()], vec![0.5, 1.0], vec![vec![0.4], vec![0.2]]).unwrap();
     let x0 = [Prior::gaussian(0.5, 0.3), Prior::gaussian(-0.3, 0.3)];
-    let problem = EstimationProblem {
-        sde: &DampedRotation,
-        observation: &obs,
-        theta: &[],
-        theta_prior: &[],
-        estimate: &[],
-        x0_prior: &x0,
-        z0_prior: &[],
-        data: &data,
-        t0: 0.0,
-        seed: 0,
-        max_memory: Default::default(),
-    };
+    let problem = damped_rotation_problem(&obs, &x0, &data);
     let coarse = ExponentialFamily::of_degree(4).with_domain(&[(-30.0, 30.0), (-30.0, 30.0)]).with_panels(2);
     let e =
         Estimator::ExpClosure(Closure::new(coarse, ClosureOptions::new())).run(&problem).unwrap().estimate;
