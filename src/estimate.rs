@@ -290,6 +290,15 @@ impl Details {
         }
     }
 
+    /// Why an estimate ended short, as the details say it: the dual's reason (`dual_reason`),
+    /// then where and why a sweep failed (`sweep_failure`), each with its key, when present.
+    pub fn failure_reasons(&self) -> Vec<(&'static str, &str)> {
+        ["dual_reason", "sweep_failure"]
+            .into_iter()
+            .filter_map(|key| Some((key, self.json().get(key)?.as_str()?)))
+            .collect()
+    }
+
     /// Whether the JSON form has the entry `key`.
     pub fn contains_key(&self, key: &str) -> bool {
         self.json().contains_key(key)

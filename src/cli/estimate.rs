@@ -261,11 +261,8 @@ fn print_summary(est: &PathEstimate, problem: &CliProblem<'_>) {
         est.solve_seconds
     );
     if !est.status.is_success() {
-        let details = est.details.json();
-        for key in ["dual_reason", "sweep_failure"] {
-            if let Some(why) = details.get(key).and_then(|v| v.as_str()) {
-                outln!("  {}: {why}", key.replace('_', " "));
-            }
+        for (key, why) in est.details.failure_reasons() {
+            outln!("  {}: {why}", key.replace('_', " "));
         }
     }
     let names = problem.sde.param_names();

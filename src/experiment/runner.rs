@@ -484,12 +484,8 @@ impl Shared<'_> {
                     row.theta[c] = Some(est.theta[k]);
                 }
                 if !est.status.is_success() {
-                    let details = est.details.json();
-                    for key in ["sweep_failure", "dual_reason"] {
-                        if let Some(reason) = details.get(key).and_then(|v| v.as_str()) {
-                            messages.insert(0, reason.to_string());
-                        }
-                    }
+                    let reasons = est.details.failure_reasons().into_iter().map(|(_, why)| why.to_string());
+                    messages.splice(0..0, reasons);
                 }
                 row.message = messages.join("; ");
             }
