@@ -633,6 +633,10 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let mut tc = t;
         let mut h = h_guess.min(span);
         let mut rejections = 0usize;
+        // Whether the last attempt failed in a stage (its reason in `work.trouble`, which holds
+        // the last stage failure of this interval).
+        let mut stage_failed: bool;
+        work.trouble = None;
         // the step cap below is per interval between events, as before the steps were flat
         let first_step = steps.len();
         let r = y.len();
@@ -675,7 +679,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                         work.hess.copy_within(6 * rr * r..7 * rr * r, 0);
                     }
                     work.k1_time = Some(tc + C[6] * hh);
-                    work.trouble = None;
+                    stage_failed = false;
                     tc = if last { t_end } else { tc + hh };
                     let fac = if err == 0.0 { 5.0 } else { (0.9 * err.powf(-0.2)).clamp(0.2, 5.0) };
                     // A step shortened to end on the event leaves the proposal h standing.
@@ -685,16 +689,22 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 Some(err) => {
                     h = hh * (0.9 * err.powf(-0.2)).clamp(0.1, 0.9);
                     rejections += 1;
+                    stage_failed = false;
                 }
                 None => {
                     h = hh * 0.25;
                     rejections += 1;
+                    stage_failed = true;
                 }
             }
             if h < 1e-13 * span.max(1.0) || rejections > 10_000 || steps.len() - first_step > 2_000_000 {
                 let why = match work.trouble.take() {
-                    Some(why) => format!("{why} (the steps fell to {h:.1e})"),
-                    None if steps.len() - first_step > 2_000_000 => "more than 2,000,000 steps".to_string(),
+                    Some(why) if stage_failed => format!("{why} (the steps fell to {h:.1e})"),
+                    _ if steps.len() - first_step > 2_000_000 => "more than 2,000,000 steps".to_string(),
+                    Some(why) => format!(
+                        "the error control rejected {rejections} steps, down to {h:.1e}; the last stage that \
+                         could not be evaluated: {why}"
+                    ),
                     None => format!("the error control rejected {rejections} steps, down to {h:.1e}"),
                 };
                 return Err(SweepFailure::at(tc, why));
