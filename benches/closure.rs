@@ -24,6 +24,12 @@
 //! (`gaussian-ksp-closure`, default rule and step) and the UKS on one record of the dense setting
 //! of the `lorenz63-smoothing` experiment: G = √10 I, all three states measured every 0.2 with
 //! variance 2 (here from t = 0, 101 times), x0 ~ N((−5.9, −5.5, 24.6), I), seed 1.
+//!
+//! Group `closure_2d` (issue target: the two-state quartic exponential closure at least 10×
+//! faster than the exact 2-D grid, measured in one run): the `double-well-2d` preset record of
+//! seed 3 (x measured every 1 on [0, 10] with sd 0.5), the quartic closure on its default box
+//! (`exp-closure`, 48 × 48 nodes) and with `panels = 8` (32 × 32), against the exact
+//! mean-optimal estimator on the 80 × 80 grid on [−3, 3]² of the `closures-2d` experiment.
 
 use std::hint::black_box;
 use std::time::Duration;
@@ -31,7 +37,8 @@ use std::time::Duration;
 use criterion::{criterion_group, criterion_main, Criterion};
 
 use onsager::action::{
-    closure_estimate, mean_optimal, Closure, ClosureOptions, ExactOptions, GridSpec, TimeScheme,
+    closure_estimate, mean_optimal, Closure, ClosureOptions, ExactOptions, ExponentialFamily, GridSpec,
+    TimeScheme,
 };
 use onsager::kalman::{estimate, gaussian_ksp, GaussianKspOptions, KalmanMethod, KalmanOptions};
 use onsager::model::library::{preset, Preset};
@@ -106,6 +113,24 @@ fn bench(c: &mut Criterion) {
     });
     group.bench_function("uks", |b| {
         b.iter(|| black_box(estimate(&problem, KalmanMethod::Uks, &KalmanOptions::default()).expect("uks")))
+    });
+    group.finish();
+
+    let record = PresetRecord::simulate(preset("double-well-2d").expect("preset"), 3).expect("record");
+    let problem = record.preset.problem(&record.data, &[]);
+    let quartic = Closure::exponential(4, ClosureOptions::new());
+    let coarse = Closure::new(ExponentialFamily::of_degree(4).with_panels(8), ClosureOptions::new());
+    let exact = ExactOptions::new(GridSpec::new_2d([-3.0, -3.0], [3.0, 3.0], [80, 80]));
+    let mut group = c.benchmark_group("closure_2d");
+    group.sample_size(10).warm_up_time(Duration::from_millis(1)).measurement_time(Duration::from_secs(1));
+    group.bench_function("quartic_closure_box", |b| {
+        b.iter(|| black_box(closure_estimate(&problem, &quartic).expect("quartic")))
+    });
+    group.bench_function("quartic_closure_box_32", |b| {
+        b.iter(|| black_box(closure_estimate(&problem, &coarse).expect("quartic")))
+    });
+    group.bench_function("exact_mean_optimal_80x80", |b| {
+        b.iter(|| black_box(mean_optimal(&problem, &exact).expect("mean-optimal")))
     });
     group.finish();
 }

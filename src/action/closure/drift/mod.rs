@@ -23,6 +23,7 @@
 
 mod exponential;
 mod gaussian;
+mod tensor;
 
 pub use exponential::{ExponentialDrift, ExponentialFamily, NodeRule};
 pub use gaussian::{exact_gauss_hermite_points, gaussian_closure_rule, GaussianDrift, GaussianFamily};

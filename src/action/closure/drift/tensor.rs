@@ -1,0 +1,451 @@
+//! The node sums of a polynomial exponential closure on a tensor grid, by raw moments
+//! ([`TensorPlan`]): the fast path of [`super::ExponentialDrift`] on a fixed box.
+//!
+//! With M the monomials x^α of total degree 1 to d and constant diffusion D, every node sum
+//! of W, ∂W/∂λ and ∇²(κᵀW) (`003_d2fc48a470e528fc.txt (II.3)`, `(II.43)`) is a linear
+//! combination of the moments Σπ_k ξ_k^α and the drift-weighted moments Σπ_k f_i(x_k) ξ_k^α of
+//! a centred and scaled coordinate ξ = (x − c)/s. On a tensor grid each of those tables is two
+//! small matrix products (Σ_p ξ_p^α Σ_q π_pq ξ_q^β), so one evaluation costs a few times
+//! K·(4d + 1) multiply-adds for K nodes instead of K·R² for the R moments.
+//!
+//! The sums are formed in the basis Ξ = (ξ^β) of the same exponents, M(x) = AΞ(ξ) + b with A
+//! lower triangular (binomial expansion of (c + sξ)^α), and carried back exactly:
+//! C = AC̃Aᵀ, V = AṼ, W = A⁻ᵀW̃, ∂W/∂λ = A⁻ᵀ(∂W̃/∂λ̃)Aᵀ, ∇²(κᵀW) = A∇²(κ̃ᵀW̃)Aᵀ with
+//! λ̃ = Aᵀλ and κ̃ = A⁻¹κ. Centring at the density's mean and scaling by its standard deviation
+//! keeps the raw moments of degree up to 4d near 1 where the density lives.
+
+use super::exponential::{covariance_failure, SpdFactor};
+use super::Unrealizable;
+use nalgebra::{DMatrixView, DMatrixViewMut};
+use onsager_closures::{Exponential, TrialFamily};
+
+/// A tensor grid in two dimensions (the last axis runs fastest: node k is
+/// (axes₀[k / K₁], axes₁[k mod K₁])) carrying the complete polynomial family of degree d, its
+/// exponents sorted by total degree.
+#[derive(Debug, Clone)]
+pub(super) struct TensorPlan {
+    axes: Vec<Vec<f64>>,
+    degree: usize,
+    exponents: Vec<Vec<usize>>,
+}
+
+/// What an evaluation returns besides W: nothing, ∂W/∂λ, or ∂W/∂λ and ∇²(κᵀW).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub(super) enum Order {
+    W,
+    Jacobian,
+    Hessian,
+}
+
+/// The buffers of one evaluation on a [`TensorPlan`], reused.
+#[derive(Debug, Default)]
+pub(super) struct TensorWork {
+    centre: Vec<f64>,
+    scale: Vec<f64>,
+    powers: Vec<Vec<f64>>,
+    rows: Vec<f64>,
+    /// The moment table (block 0) and the n drift-weighted tables (blocks 1..=n), each (b)ⁿ.
+    sums: Vec<f64>,
+    weighted: Vec<f64>,
+    mu: Vec<f64>,
+    at: Vec<usize>,
+    generator: Vec<Vec<Term>>,
+    c: SpdFactor,
+    cov: Vec<f64>,
+    v: Vec<f64>,
+    w: Vec<f64>,
+    jac: Vec<f64>,
+    dense: Vec<f64>,
+    a: Vec<f64>,
+    scratch: [Vec<f64>; 3],
+}
+
+/// One term c·(table entry at `at` + shift) of an expectation E[q ξ^γ].
+#[derive(Debug, Clone, Copy)]
+struct Term {
+    at: usize,
+    coef: f64,
+}
+
+impl TensorPlan {
+    /// The plan of `family`, if its nodes are a tensor grid in two dimensions and its moments
+    /// are all monomials of total degree 1 to d, sorted by degree. (In one dimension the node
+    /// sums cost R²K with K ≈ 100 nodes, no more than the tables would.)
+    pub(super) fn of(family: &Exponential) -> Option<TensorPlan> {
+        let n = family.dim();
+        if n != 2 {
+            return None;
+        }
+        let exponents: Vec<Vec<usize>> =
+            family.exponents()?.iter().map(|e| e.iter().map(|&x| x as usize).collect()).collect();
+        let degree = exponents.iter().map(|e| e.iter().sum::<usize>()).max()?;
+        let complete = (degree + 1) * (degree + 2) / 2 - 1;
+        let sorted = exponents.windows(2).all(|w| w[0].iter().sum::<usize>() <= w[1].iter().sum::<usize>());
+        let mut distinct = exponents.clone();
+        distinct.sort();
+        distinct.dedup();
+        if exponents.len() != complete
+            || distinct.len() != complete
+            || !sorted
+            || exponents.iter().any(|e| e.len() != n)
+        {
+            return None;
+        }
+        let axes = tensor_axes(family.grid().points())?;
+        Some(TensorPlan { axes, degree, exponents })
+    }
+
+    fn n(&self) -> usize {
+        self.axes.len()
+    }
+
+    /// The nodes' count K.
+    pub(super) fn len(&self) -> usize {
+        self.axes.iter().map(Vec::len).product()
+    }
+
+    /// W into `w`, and for [`Order::Jacobian`] ∂W/∂λ into `jac`, for [`Order::Hessian`] also
+    /// ∇²(κᵀW) into `hess`, from the node probabilities `p` and the drift-weighted
+    /// probabilities `pf` (π_k f_i(x_k), state-major, 0 where π_k = 0), with the diffusion
+    /// `diffusion` (row-major n × n).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn evaluate(
+        &self,
+        order: Order,
+        p: &[f64],
+        pf: &[f64],
+        diffusion: &[f64],
+        kappa: &[f64],
+        work: &mut TensorWork,
+        out: (&mut [f64], &mut [f64], &mut [f64]),
+    ) -> Result<(), Unrealizable> {
+        let (w, jac, hess) = out;
+        let r = self.exponents.len();
+        let level = match order {
+            Order::W => 2,
+            Order::Jacobian => 3,
+            Order::Hessian => 4,
+        };
+        let b = level * self.degree + 1;
+        self.frame(p, work);
+        self.tables(p, pf, b, (level - 1) * self.degree, work);
+        self.basis(b, diffusion, work);
+        let TensorWork { sums, mu, at, c, cov, v, w: wt, generator, .. } = &mut *work;
+        cov.clear();
+        cov.extend((0..r * r).map(|aj| sums[at[aj / r] + at[aj % r]] - mu[aj / r] * mu[aj % r]));
+        v.clear();
+        v.extend(generator.iter().map(|g| expect(sums, g, 0)));
+        if !v.iter().all(|x| x.is_finite()) {
+            return Err(Unrealizable("the drift is not finite on the family's grid".into()));
+        }
+        c.factor(cov, r).map_err(|e| covariance_failure(e, p, r))?;
+        wt.clear();
+        wt.extend_from_slice(v);
+        c.solve(wt);
+        self.transform(work);
+        let a = &work.a;
+        w.copy_from_slice(&work.w);
+        solve_upper_transposed(a, r, w);
+        if order == Order::W {
+            return Ok(());
+        }
+        self.jacobian(work);
+        // ∂W/∂λ = A⁻ᵀ J̃ Aᵀ.
+        let (jt, a) = (&work.jac, &work.a);
+        for i in 0..r {
+            for j in 0..r {
+                jac[i * r + j] = (0..=j).map(|k| jt[i * r + k] * a[j * r + k]).sum();
+            }
+        }
+        let col = &mut work.scratch[0];
+        for j in 0..r {
+            col.clear();
+            col.extend((0..r).map(|i| jac[i * r + j]));
+            solve_upper_transposed(a, r, col);
+            for i in 0..r {
+                jac[i * r + j] = col[i];
+            }
+        }
+        if order == Order::Hessian {
+            self.hessian(kappa, work, hess);
+        }
+        Ok(())
+    }
+
+    /// The centre c (the density's mean) and scale s (its standard deviation, per axis), from
+    /// the marginals of `p`.
+    fn frame(&self, p: &[f64], work: &mut TensorWork) {
+        let inner = self.axes.last().map_or(1, Vec::len);
+        let TensorWork { centre, scale, scratch: [outer_marginal, inner_marginal, _], .. } = work;
+        outer_marginal.clear();
+        outer_marginal.extend(p.chunks_exact(inner).map(|row| row.iter().sum::<f64>()));
+        inner_marginal.clear();
+        inner_marginal.resize(inner, 0.0);
+        for row in p.chunks_exact(inner) {
+            for (m, &pk) in inner_marginal.iter_mut().zip(row) {
+                *m += pk;
+            }
+        }
+        centre.clear();
+        scale.clear();
+        for (axis, marginal) in self.axes.iter().zip([&outer_marginal[..], &inner_marginal[..]]) {
+            let m: f64 = axis.iter().zip(marginal).map(|(x, q)| q * x).sum();
+            let var: f64 = axis.iter().zip(marginal).map(|(x, q)| q * (x - m).powi(2)).sum();
+            let s = var.sqrt();
+            centre.push(m);
+            scale.push(if s.is_finite() && s > 0.0 { s } else { 1.0 });
+        }
+    }
+
+    /// The tables Σπ_k ξ_k^α (exponents < `b` per axis) and Σπ_k f_i(x_k) ξ_k^α (< `bf`), each
+    /// laid out with stride `b`, into `work.sums`.
+    fn tables(&self, p: &[f64], pf: &[f64], b: usize, bf: usize, work: &mut TensorWork) {
+        let n = self.n();
+        let size = b.pow(n as u32);
+        let nodes = self.len();
+        let TensorWork { centre, scale, powers, rows, sums, weighted, .. } = work;
+        powers.resize_with(n, Vec::new);
+        for (i, axis) in self.axes.iter().enumerate() {
+            let table = &mut powers[i];
+            table.clear();
+            for &x in axis {
+                let xi = (x - centre[i]) / scale[i];
+                let mut v = 1.0;
+                for _ in 0..b {
+                    table.push(v);
+                    v *= xi;
+                }
+            }
+        }
+        sums.clear();
+        sums.resize((n + 1) * size, 0.0);
+        for block in 0..=n {
+            let (weights, count) = if block == 0 {
+                (p, b)
+            } else {
+                weighted.clear();
+                weighted.extend_from_slice(&pf[(block - 1) * nodes..block * nodes]);
+                (&weighted[..], bf)
+            };
+            let out = &mut sums[block * size..(block + 1) * size];
+            // rows[p][β] = Σ_q π_pq ξ_q^β, then out[α][β] = Σ_p ξ_p^α rows[p][β]: two matrix
+            // products, as column-major views (a row-major matrix is its transpose).
+            let (outer, inner) = (self.axes[0].len(), self.axes[1].len());
+            rows.clear();
+            rows.resize(outer * count, 0.0);
+            let powers_inner = DMatrixView::from_slice_with_strides(&powers[1], count, inner, 1, b);
+            let weights = DMatrixView::from_slice(weights, inner, outer);
+            DMatrixViewMut::from_slice(rows, count, outer).gemm(1.0, &powers_inner, &weights, 0.0);
+            let rows = DMatrixView::from_slice(rows, count, outer);
+            let powers_outer = DMatrixView::from_slice_with_strides(&powers[0], outer, count, b, 1);
+            DMatrixViewMut::from_slice_with_strides_mut(out, count, count, 1, b).gemm(
+                1.0,
+                &rows,
+                &powers_outer,
+                0.0,
+            );
+        }
+    }
+
+    /// The index of each basis exponent in a table of stride `b`, the means μ̃, and the
+    /// generator L ξ^β = Σ_i f_i ∂_i ξ^β + D : ∇∇ξ^β of each as terms of the tables.
+    fn basis(&self, b: usize, diffusion: &[f64], work: &mut TensorWork) {
+        let n = self.n();
+        let size = b.pow(n as u32);
+        let index = |e: &[usize]| e.iter().fold(0, |acc, &x| acc * b + x);
+        let TensorWork { scale, sums, mu, at, generator, .. } = work;
+        at.clear();
+        at.extend(self.exponents.iter().map(|e| index(e)));
+        mu.clear();
+        mu.extend(at.iter().map(|&k| sums[k]));
+        generator.resize_with(self.exponents.len(), Vec::new);
+        for (g, e) in generator.iter_mut().zip(&self.exponents) {
+            g.clear();
+            let mut lower = e.clone();
+            for i in 0..n {
+                if e[i] == 0 {
+                    continue;
+                }
+                lower[i] -= 1;
+                g.push(Term { at: (i + 1) * size + index(&lower), coef: e[i] as f64 / scale[i] });
+                for j in 0..n {
+                    let dij = diffusion[i * n + j];
+                    if dij == 0.0 || lower[j] == 0 {
+                        continue;
+                    }
+                    let factor = (e[i] * lower[j]) as f64 / (scale[i] * scale[j]);
+                    lower[j] -= 1;
+                    g.push(Term { at: index(&lower), coef: dij * factor });
+                    lower[j] += 1;
+                }
+                lower[i] += 1;
+            }
+        }
+    }
+
+    /// A (row a: the coefficients of x^α_a in the basis ξ^β, without the constant), row-major.
+    fn transform(&self, work: &mut TensorWork) {
+        let r = self.exponents.len();
+        let (c, s) = (&work.centre, &work.scale);
+        work.a.clear();
+        work.a.resize(r * r, 0.0);
+        for (row, alpha) in self.exponents.iter().enumerate() {
+            for (col, beta) in self.exponents.iter().enumerate().take(row + 1) {
+                if beta.iter().zip(alpha).all(|(b, a)| b <= a) {
+                    work.a[row * r + col] = alpha
+                        .iter()
+                        .zip(beta)
+                        .enumerate()
+                        .map(|(i, (&a, &b))| binomial(a, b) * c[i].powi((a - b) as i32) * s[i].powi(b as i32))
+                        .product();
+                }
+            }
+        }
+    }
+
+    /// J̃ = C̃⁻¹(⟨g̃ d̃ᵀ⟩ − ⟨(W̃·d̃) d̃d̃ᵀ⟩) into `work.jac` (`(II.43)` in the basis ξ).
+    fn jacobian(&self, work: &mut TensorWork) {
+        let r = self.exponents.len();
+        let mut third = std::mem::take(&mut work.scratch[1]);
+        let w_poly = linear_poly(&work.w, &work.at, &work.mu);
+        expect_dd(&work.sums, &w_poly, &work.at, &work.mu, &mut third);
+        let TensorWork { sums, mu, at, generator, v, c, jac, scratch: [col, ..], .. } = &mut *work;
+        jac.clear();
+        jac.resize(r * r, 0.0);
+        for a in 0..r {
+            for j in 0..r {
+                jac[a * r + j] = expect(sums, &generator[a], at[j]) - v[a] * mu[j] - third[a * r + j];
+            }
+        }
+        for j in 0..r {
+            col.clear();
+            col.extend((0..r).map(|a| jac[a * r + j]));
+            c.solve(col);
+            for a in 0..r {
+                jac[a * r + j] = col[a];
+            }
+        }
+        work.scratch[1] = third;
+    }
+
+    /// ∇²(κᵀW) into `hess`: ∇²(κ̃ᵀW̃) by the formula of `ExponentialDrift::w_second` in the
+    /// basis ξ, then A(·)Aᵀ.
+    fn hessian(&self, kappa: &[f64], work: &mut TensorWork, hess: &mut [f64]) {
+        let r = self.exponents.len();
+        let mut kt = kappa.to_vec();
+        solve_lower(&work.a, r, &mut kt);
+        let mut u = kt.clone();
+        work.c.solve(&mut u);
+        // ψ = uᵀg̃ − (uᵀd̃)(W̃ᵀd̃) as terms; T's weight uᵀd̃.
+        let ud = linear_poly(&u, &work.at, &work.mu);
+        let wd = linear_poly(&work.w, &work.at, &work.mu);
+        let mut psi: Vec<Term> = Vec::new();
+        for (&ua, g) in u.iter().zip(&work.generator) {
+            psi.extend(g.iter().map(|t| Term { at: t.at, coef: ua * t.coef }));
+        }
+        let dense = &mut work.dense;
+        dense.clear();
+        dense.resize(work.sums.len(), 0.0);
+        for x in &ud {
+            for y in &wd {
+                dense[x.at + y.at] -= x.coef * y.coef;
+            }
+        }
+        for t in &psi {
+            dense[t.at] += t.coef;
+        }
+        let psi: Vec<Term> = dense
+            .iter()
+            .enumerate()
+            .filter(|(_, &c)| c != 0.0)
+            .map(|(at, &coef)| Term { at, coef })
+            .collect();
+        let mut h = vec![0.0; r * r];
+        let mut t = vec![0.0; r * r];
+        expect_dd(&work.sums, &psi, &work.at, &work.mu, &mut h);
+        expect_dd(&work.sums, &ud, &work.at, &work.mu, &mut t);
+        let jt = &work.jac;
+        let tj: Vec<f64> =
+            (0..r * r).map(|aj| (0..r).map(|b| t[(aj / r) * r + b] * jt[b * r + aj % r]).sum()).collect();
+        for a in 0..r {
+            for j in 0..r {
+                h[a * r + j] += -tj[a * r + j] - tj[j * r + a] + kt[a] * work.v[j] + work.v[a] * kt[j];
+            }
+        }
+        // A h Aᵀ.
+        let a = &work.a;
+        let ah: Vec<f64> = (0..r * r)
+            .map(|ij| (0..=ij / r).map(|k| a[(ij / r) * r + k] * h[k * r + ij % r]).sum())
+            .collect();
+        for i in 0..r {
+            for j in 0..r {
+                hess[i * r + j] = (0..=j).map(|k| ah[i * r + k] * a[j * r + k]).sum();
+            }
+        }
+    }
+}
+
+/// The two axes of a tensor grid of `points` (row-major, 2 per node) whose last axis runs
+/// fastest, if it is one.
+fn tensor_axes(points: &[f64]) -> Option<Vec<Vec<f64>>> {
+    let nodes = points.len() / 2;
+    let inner = points.chunks_exact(2).take_while(|x| x[0] == points[0]).count();
+    if inner == 0 || !nodes.is_multiple_of(inner) {
+        return None;
+    }
+    let outer: Vec<f64> = (0..nodes / inner).map(|p| points[p * inner * 2]).collect();
+    let inner_axis: Vec<f64> = (0..inner).map(|q| points[q * 2 + 1]).collect();
+    let matches = points
+        .chunks_exact(2)
+        .enumerate()
+        .all(|(k, x)| x[0] == outer[k / inner] && x[1] == inner_axis[k % inner]);
+    matches.then(|| vec![outer, inner_axis])
+}
+
+/// E[q ξ^γ] for the terms `q` and the table index `shift` of γ.
+fn expect(sums: &[f64], q: &[Term], shift: usize) -> f64 {
+    q.iter().map(|t| t.coef * sums[t.at + shift]).sum()
+}
+
+/// E[q d̃_a d̃_j] for all a, j (symmetric, row-major) into `out`, d̃ = ξ^β − μ̃.
+fn expect_dd(sums: &[f64], q: &[Term], at: &[usize], mu: &[f64], out: &mut Vec<f64>) {
+    let r = at.len();
+    out.clear();
+    out.resize(r * r, 0.0);
+    let e0 = expect(sums, q, 0);
+    let e1: Vec<f64> = at.iter().map(|&k| expect(sums, q, k)).collect();
+    for a in 0..r {
+        for j in a..r {
+            let v = expect(sums, q, at[a] + at[j]) - mu[j] * e1[a] - mu[a] * e1[j] + mu[a] * mu[j] * e0;
+            out[a * r + j] = v;
+            out[j * r + a] = v;
+        }
+    }
+}
+
+/// The terms of vᵀd̃ = Σ_a v_a(ξ^β_a − μ̃_a).
+fn linear_poly(v: &[f64], at: &[usize], mu: &[f64]) -> Vec<Term> {
+    let mut terms: Vec<Term> = v.iter().zip(at).map(|(&coef, &at)| Term { at, coef }).collect();
+    terms.push(Term { at: 0, coef: -v.iter().zip(mu).map(|(a, b)| a * b).sum::<f64>() });
+    terms
+}
+
+fn binomial(n: usize, k: usize) -> f64 {
+    (0..k).fold(1.0, |acc, i| acc * (n - i) as f64 / (i + 1) as f64)
+}
+
+/// x = L⁻¹x for L lower triangular (row-major r × r).
+fn solve_lower(l: &[f64], r: usize, x: &mut [f64]) {
+    for i in 0..r {
+        let s: f64 = (0..i).map(|k| l[i * r + k] * x[k]).sum();
+        x[i] = (x[i] - s) / l[i * r + i];
+    }
+}
+
+/// x = L⁻ᵀx for L lower triangular (row-major r × r).
+fn solve_upper_transposed(l: &[f64], r: usize, x: &mut [f64]) {
+    for i in (0..r).rev() {
+        let s: f64 = (i + 1..r).map(|k| l[k * r + i] * x[k]).sum();
+        x[i] = (x[i] - s) / l[i * r + i];
+    }
+}
