@@ -46,7 +46,6 @@ pub(super) struct TensorWork {
     rows: Vec<f64>,
     /// The moment table (block 0) and the n drift-weighted tables (blocks 1..=n), each (b)ⁿ.
     sums: Vec<f64>,
-    weighted: Vec<f64>,
     mu: Vec<f64>,
     at: Vec<usize>,
     generator: Vec<Vec<Term>>,
@@ -57,7 +56,7 @@ pub(super) struct TensorWork {
     jac: Vec<f64>,
     dense: Vec<f64>,
     a: Vec<f64>,
-    scratch: [Vec<f64>; 3],
+    scratch: [Vec<f64>; 2],
 }
 
 /// One term c·(table entry at `at` + shift) of an expectation E[q ξ^γ].
@@ -176,7 +175,7 @@ impl TensorPlan {
     /// the marginals of `p`.
     fn frame(&self, p: &[f64], work: &mut TensorWork) {
         let inner = self.axes.last().map_or(1, Vec::len);
-        let TensorWork { centre, scale, scratch: [outer_marginal, inner_marginal, _], .. } = work;
+        let TensorWork { centre, scale, scratch: [outer_marginal, inner_marginal], .. } = work;
         outer_marginal.clear();
         outer_marginal.extend(p.chunks_exact(inner).map(|row| row.iter().sum::<f64>()));
         inner_marginal.clear();
@@ -203,7 +202,7 @@ impl TensorPlan {
         let n = self.n();
         let size = b.pow(n as u32);
         let nodes = self.len();
-        let TensorWork { centre, scale, powers, rows, sums, weighted, .. } = work;
+        let TensorWork { centre, scale, powers, rows, sums, .. } = work;
         powers.resize_with(n, Vec::new);
         for (i, axis) in self.axes.iter().enumerate() {
             let table = &mut powers[i];
@@ -220,13 +219,8 @@ impl TensorPlan {
         sums.clear();
         sums.resize((n + 1) * size, 0.0);
         for block in 0..=n {
-            let (weights, count) = if block == 0 {
-                (p, b)
-            } else {
-                weighted.clear();
-                weighted.extend_from_slice(&pf[(block - 1) * nodes..block * nodes]);
-                (&weighted[..], bf)
-            };
+            let (weights, count) =
+                if block == 0 { (p, b) } else { (&pf[(block - 1) * nodes..block * nodes], bf) };
             let out = &mut sums[block * size..(block + 1) * size];
             // rows[p][β] = Σ_q π_pq ξ_q^β, then out[α][β] = Σ_p ξ_p^α rows[p][β]: two matrix
             // products, as column-major views (a row-major matrix is its transpose).
