@@ -547,26 +547,36 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
         let held = self.nodes.borrow();
         let plan = held.tensor.as_ref()?;
         let ExpWork { s, p_all, fs, f, tensor, .. } = &mut *self.work.borrow_mut();
-        let n = self.linear.len();
         let run = || {
             held.family.node_probabilities_into(lambda, s, p_all).map_err(unrealizable)?;
-            let nodes = p_all.len();
-            fs.clear();
-            fs.resize(n * nodes, 0.0);
-            f.clear();
-            f.resize(n, 0.0);
-            let points = held.family.grid().points();
-            for (k, &pk) in p_all.iter().enumerate() {
-                if pk != 0.0 {
-                    self.sde.state_drift(t, &points[k * n..(k + 1) * n], &self.theta, f);
-                    for i in 0..n {
-                        fs[i * nodes + k] = pk * f[i];
-                    }
+            self.drift_at_nodes(t, held.family.grid().points(), p_all, fs, f);
+            // π_k f_i(x_k), state-major.
+            for row in fs.chunks_exact_mut(p_all.len()) {
+                for (v, &pk) in row.iter_mut().zip(p_all.iter()) {
+                    *v *= pk;
                 }
             }
             plan.evaluate(order, p_all, fs, &self.diffusion, kappa, tensor, out)
         };
         Some(run())
+    }
+
+    /// The drift at the nodes `points` (row-major) that carry mass (`p_k` ≠ 0), state-major into
+    /// `fs` (one row of node values per state, 0 where p_k = 0); `f` is scratch.
+    fn drift_at_nodes(&self, t: f64, points: &[f64], p: &[f64], fs: &mut Vec<f64>, f: &mut Vec<f64>) {
+        let (n, nodes) = (self.linear.len(), p.len());
+        fs.clear();
+        fs.resize(n * nodes, 0.0);
+        f.clear();
+        f.resize(n, 0.0);
+        for (k, &pk) in p.iter().enumerate() {
+            if pk != 0.0 {
+                self.sde.state_drift(t, &points[k * n..(k + 1) * n], &self.theta, f);
+                for i in 0..n {
+                    fs[i * nodes + k] = f[i];
+                }
+            }
+        }
     }
 }
 
@@ -594,20 +604,7 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
         let nodes = p.len();
         // Row `row` of a table of rows of `all` node values, restricted to lo..hi.
         let active = |row: usize| row * all + lo..row * all + hi;
-        // The drift at the nodes that carry mass, state-major.
-        fs.clear();
-        fs.resize(n * nodes, 0.0);
-        f.clear();
-        f.resize(n, 0.0);
-        let points = &family.grid().points()[lo * n..hi * n];
-        for (k, &pk) in p.iter().enumerate() {
-            if pk != 0.0 {
-                self.sde.state_drift(t, &points[k * n..(k + 1) * n], &self.theta, f);
-                for i in 0..n {
-                    fs[i * nodes + k] = f[i];
-                }
-            }
-        }
+        self.drift_at_nodes(t, &family.grid().points()[lo * n..hi * n], p, fs, f);
         let table = family.moment_table_by_moment();
         let massless = p.contains(&0.0);
         let (d, pd, g, v) = (&mut z.d, &mut z.pd, &mut z.g, &mut z.v);
