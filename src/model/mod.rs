@@ -132,6 +132,18 @@ pub trait Sde {
         None
     }
 
+    /// Whether the state drift [f; h](t, x, z, θ) does not depend on t (an autonomous model),
+    /// for every x, z and θ.
+    ///
+    /// Used by the two-state exponential closure on its fixed box: the drift at the box's nodes
+    /// is then evaluated once per estimate instead of at every Runge–Kutta stage (see
+    /// `docs/closures.md`). **A wrong `true` gives wrong closure drifts** with no error (the
+    /// values at the first evaluation's t serve for every t); `false`, the default, is always
+    /// correct. The built-in models' declarations are tested against their drifts.
+    fn drift_is_autonomous(&self) -> bool {
+        false
+    }
+
     // ----- provided methods -------------------------------------------------------------
 
     /// Names of all states: noisy then clean.

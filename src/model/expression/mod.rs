@@ -12,8 +12,9 @@
 //!   (`000_74b95e149527c64e.txt (2.49)`);
 //! - [`Sde::drift_derivatives`] evaluates one tape holding every structurally nonzero first and
 //!   second derivative of f, h and div_x f in (x, z, θ);
-//! - [`Sde::drift_uses_param`] and [`Sde::drift_polynomial_degree`] are read off the
-//!   expressions (the degree is a bound: a cancelling term is still counted).
+//! - [`Sde::drift_uses_param`], [`Sde::drift_polynomial_degree`] and
+//!   [`Sde::drift_is_autonomous`] are read off the expressions (the degree is a bound: a
+//!   cancelling term is still counted).
 //!
 //! ```
 //! use onsager::model::expression::{ExpressionModel, Diffusion};
@@ -105,6 +106,7 @@ pub struct ExpressionModel {
     entries: Vec<Entry>,
     uses_param: Vec<bool>,
     degree: Option<usize>,
+    autonomous: bool,
 }
 
 /// The symbols of a model's expressions: t, the states, the parameters, named constants and
@@ -244,6 +246,8 @@ impl Builder {
                 state_drift.iter().any(|&r| dep[r as usize])
             })
             .collect();
+        let reads_t = graph.depends_on(0);
+        let autonomous = !state_drift.iter().any(|&r| reads_t[r as usize]);
         let is_state = |j: u32| j >= 1 && (j as usize) <= ns;
         let degree = state_drift
             .iter()
@@ -263,6 +267,7 @@ impl Builder {
             entries,
             uses_param,
             degree,
+            autonomous,
         }
     }
 
@@ -450,5 +455,10 @@ impl Sde for ExpressionModel {
     /// The degree read off the expressions (module documentation).
     fn drift_polynomial_degree(&self) -> Option<usize> {
         self.degree
+    }
+
+    /// Whether f and h read t, off the expressions.
+    fn drift_is_autonomous(&self) -> bool {
+        self.autonomous
     }
 }

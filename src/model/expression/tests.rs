@@ -177,7 +177,7 @@ proptest! {
 }
 
 #[test]
-fn parameters_in_g_only_and_polynomial_degrees() {
+fn parameters_in_g_only_polynomial_degrees_and_time() {
     let m = every_function();
     assert_eq!(m.drift_polynomial_degree(), None);
     assert!((0..3).all(|i| m.drift_uses_param(i)));
@@ -195,6 +195,8 @@ fn parameters_in_g_only_and_polynomial_degrees() {
     let rational =
         ExpressionModel::new(&["x"], &[], &["s"], &["1/(1 + x^2)"], &[], Diffusion::Scalar("s")).unwrap();
     assert_eq!(rational.drift_polynomial_degree(), None);
+    // t in h alone makes the model non-autonomous.
+    assert!(!poly.drift_is_autonomous() && rational.drift_is_autonomous());
 }
 
 /// The error of a model file, as `file:line:column: reason`.

@@ -70,6 +70,11 @@ impl Sde for DoubleWell {
         true
     }
 
+    /// The drift does not read t.
+    fn drift_is_autonomous(&self) -> bool {
+        true
+    }
+
     /// f = 4x − 4x³: a cubic.
     fn drift_polynomial_degree(&self) -> Option<usize> {
         Some(3)

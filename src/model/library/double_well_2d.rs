@@ -73,6 +73,11 @@ impl Sde for DoubleWell2d {
         true
     }
 
+    /// The drift does not read t.
+    fn drift_is_autonomous(&self) -> bool {
+        true
+    }
+
     /// f is a cubic in (x, v).
     fn drift_polynomial_degree(&self) -> Option<usize> {
         Some(3)

@@ -96,6 +96,11 @@ impl Sde for Lorenz63 {
         true
     }
 
+    /// The drift does not read t.
+    fn drift_is_autonomous(&self) -> bool {
+        true
+    }
+
     /// f is quadratic (the products x₁x₃ and x₁x₂).
     fn drift_polynomial_degree(&self) -> Option<usize> {
         Some(2)

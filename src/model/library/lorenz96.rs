@@ -102,6 +102,11 @@ impl Sde for Lorenz96 {
         true
     }
 
+    /// The drift does not read t.
+    fn drift_is_autonomous(&self) -> bool {
+        true
+    }
+
     /// f is quadratic (the products x_{i±1}x_{i−1}, x_{i−2}x_{i−1}).
     fn drift_polynomial_degree(&self) -> Option<usize> {
         Some(2)

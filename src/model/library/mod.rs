@@ -191,6 +191,10 @@ impl Sde for Model {
     fn drift_polynomial_degree(&self) -> Option<usize> {
         delegate!(self, m => m.drift_polynomial_degree())
     }
+
+    fn drift_is_autonomous(&self) -> bool {
+        delegate!(self, m => m.drift_is_autonomous())
+    }
 }
 
 /// A built-in model with everything needed to simulate it and to estimate its states and

@@ -70,6 +70,11 @@ impl Sde for Ou {
         true
     }
 
+    /// The drift does not read t.
+    fn drift_is_autonomous(&self) -> bool {
+        true
+    }
+
     /// f = −θx: linear.
     fn drift_polynomial_degree(&self) -> Option<usize> {
         Some(1)

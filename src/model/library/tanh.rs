@@ -71,6 +71,11 @@ impl Sde for Tanh {
         i != Self::SIGMA
     }
 
+    /// The drift does not read t.
+    fn drift_is_autonomous(&self) -> bool {
+        true
+    }
+
     /// $G = [\sigma]$.
     fn diffusion<D: Scalar>(&self, theta: &[D], out: &mut [D]) {
         out[0] = theta[Self::SIGMA];

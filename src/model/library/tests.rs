@@ -662,6 +662,34 @@ fn declared_drift_polynomial_degrees_are_exact() {
     assert_eq!(declared.len(), crate::test_models::MODEL_FILES.len() - 2);
 }
 
+/// A model declares `drift_is_autonomous()` exactly when its state drift [f; h] is the same at
+/// t and t + 1.37 at every random point (bit for bit): no model whose drift reads t declares it
+/// (duffing, holmes-rand, the flight-path models, their twins), every model whose drift does
+/// not declares it (built-in models and model files alike).
+#[test]
+fn declared_autonomous_drifts_do_not_read_t() {
+    let reads_t = std::cell::RefCell::new(std::collections::BTreeMap::new());
+    for_every_model(|p, pt| {
+        let ns = p.dims().states();
+        let s0 = concat(&[&pt.x, &pt.z]);
+        let at = |t: f64| {
+            let mut out = vec![0.0; ns];
+            p.model.state_drift(t, &s0, &pt.theta, &mut out);
+            out
+        };
+        let moved = at(pt.t) != at(pt.t + 1.37);
+        *reads_t.borrow_mut().entry(p.name.clone()).or_insert(false) |= moved;
+        if p.model.drift_is_autonomous() {
+            assert!(!moved, "{}: declared autonomous, but its drift reads t", p.name);
+        }
+    });
+    for (name, reads) in reads_t.into_inner() {
+        let declared =
+            every_preset().iter().filter(|p| p.name == name).all(|p| p.model.drift_is_autonomous());
+        assert_eq!(declared, !reads, "{name}: drift_is_autonomous() = {declared}, reads t = {reads}");
+    }
+}
+
 /// The flight-path model (`000_74b95e149527c64e.txt` Sec. 4.2) at a random point near level
 /// flight: w = (x, z, θ).
 fn flight_point<R: Rng + ?Sized>(rng: &mut R) -> Vec<f64> {

@@ -84,6 +84,11 @@ impl Sde for VanDerPol {
         true
     }
 
+    /// The drift does not read t.
+    fn drift_is_autonomous(&self) -> bool {
+        true
+    }
+
     /// f = (v, −u + μ(1 − u²)v): a cubic (the term u²v).
     fn drift_polynomial_degree(&self) -> Option<usize> {
         Some(3)
