@@ -454,6 +454,20 @@ impl Exponential {
                 }
             }
         }
+        self.node_probabilities_from_exponents(s, p)
+    }
+
+    /// [`Exponential::node_probabilities_into`] from the exponents' polynomial part: `s` holds
+    /// $\sum_a \lambda_a M_a(x_k)$ at every node on entry, formed by the caller in an order of
+    /// its own (e.g. by products of axis tables on a tensor grid); the base log-weights
+    /// $\log(w_k p_*(x_k))$ are added, then $\pi_k$ goes into `p` (resized) and $F$ is
+    /// returned.
+    ///
+    /// # Errors
+    /// [`Error::DimensionMismatch`] for an `s` of another length than the nodes;
+    /// [`Error::NotNormalizable`].
+    pub fn node_probabilities_from_exponents(&self, s: &mut [f64], p: &mut Vec<f64>) -> Result<f64, Error> {
+        check_len("exponents", s, self.log_base.len())?;
         for (v, &b) in s.iter_mut().zip(&self.log_base) {
             *v += b;
         }

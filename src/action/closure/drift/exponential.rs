@@ -42,6 +42,10 @@ pub struct ExponentialDrift<'a, S: Sde + ?Sized> {
     square: Vec<Option<usize>>,
     /// The buffers of one evaluation, reused (the drift is evaluated at every Runge–Kutta stage).
     work: std::cell::RefCell<ExpWork>,
+    /// The model's drift at every node of a fixed box, state-major, for a model whose drift does
+    /// not read t ([`Sde::drift_is_autonomous`]): evaluated at the first evaluation of the raw
+    /// moment sums, then reused.
+    box_drift: std::cell::OnceCell<Vec<f64>>,
 }
 
 /// The nodes of an [`ExponentialDrift`]: the family on them and its node tables. The hot loops
@@ -171,6 +175,7 @@ impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
             linear,
             square,
             work: Default::default(),
+            box_drift: Default::default(),
         })
     }
 
@@ -531,6 +536,24 @@ struct ExpWork {
     tensor: TensorWork,
 }
 
+/// The node probabilities π of `family` at λ into `p` and F = log Σ exp(…), on the tensor box
+/// of `plan` (λᵀM by [`TensorPlan::polynomial_into`]); λ of the wrong length or not finite goes
+/// to [`Exponential::node_probabilities_into`] for its error. `row` and `s` are scratch.
+fn tensor_probabilities(
+    family: &Exponential,
+    plan: &TensorPlan,
+    lambda: &[f64],
+    (row, s, p): (&mut Vec<f64>, &mut Vec<f64>, &mut Vec<f64>),
+) -> std::result::Result<f64, Unrealizable> {
+    if lambda.len() == plan.n_moments() && lambda.iter().all(|v| v.is_finite()) {
+        plan.polynomial_into(lambda, row, s);
+        family.node_probabilities_from_exponents(s, p)
+    } else {
+        family.node_probabilities_into(lambda, s, p)
+    }
+    .map_err(unrealizable)
+}
+
 impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
     /// W and, by `order`, ∂W/∂λ and ∇²(κᵀW) into `out` by the raw-moment sums of a fixed
     /// tensor box ([`TensorPlan`]); `None` where they do not apply (nodes that follow the
@@ -546,19 +569,46 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
     ) -> Option<std::result::Result<(), Unrealizable>> {
         let held = self.nodes.borrow();
         let plan = held.tensor.as_ref()?;
-        let ExpWork { s, p_all, fs, f, tensor, .. } = &mut *self.work.borrow_mut();
+        let ExpWork { s, p_all, fs, f, col, tensor, .. } = &mut *self.work.borrow_mut();
         let run = || {
-            held.family.node_probabilities_into(lambda, s, p_all).map_err(unrealizable)?;
-            self.drift_at_nodes(t, held.family.grid().points(), p_all, fs, f);
-            // π_k f_i(x_k), state-major.
-            for row in fs.chunks_exact_mut(p_all.len()) {
-                for (v, &pk) in row.iter_mut().zip(p_all.iter()) {
-                    *v *= pk;
+            tensor_probabilities(&held.family, plan, lambda, (col, s, p_all))?;
+            let points = held.family.grid().points();
+            // π_k f_i(x_k), state-major (0 where π_k = 0).
+            if self.sde.drift_is_autonomous() {
+                let all = self.box_drift.get_or_init(|| {
+                    let (mut all, mut scratch) = (Vec::new(), Vec::new());
+                    self.drift_at_nodes(t, points, &vec![1.0; p_all.len()], &mut all, &mut scratch);
+                    all
+                });
+                fs.clear();
+                for row in all.chunks_exact(p_all.len()) {
+                    fs.extend(
+                        row.iter().zip(p_all.iter()).map(|(&v, &pk)| if pk != 0.0 { v * pk } else { 0.0 }),
+                    );
+                }
+            } else {
+                self.drift_at_nodes(t, points, p_all, fs, f);
+                for row in fs.chunks_exact_mut(p_all.len()) {
+                    for (v, &pk) in row.iter_mut().zip(p_all.iter()) {
+                        *v *= pk;
+                    }
                 }
             }
             plan.evaluate(order, p_all, fs, &self.diffusion, kappa, tensor, out)
         };
         Some(run())
+    }
+
+    /// The moments of [`ClosureDrift::moments`] by the raw-moment table of a fixed tensor box;
+    /// `None` where it does not apply (as [`ExponentialDrift::tensor_sums`]).
+    fn tensor_moments(&self, lambda: &[f64]) -> Option<std::result::Result<FamilyMoments, Unrealizable>> {
+        let held = self.nodes.borrow();
+        let plan = held.tensor.as_ref()?;
+        let ExpWork { s, p_all, col, tensor, .. } = &mut *self.work.borrow_mut();
+        Some(tensor_probabilities(&held.family, plan, lambda, (col, s, p_all)).map(|log_partition| {
+            let (mean, covariance) = plan.cumulants(p_all, tensor);
+            FamilyMoments { log_partition, mean, covariance }
+        }))
     }
 
     /// The drift at the nodes `points` (row-major) that carry mass (`p_k` ≠ 0), state-major into
@@ -839,8 +889,13 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
         Ok(())
     }
 
+    /// On a fixed tensor box by the raw-moment table ([`TensorPlan::cumulants`]), else by node
+    /// sums.
     fn moments(&self, lambda: &[f64]) -> std::result::Result<FamilyMoments, Unrealizable> {
         self.follow_density(lambda, &mut self.work.borrow_mut())?;
+        if let Some(moments) = self.tensor_moments(lambda) {
+            return moments;
+        }
         let c = self.nodes.borrow().family.cumulants(lambda).map_err(unrealizable)?;
         Ok(FamilyMoments { log_partition: c.log_partition, mean: c.mean, covariance: c.covariance })
     }
@@ -1208,6 +1263,14 @@ mod tests {
                         (a - b).abs() <= tol * scale,
                         "{what}: {a} vs {b} (largest entry {scale}) at {lambda:?}"
                     );
+                }
+            }
+            let (m1, m2) = (fast.moments(lambda).unwrap(), nodes.moments(lambda).unwrap());
+            assert!((m1.log_partition - m2.log_partition).abs() <= tol * m2.log_partition.abs().max(1.0));
+            for (what, fast, nodes) in [("mean", &m1.mean, &m2.mean), ("C", &m1.covariance, &m2.covariance)] {
+                let scale = nodes.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                for (a, b) in fast.iter().zip(nodes) {
+                    assert!((a - b).abs() <= tol * scale, "{what}: {a} vs {b} (largest entry {scale})");
                 }
             }
             let mut w3 = vec![0.0; r];

@@ -27,6 +27,8 @@ pub(super) struct TensorPlan {
     axes: Vec<Vec<f64>>,
     degree: usize,
     exponents: Vec<Vec<usize>>,
+    /// Per axis, the powers x^0, …, x^d of its points, power-major (row j holds x^j).
+    powers: Vec<Vec<f64>>,
 }
 
 /// What an evaluation returns besides W: nothing, ∂W/∂λ, or ∂W/∂λ and ∇²(κᵀW).
@@ -91,7 +93,45 @@ impl TensorPlan {
             return None;
         }
         let axes = tensor_axes(family.grid().points())?;
-        Some(TensorPlan { axes, degree, exponents })
+        let powers = axes
+            .iter()
+            .map(|axis| (0..=degree).flat_map(|j| axis.iter().map(move |x| x.powi(j as i32))).collect())
+            .collect();
+        Some(TensorPlan { axes, degree, exponents, powers })
+    }
+
+    /// λᵀM(x_k) at every node into `s` (resized to K), by the axis tables: with X_i the powers
+    /// x^0, …, x^d of axis i's points and Λ the (d + 1) × (d + 1) matrix of λ by exponent
+    /// (Λ_00 = 0), s = X₀ΛX₁ᵀ, d + 1 multiply-adds per node instead of R. The exponents of the
+    /// family's density (`003_d2fc48a470e528fc.txt (II.36)`) without its base log-weights;
+    /// `row` is scratch.
+    pub(super) fn polynomial_into(&self, lambda: &[f64], row: &mut Vec<f64>, s: &mut Vec<f64>) {
+        let d1 = self.degree + 1;
+        let (outer, inner) = (self.axes[0].len(), self.axes[1].len());
+        let mut by_exponent = vec![0.0; d1 * d1];
+        for (e, &l) in self.exponents.iter().zip(lambda) {
+            by_exponent[e[0] * d1 + e[1]] = l;
+        }
+        let (x0, x1) = (&self.powers[0], &self.powers[1]);
+        s.clear();
+        s.resize(outer * inner, 0.0);
+        for (k0, out) in s.chunks_exact_mut(inner).enumerate() {
+            // Row k0 of X₀Λ.
+            row.clear();
+            row.extend(
+                (0..d1).map(|j| (0..d1).map(|i| x0[i * outer + k0] * by_exponent[i * d1 + j]).sum::<f64>()),
+            );
+            for (j, &c) in row.iter().enumerate() {
+                for (v, &x) in out.iter_mut().zip(&x1[j * inner..(j + 1) * inner]) {
+                    *v += c * x;
+                }
+            }
+        }
+    }
+
+    /// The family's moment count R.
+    pub(super) fn n_moments(&self) -> usize {
+        self.exponents.len()
     }
 
     fn n(&self) -> usize {
@@ -171,6 +211,41 @@ impl TensorPlan {
         Ok(())
     }
 
+    /// The mean μ and covariance C (row-major R × R) of M under the node probabilities `p`
+    /// (`003_d2fc48a470e528fc.txt (II.37)–(II.38)`) by the raw-moment table to degree 2d per
+    /// axis: μ̃ and C̃ in the basis ξ^β, then μ = Aμ̃ + c^α and C = AC̃Aᵀ; about K·(2d + 1)
+    /// multiply-adds instead of the node sums' K·R²/2.
+    pub(super) fn cumulants(&self, p: &[f64], work: &mut TensorWork) -> (Vec<f64>, Vec<f64>) {
+        let r = self.exponents.len();
+        let b = 2 * self.degree + 1;
+        self.frame(p, work);
+        self.tables(p, &[], b, 0, work);
+        self.transform(work);
+        let (centre, sums, a) = (&work.centre, &work.sums, &work.a);
+        let at: Vec<usize> = self.exponents.iter().map(|e| e.iter().fold(0, |acc, &x| acc * b + x)).collect();
+        let mu_t: Vec<f64> = at.iter().map(|&k| sums[k]).collect();
+        let mean = (0..r)
+            .map(|row| {
+                let c_alpha: f64 =
+                    self.exponents[row].iter().zip(centre).map(|(&e, c)| c.powi(e as i32)).product();
+                c_alpha + (0..=row).map(|col| a[row * r + col] * mu_t[col]).sum::<f64>()
+            })
+            .collect();
+        // A C̃ (A lower triangular), then (A C̃) Aᵀ.
+        let cov_t = |k: usize, j: usize| sums[at[k] + at[j]] - mu_t[k] * mu_t[j];
+        let ac: Vec<f64> =
+            (0..r * r).map(|ij| (0..=ij / r).map(|k| a[(ij / r) * r + k] * cov_t(k, ij % r)).sum()).collect();
+        let mut cov = vec![0.0; r * r];
+        for i in 0..r {
+            for j in 0..=i {
+                let v: f64 = (0..=j).map(|k| ac[i * r + k] * a[j * r + k]).sum();
+                cov[i * r + j] = v;
+                cov[j * r + i] = v;
+            }
+        }
+        (mean, cov)
+    }
+
     /// The centre c (the density's mean) and scale s (its standard deviation, per axis), from
     /// the marginals of `p`.
     fn frame(&self, p: &[f64], work: &mut TensorWork) {
@@ -196,8 +271,8 @@ impl TensorPlan {
         }
     }
 
-    /// The tables Σπ_k ξ_k^α (exponents < `b` per axis) and Σπ_k f_i(x_k) ξ_k^α (< `bf`), each
-    /// laid out with stride `b`, into `work.sums`.
+    /// The tables Σπ_k ξ_k^α (exponents < `b` per axis) and Σπ_k f_i(x_k) ξ_k^α (< `bf`; none
+    /// for bf = 0), each laid out with stride `b`, into `work.sums`.
     fn tables(&self, p: &[f64], pf: &[f64], b: usize, bf: usize, work: &mut TensorWork) {
         let n = self.n();
         let size = b.pow(n as u32);
@@ -218,7 +293,8 @@ impl TensorPlan {
         }
         sums.clear();
         sums.resize((n + 1) * size, 0.0);
-        for block in 0..=n {
+        // With bf = 0, the moment table alone.
+        for block in 0..if bf == 0 { 1 } else { n + 1 } {
             let (weights, count) =
                 if block == 0 { (p, b) } else { (&pf[(block - 1) * nodes..block * nodes], bf) };
             let out = &mut sums[block * size..(block + 1) * size];
