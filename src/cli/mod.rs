@@ -374,7 +374,8 @@ fn print_expressions(m: &onsager::model::expression::ExpressionModel) {
     let degree = m.drift_polynomial_degree().map_or("not a polynomial in the state".to_string(), |d| {
         format!("polynomial of degree {d} in the state")
     });
-    outln!("  drift: {degree}");
+    let time = if m.drift_is_autonomous() { "does not read t" } else { "reads t" };
+    outln!("  drift: {degree}, {time}");
     let g_only: Vec<String> = m
         .param_names()
         .into_iter()
