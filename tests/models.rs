@@ -166,7 +166,10 @@ fn the_command_line_takes_model_files() {
     let out = onsager().args(["models", "--check", &example("duffing")]).output().unwrap();
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success());
-    assert!(text.contains("clean states: z") && text.contains("polynomial of degree 3 in the state, reads t"), "{text}");
+    assert!(
+        text.contains("clean states: z") && text.contains("polynomial of degree 3 in the state, reads t"),
+        "{text}"
+    );
     // a bad file: exit code 1, the file, line and column, no panic
     let bad = dir.join("bad.toml");
     std::fs::write(&bad, "[states]\nnoisy = [\"x\"]\n[parameters]\ns = 1\n[dynamics]\ndrift = [\"-x + q\"]\ndiffusion = \"s\"\n")
