@@ -132,6 +132,22 @@ fn the_adjoint_gives_the_gradient_of_f_on_a_double_well_record() {
 }
 
 #[test]
+fn a_failed_area_sweep_says_where_and_why() {
+    // A multiplier of 10⁸ at the third measurement tilts the density onto the domain's edge:
+    // the sweep has no value, and the action keeps the time and the reason for the report.
+    let rec = DoubleWellRecord::new(3, 8.0).unwrap();
+    let mut action = area_action(&rec.problem(), &AreaClosure::default()).unwrap();
+    assert_eq!(action.last_failure(), None);
+    let mut lambda = vec![0.0; 8];
+    lambda[2] = 1e8;
+    let value = action.evaluate(&lambda).unwrap();
+    assert!(value.value.is_nan());
+    let why = action.last_failure().expect("a reason");
+    let at = format!("at t = {:.4}:", rec.data.times[2]);
+    assert!(why.starts_with(&at) && why.contains("measurement 2"), "{why}");
+}
+
+#[test]
 fn area_closure_of_ou_with_the_stationary_prior_is_the_rts_smoother() {
     // Linear drift, Z = M = x, reference the stationary N(0, σ²/(2θ)): the jumps are
     // μ⁺ = μ⁻ + λ_k v_s, ΔF = λ_kμ⁻ + ½λ_k²v_s and μ − m relaxes as e^{−θt}, so F_Z is the

@@ -45,7 +45,7 @@ use nalgebra::DMatrix;
 use onsager_closures::{Exponential, Polynomial, Reference};
 
 use super::drift::{gaussian_prior, ClosureDrift, ExponentialDrift};
-use super::{invalid, output_times, ClosureOptions};
+use super::{invalid, output_times, ClosureOptions, SweepFailure as AtTime};
 use crate::action::continuation::BranchRule;
 use crate::action::dual::{
     ActionValue, DualData, DualOptions, EffectiveAction, History, SweepFailure, Swept,
@@ -332,8 +332,15 @@ impl<'a, S: Sde + ?Sized> ScalarArea<'a, S> {
 
     /// The cumulants at θ. Errors: θ where the family has no normalizable density.
     pub fn moments(&self, theta: f64) -> Swept<AreaMoments> {
-        let (p, log_partition) =
-            self.family.node_probabilities(&[theta]).map_err(|_| SweepFailure::Unrealizable)?;
+        self.moments_or_why(theta).map_err(|_| SweepFailure::Unrealizable)
+    }
+
+    /// [`ScalarArea::moments`], with why not in words.
+    fn moments_or_why(&self, theta: f64) -> std::result::Result<AreaMoments, String> {
+        let (p, log_partition) = self
+            .family
+            .node_probabilities(&[theta])
+            .map_err(|e| format!("θ = {theta:.6e} gives no density on the nodes ({e})"))?;
         let (mut mu, mut zeta) = (0.0, 0.0);
         for ((&pi, &x), &z) in p.iter().zip(&self.nodes).zip(&self.z_nodes) {
             mu += pi * x;
@@ -350,7 +357,10 @@ impl<'a, S: Sde + ?Sized> ScalarArea<'a, S> {
         if finite && c > 0.0 && cz != 0.0 {
             Ok(out)
         } else {
-            Err(SweepFailure::Unrealizable)
+            Err(format!(
+                "the cumulants at θ = {theta:.6e} are not a density's: variance C = {c:.3e}, \
+                 C^Z = {cz:.3e}, F = {log_partition:.3e} (need C > 0, C^Z ≠ 0, all finite)"
+            ))
         }
     }
 
@@ -376,10 +386,15 @@ impl<'a, S: Sde + ?Sized> ScalarArea<'a, S> {
     /// The jump at a measurement with multiplier λ_k from θ⁻: (θ⁺, (ΔF)_k) by the rule set with
     /// [`ScalarArea::with_jumps`]: `(II.34)–(II.35)` or the area rules `(II.19)`, `(II.23)`.
     pub fn jump(&self, theta_minus: f64, lambda: f64) -> Swept<(f64, f64)> {
+        self.jump_or_why(theta_minus, lambda).map_err(|_| SweepFailure::Unrealizable)
+    }
+
+    /// [`ScalarArea::jump`], with why not in words.
+    fn jump_or_why(&self, theta_minus: f64, lambda: f64) -> std::result::Result<(f64, f64), String> {
         match self.jumps {
             JumpRule::Explicit => {
-                let before = self.moments(theta_minus)?;
-                let after = self.moments(theta_minus + lambda)?;
+                let before = self.moments_or_why(theta_minus)?;
+                let after = self.moments_or_why(theta_minus + lambda)?;
                 Ok((after.theta, after.log_partition - before.log_partition))
             }
             JumpRule::Area => self.area_jump(theta_minus, lambda),
@@ -388,12 +403,12 @@ impl<'a, S: Sde + ?Sized> ScalarArea<'a, S> {
 
     /// The area rules as ODEs in λ: dθ/dλ = C^Z/C (`(II.27)` in θ), d(ΔF)/dλ = ζ (`(II.29)`),
     /// classical Runge–Kutta with `jump_steps` steps from λ = 0 to λ_k.
-    fn area_jump(&self, theta_minus: f64, lambda: f64) -> Swept<(f64, f64)> {
+    fn area_jump(&self, theta_minus: f64, lambda: f64) -> std::result::Result<(f64, f64), String> {
         if lambda == 0.0 {
             return Ok((theta_minus, 0.0));
         }
-        let rhs = |th: f64| -> Swept<(f64, f64)> {
-            let m = self.moments(th)?;
+        let rhs = |th: f64| -> std::result::Result<(f64, f64), String> {
+            let m = self.moments_or_why(th)?;
             Ok((m.cz / m.c, m.zeta))
         };
         let h = lambda / self.jump_steps as f64;
@@ -409,16 +424,18 @@ impl<'a, S: Sde + ?Sized> ScalarArea<'a, S> {
         if th.is_finite() && df.is_finite() {
             Ok((th, df))
         } else {
-            Err(SweepFailure::Unrealizable)
+            Err(format!("the area rule's integration in λ is not finite (θ = {th:.3e}, ΔF = {df:.3e})"))
         }
     }
 
     /// One classical Runge–Kutta step of θ̇ = W(θ) (`(II.46)`) with its variational equation
     /// δ̇ = W′(θ)δ from δ = 1: (θ(t + h), ∂θ(t + h)/∂θ(t)).
-    fn flow_step(&self, t: f64, theta: f64, h: f64) -> Swept<(f64, f64)> {
-        let f = |t: f64, th: f64| -> Swept<(f64, f64)> {
+    fn flow_step(&self, t: f64, theta: f64, h: f64) -> std::result::Result<(f64, f64), String> {
+        let f = |t: f64, th: f64| -> std::result::Result<(f64, f64), String> {
             let (mut w, mut j) = ([0.0], [0.0]);
-            self.drift.w_jacobian(t, &[th], &mut w, &mut j).map_err(|_| SweepFailure::Unrealizable)?;
+            self.drift
+                .w_jacobian(t, &[th], &mut w, &mut j)
+                .map_err(|e| format!("at θ = {th:.6e}: {}", e.0))?;
             Ok((w[0], j[0]))
         };
         let (w1, j1) = f(t, theta)?;
@@ -434,7 +451,10 @@ impl<'a, S: Sde + ?Sized> ScalarArea<'a, S> {
         if th.is_finite() && dd.is_finite() && dd > 0.0 {
             Ok((th, dd))
         } else {
-            Err(SweepFailure::Unrealizable)
+            Err(format!(
+                "a Runge–Kutta step of {h:.3e} from θ = {theta:.6e} gives θ = {th:.3e} with sensitivity \
+                 {dd:.3e} (need both finite, the sensitivity positive)"
+            ))
         }
     }
 }
@@ -477,6 +497,8 @@ pub struct AreaAction<'a, S: Sde + ?Sized> {
     events: Vec<Event>,
     sweeps: usize,
     steps: usize,
+    /// Where and why the last sweep that failed failed.
+    last_failure: Option<String>,
 }
 
 impl<'a, S: Sde + ?Sized> AreaAction<'a, S> {
@@ -534,6 +556,7 @@ impl<'a, S: Sde + ?Sized> AreaAction<'a, S> {
             events,
             sweeps: 0,
             steps: 0,
+            last_failure: None,
         })
     }
 
@@ -549,6 +572,22 @@ impl<'a, S: Sde + ?Sized> AreaAction<'a, S> {
 
     fn forward(&mut self, lambda: &[f64]) -> Swept<Forward> {
         self.sweeps += 1;
+        let mut steps = 0;
+        let swept = self.sweep(lambda, &mut steps);
+        self.steps += steps;
+        self.failed(swept)
+    }
+
+    /// A sweep's value, or its failure kept as [`EffectiveAction::last_failure`].
+    fn failed<T>(&mut self, swept: std::result::Result<T, AtTime>) -> Swept<T> {
+        swept.map_err(|AtTime(why)| {
+            self.last_failure = Some(why);
+            SweepFailure::Unrealizable
+        })
+    }
+
+    /// The forward sweep at λ, counting its Runge–Kutta steps into `steps`.
+    fn sweep(&self, lambda: &[f64], steps: &mut usize) -> std::result::Result<Forward, AtTime> {
         let n = self.times.len();
         let m_out = self.output_times.len();
         let mut fw = Forward {
@@ -560,25 +599,30 @@ impl<'a, S: Sde + ?Sized> AreaAction<'a, S> {
             out_next: Vec::with_capacity(m_out),
             segment_factor: Vec::with_capacity(n),
         };
+        let family = &self.family;
         let (mut t, mut theta, mut factor) = (self.t0, self.theta0, 1.0);
         for e in &self.events {
             let h = if e.steps > 0 { (e.time - t) / e.steps as f64 } else { 0.0 };
             for s in 0..e.steps {
-                let (th, d) = self.family.flow_step(t + s as f64 * h, theta, h)?;
+                let ts = t + s as f64 * h;
+                let (th, d) = family.flow_step(ts, theta, h).map_err(|why| AtTime::at(ts, why))?;
                 theta = th;
                 factor *= d;
+                *steps += 1;
             }
-            self.steps += e.steps;
             t = e.time;
+            let moments = |theta| family.moments_or_why(theta).map_err(|why| AtTime::at(t, why));
             if e.output.is_some() {
-                fw.out_moments.push(self.family.moments(theta)?);
+                fw.out_moments.push(moments(theta)?);
                 fw.out_factor.push(factor);
                 fw.out_next.push(e.measurement.unwrap_or(fw.minus.len()));
             }
             if let Some(k) = e.measurement {
-                let before = self.family.moments(theta)?;
-                let (th, df) = self.family.jump(theta, lambda[k])?;
-                let after = self.family.moments(th)?;
+                let before = moments(theta)?;
+                let (th, df) = family.jump_or_why(theta, lambda[k]).map_err(|why| {
+                    AtTime::at(t, format!("the jump of measurement {k} (λ_k = {:.6e}): {why}", lambda[k]))
+                })?;
+                let after = moments(th)?;
                 fw.f += df;
                 fw.minus.push(before);
                 fw.plus.push(after);
@@ -590,7 +634,7 @@ impl<'a, S: Sde + ?Sized> AreaAction<'a, S> {
         if fw.f.is_finite() {
             Ok(fw)
         } else {
-            Err(SweepFailure::Unrealizable)
+            Err(AtTime::at(t, "the log-partition increments are not finite"))
         }
     }
 
@@ -614,8 +658,9 @@ impl<'a, S: Sde + ?Sized> AreaAction<'a, S> {
         let fw = self.forward(lambda)?;
         let (a_plus, a_minus) = Self::backward(&fw);
         let z: Vec<f64> = fw.plus.iter().zip(&a_plus).map(|(p, a)| p.zeta + p.cz * a).collect();
-        if z.iter().any(|v| !v.is_finite()) {
-            return Err(SweepFailure::Unrealizable);
+        if let Some(k) = z.iter().position(|v| !v.is_finite()) {
+            let why = AtTime::at(self.times[k], "the adjoint's history at the measurement is not finite");
+            return self.failed(Err(why));
         }
         Ok((fw.f, z, fw, a_minus))
     }
@@ -710,6 +755,10 @@ impl<S: Sde + ?Sized> EffectiveAction for AreaAction<'_, S> {
 
     fn work(&self) -> Option<(usize, usize)> {
         Some((self.sweeps, self.steps))
+    }
+
+    fn last_failure(&self) -> Option<&str> {
+        self.last_failure.as_deref()
     }
 }
 

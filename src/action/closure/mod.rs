@@ -48,6 +48,23 @@ use super::dual::{DualData, DualOptions, EffectiveAction};
 use super::exact::gaussian_dual_data;
 use super::mean_optimal::{self, DualStart, Plan};
 
+/// How a closure's sweep failed (a numerical outcome): where and why, in words for the report
+/// ([`EffectiveAction::last_failure`]).
+#[derive(Debug, Clone)]
+struct SweepFailure(String);
+
+impl SweepFailure {
+    /// A failure at time `t` of the sweep.
+    fn at(t: f64, why: impl std::fmt::Display) -> Self {
+        let t = match t.abs() {
+            0.0 => "0".to_string(),
+            a if a >= 1e-3 => format!("{t:.4}"),
+            _ => format!("{t:.2e}"),
+        };
+        SweepFailure(format!("at t = {t}: {why}"))
+    }
+}
+
 /// What a family of trial densities brings to a closure estimator: its options (the struct
 /// itself, written flat beside the [`ClosureOptions`] as the estimator's options), its drift
 /// on a model, and the initial natural parameters. A new family is its drift and one of these,

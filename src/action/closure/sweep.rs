@@ -31,6 +31,7 @@ use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
 
 use nalgebra::DMatrix;
 
+use super::SweepFailure;
 use crate::action::dual::{ActionValue, DualData, EffectiveAction, History, SweepFailure as Failure, Swept};
 use crate::{Error, Result};
 
@@ -394,23 +395,6 @@ impl Events {
     fn new(t0: f64, meas_times: &[f64], extra: &[f64]) -> Events {
         let m = crate::data::EventTimes::merge(meas_times, &[&[t0], extra].concat());
         Events { times: m.times, meas: m.measurement, resolve_adjoint: false }
-    }
-}
-
-/// How a sweep failed (a numerical outcome): where and why, in words for the report
-/// ([`EffectiveAction::last_failure`]).
-#[derive(Debug, Clone)]
-struct SweepFailure(String);
-
-impl SweepFailure {
-    /// A failure at time `t` of the sweep.
-    fn at(t: f64, why: impl std::fmt::Display) -> Self {
-        let t = match t.abs() {
-            0.0 => "0".to_string(),
-            a if a >= 1e-3 => format!("{t:.4}"),
-            _ => format!("{t:.2e}"),
-        };
-        SweepFailure(format!("at t = {t}: {why}"))
     }
 }
 
