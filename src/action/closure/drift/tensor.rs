@@ -167,7 +167,7 @@ impl TensorPlan {
         };
         let b = level * self.degree + 1;
         self.frame(p, work);
-        self.tables(p, pf, b, (level - 1) * self.degree, work);
+        self.tables(p, b, Some((pf, (level - 1) * self.degree)), work);
         self.basis(b, diffusion, work);
         let TensorWork { sums, mu, at, c, cov, v, w: wt, generator, .. } = &mut *work;
         cov.clear();
@@ -219,7 +219,7 @@ impl TensorPlan {
         let r = self.exponents.len();
         let b = 2 * self.degree + 1;
         self.frame(p, work);
-        self.tables(p, &[], b, 0, work);
+        self.tables(p, b, None, work);
         self.transform(work);
         let (centre, sums, a) = (&work.centre, &work.sums, &work.a);
         let at: Vec<usize> = self.exponents.iter().map(|e| e.iter().fold(0, |acc, &x| acc * b + x)).collect();
@@ -271,9 +271,10 @@ impl TensorPlan {
         }
     }
 
-    /// The tables Σπ_k ξ_k^α (exponents < `b` per axis) and Σπ_k f_i(x_k) ξ_k^α (< `bf`; none
-    /// for bf = 0), each laid out with stride `b`, into `work.sums`.
-    fn tables(&self, p: &[f64], pf: &[f64], b: usize, bf: usize, work: &mut TensorWork) {
+    /// The table Σπ_k ξ_k^α (exponents < `b` per axis) and, with `drift` = (π_k f_i(x_k)
+    /// state-major, bf), the tables Σπ_k f_i(x_k) ξ_k^α (exponents < bf), each laid out with
+    /// stride `b`, into `work.sums`.
+    fn tables(&self, p: &[f64], b: usize, drift: Option<(&[f64], usize)>, work: &mut TensorWork) {
         let n = self.n();
         let size = b.pow(n as u32);
         let nodes = self.len();
@@ -291,12 +292,14 @@ impl TensorPlan {
                 }
             }
         }
+        let blocks = 1 + drift.map_or(0, |_| n);
         sums.clear();
-        sums.resize((n + 1) * size, 0.0);
-        // With bf = 0, the moment table alone.
-        for block in 0..if bf == 0 { 1 } else { n + 1 } {
-            let (weights, count) =
-                if block == 0 { (p, b) } else { (&pf[(block - 1) * nodes..block * nodes], bf) };
+        sums.resize(blocks * size, 0.0);
+        for block in 0..blocks {
+            let (weights, count) = match drift {
+                Some((pf, bf)) if block > 0 => (&pf[(block - 1) * nodes..block * nodes], bf),
+                _ => (p, b),
+            };
             let out = &mut sums[block * size..(block + 1) * size];
             // rows[p][β] = Σ_q π_pq ξ_q^β, then out[α][β] = Σ_p ξ_p^α rows[p][β]: two matrix
             // products, as column-major views (a row-major matrix is its transpose).
