@@ -453,6 +453,19 @@ fn unsupported_combinations_are_clear_errors() {
         Closure::new(ExponentialFamily::of_degree(4).with_domain(&[(-3.0, 3.0)]), ClosureOptions::new());
     let err = Estimator::ExpClosure(one_interval).run(&p3).unwrap_err();
     assert!(err.to_string().contains("one interval per state"), "{err}");
+    // A box that does not cover a datum of the measured state (y = 0.1 at t = 0.5).
+    let narrow = Closure::new(
+        ExponentialFamily::of_degree(4).with_domain(&[(-3.0, 0.05), (-3.0, 3.0)]),
+        ClosureOptions::new(),
+    );
+    let err = Estimator::ExpClosure(narrow).run(&p3).unwrap_err();
+    assert!(
+        matches!(err, Error::InvalidOption { .. })
+            && err
+                .to_string()
+                .contains("the box [-3, 0.05] of state `u` does not cover the datum y = 0.1 at t = 0.5"),
+        "{err}"
+    );
     // The moment-path closures handle one-state models only.
     let err = closure_estimate(&p3, &ClosureKind::Ksp, &ClosureOptions::new()).unwrap_err();
     assert!(matches!(err, Error::InvalidOption { .. }), "{err}");

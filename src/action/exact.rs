@@ -705,24 +705,18 @@ impl<S: Sde + ?Sized> std::fmt::Debug for ExactAction<'_, S> {
 
 /// Checks that every measurement of a gridded state lies inside the grid.
 pub fn check_grid_covers(grid: &Grid, observation: &StateMeasurement, data: &Dataset) -> Result<()> {
-    for (k, row) in data.values.iter().enumerate() {
-        for (c, &state) in observation.states.iter().enumerate() {
-            let y = row[c];
-            if state < grid.dim() && !y.is_nan() && !grid.covers(state, y) {
-                return Err(invalid(
-                    "grid",
-                    format!(
-                        "the grid [{}, {}] of axis {state} does not cover the datum {} = {y} at t = {}",
-                        grid.spec().lo[state],
-                        grid.spec().hi[state],
-                        data.names[c],
-                        data.times[k]
-                    ),
-                ));
-            }
-        }
+    let inside = |state: usize, y: f64| state >= grid.dim() || grid.covers(state, y);
+    match observation.first_datum_outside(data, inside) {
+        Some((state, datum)) => Err(invalid(
+            "grid",
+            format!(
+                "the grid [{}, {}] of axis {state} does not cover the datum {datum}",
+                grid.spec().lo[state],
+                grid.spec().hi[state]
+            ),
+        )),
+        None => Ok(()),
     }
-    Ok(())
 }
 
 /// The dual data of a problem with Gaussian state measurements; [`Error::InvalidOption`] for a

@@ -592,6 +592,25 @@ impl StateMeasurement {
         self.noise.validate(dims.params, theta)
     }
 
+    /// The first datum (in time, then output order) of a measured state that `inside(state, y)`
+    /// rejects, as "`name` = y at t = …", or `None`; missing values (NaN) are skipped. For the
+    /// checks that a grid or a box covers the data.
+    pub fn first_datum_outside(
+        &self,
+        data: &crate::data::Dataset,
+        inside: impl Fn(usize, f64) -> bool,
+    ) -> Option<(usize, String)> {
+        for (k, row) in data.values.iter().enumerate() {
+            for (c, &state) in self.states.iter().enumerate() {
+                let y = row[c];
+                if !y.is_nan() && !inside(state, y) {
+                    return Some((state, format!("{} = {y} at t = {}", data.names[c], data.times[k])));
+                }
+            }
+        }
+        None
+    }
+
     /// s[i] for s = [x; z], `None` when out of range.
     fn state<D: Copy>(i: usize, x: &[D], z: &[D]) -> Option<D> {
         if i < x.len() {

@@ -920,8 +920,9 @@ pub struct ExponentialFamily {
     /// Support of the family (its quadrature grid): one interval [a, b] per state, or empty for
     /// the default: per state, the range of its data and of its initial prior (mean ± 5 sd),
     /// widened by half its width plus 1 on each side. Set it for a state that is not measured
-    /// and whose range the prior does not cover. On the command line, `domain=[a,b]` (one
-    /// state) or `domain=[[a,b],[c,d]]`.
+    /// and whose range the prior does not cover. On a box (`nodes = box`) it must cover every
+    /// datum of a measured state ([`Error::InvalidOption`] otherwise): the box truncates the
+    /// density to it. On the command line, `domain=[a,b]` (one state) or `domain=[[a,b],[c,d]]`.
     #[serde(deserialize_with = "intervals")]
     pub domain: Vec<(f64, f64)>,
     /// Panels × 8 Gauss–Legendre points per dimension of the fixed box (`nodes = box`). Default
@@ -1137,6 +1138,20 @@ fn exponential_setup<'a, S: Sde + ?Sized>(
             .flat_map(|(b, _)| problem.data.values.iter().map(move |row| row[b]))
             .collect();
         domain.push(options.domain.get(i).copied().unwrap_or_else(|| default_domain(&values, m0, v0)));
+    }
+    if !options.follows_density() {
+        let inside = |state: usize, y: f64| domain.get(state).is_none_or(|&(a, b)| (a..=b).contains(&y));
+        if let Some((state, datum)) = problem.observation.first_datum_outside(problem.data, inside) {
+            let (a, b) = domain[state];
+            return Err(Error::invalid(
+                "domain",
+                format!(
+                    "the box [{a}, {b}] of state `{}` does not cover the datum {datum}: the box truncates \
+                     the density to it; widen `domain`",
+                    names[state]
+                ),
+            ));
+        }
     }
     let follow = options.follows_density().then_some(DensityNodes {
         degree: degree as u32,
