@@ -593,8 +593,8 @@ impl StateMeasurement {
     }
 
     /// The first datum (in time, then output order) of a measured state that `inside(state, y)`
-    /// rejects, as "`name` = y at t = …", or `None`; missing values (NaN) are skipped. For the
-    /// checks that a grid or a box covers the data.
+    /// rejects: its state and the datum as "name = y at t = …"; `None` if there is none.
+    /// Missing values (NaN) are skipped. For the checks that a grid or a box covers the data.
     pub fn first_datum_outside(
         &self,
         data: &crate::data::Dataset,
