@@ -222,7 +222,7 @@ impl TensorPlan {
         self.tables(p, b, None, work);
         self.transform(work);
         let (centre, sums, a) = (&work.centre, &work.sums, &work.a);
-        let at: Vec<usize> = self.exponents.iter().map(|e| e.iter().fold(0, |acc, &x| acc * b + x)).collect();
+        let at: Vec<usize> = self.exponents.iter().map(|e| table_index(e, b)).collect();
         let mu_t: Vec<f64> = at.iter().map(|&k| sums[k]).collect();
         let mean = (0..r)
             .map(|row| {
@@ -231,16 +231,12 @@ impl TensorPlan {
                 c_alpha + (0..=row).map(|col| a[row * r + col] * mu_t[col]).sum::<f64>()
             })
             .collect();
-        // A C̃ (A lower triangular), then (A C̃) Aᵀ.
-        let cov_t = |k: usize, j: usize| sums[at[k] + at[j]] - mu_t[k] * mu_t[j];
-        let ac: Vec<f64> =
-            (0..r * r).map(|ij| (0..=ij / r).map(|k| a[(ij / r) * r + k] * cov_t(k, ij % r)).sum()).collect();
         let mut cov = vec![0.0; r * r];
+        lower_congruence(a, r, |k, j| sums[at[k] + at[j]] - mu_t[k] * mu_t[j], &mut cov);
+        // Symmetric: the lower triangle mirrored.
         for i in 0..r {
-            for j in 0..=i {
-                let v: f64 = (0..=j).map(|k| ac[i * r + k] * a[j * r + k]).sum();
-                cov[i * r + j] = v;
-                cov[j * r + i] = v;
+            for j in 0..i {
+                cov[j * r + i] = cov[i * r + j];
             }
         }
         (mean, cov)
@@ -325,7 +321,7 @@ impl TensorPlan {
     fn basis(&self, b: usize, diffusion: &[f64], work: &mut TensorWork) {
         let n = self.n();
         let size = b.pow(n as u32);
-        let index = |e: &[usize]| e.iter().fold(0, |acc, &x| acc * b + x);
+        let index = |e: &[usize]| table_index(e, b);
         let TensorWork { scale, sums, mu, at, generator, .. } = work;
         at.clear();
         at.extend(self.exponents.iter().map(|e| index(e)));
@@ -445,15 +441,23 @@ impl TensorPlan {
                 h[a * r + j] += -tj[a * r + j] - tj[j * r + a] + kt[a] * work.v[j] + work.v[a] * kt[j];
             }
         }
-        // A h Aᵀ.
-        let a = &work.a;
-        let ah: Vec<f64> = (0..r * r)
-            .map(|ij| (0..=ij / r).map(|k| a[(ij / r) * r + k] * h[k * r + ij % r]).sum())
-            .collect();
-        for i in 0..r {
-            for j in 0..r {
-                hess[i * r + j] = (0..=j).map(|k| ah[i * r + k] * a[j * r + k]).sum();
-            }
+        lower_congruence(&work.a, r, |k, j| h[k * r + j], hess);
+    }
+}
+
+/// The position of the exponent `e` in a table of stride `b` per axis.
+fn table_index(e: &[usize], b: usize) -> usize {
+    e.iter().fold(0, |acc, &x| acc * b + x)
+}
+
+/// A X Aᵀ (row-major r × r) into `out`, for A lower triangular (row-major) and X by its entries
+/// `x(k, j)`: first A X, then (A X) Aᵀ, each sum over the triangle of A.
+fn lower_congruence(a: &[f64], r: usize, x: impl Fn(usize, usize) -> f64, out: &mut [f64]) {
+    let ax: Vec<f64> =
+        (0..r * r).map(|ij| (0..=ij / r).map(|k| a[(ij / r) * r + k] * x(k, ij % r)).sum()).collect();
+    for i in 0..r {
+        for j in 0..r {
+            out[i * r + j] = (0..=j).map(|k| ax[i * r + k] * a[j * r + k]).sum();
         }
     }
 }
