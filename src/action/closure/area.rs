@@ -45,7 +45,7 @@ use nalgebra::DMatrix;
 use onsager_closures::{Exponential, Polynomial, Reference};
 
 use super::drift::{gaussian_prior, ClosureDrift, ExponentialDrift};
-use super::{invalid, output_times, ClosureOptions, SweepFailure as AtTime};
+use super::{invalid, output_times, ClosureOptions, FailureAt};
 use crate::action::continuation::BranchRule;
 use crate::action::dual::{
     ActionValue, DualData, DualOptions, EffectiveAction, History, SweepFailure, Swept,
@@ -579,15 +579,15 @@ impl<'a, S: Sde + ?Sized> AreaAction<'a, S> {
     }
 
     /// A sweep's value, or its failure kept as [`EffectiveAction::last_failure`].
-    fn failed<T>(&mut self, swept: std::result::Result<T, AtTime>) -> Swept<T> {
-        swept.map_err(|AtTime(why)| {
+    fn failed<T>(&mut self, swept: std::result::Result<T, FailureAt>) -> Swept<T> {
+        swept.map_err(|FailureAt(why)| {
             self.last_failure = Some(why);
             SweepFailure::Unrealizable
         })
     }
 
     /// The forward sweep at λ, counting its Runge–Kutta steps into `steps`.
-    fn sweep(&self, lambda: &[f64], steps: &mut usize) -> std::result::Result<Forward, AtTime> {
+    fn sweep(&self, lambda: &[f64], steps: &mut usize) -> std::result::Result<Forward, FailureAt> {
         let n = self.times.len();
         let m_out = self.output_times.len();
         let mut fw = Forward {
@@ -605,13 +605,13 @@ impl<'a, S: Sde + ?Sized> AreaAction<'a, S> {
             let h = if e.steps > 0 { (e.time - t) / e.steps as f64 } else { 0.0 };
             for s in 0..e.steps {
                 let ts = t + s as f64 * h;
-                let (th, d) = family.flow_step(ts, theta, h).map_err(|why| AtTime::at(ts, why))?;
+                let (th, d) = family.flow_step(ts, theta, h).map_err(|why| FailureAt::at(ts, why))?;
                 theta = th;
                 factor *= d;
                 *steps += 1;
             }
             t = e.time;
-            let moments = |theta| family.moments_or_why(theta).map_err(|why| AtTime::at(t, why));
+            let moments = |theta| family.moments_or_why(theta).map_err(|why| FailureAt::at(t, why));
             if e.output.is_some() {
                 fw.out_moments.push(moments(theta)?);
                 fw.out_factor.push(factor);
@@ -620,7 +620,7 @@ impl<'a, S: Sde + ?Sized> AreaAction<'a, S> {
             if let Some(k) = e.measurement {
                 let before = moments(theta)?;
                 let (th, df) = family.jump_or_why(theta, lambda[k]).map_err(|why| {
-                    AtTime::at(t, format!("the jump of measurement {k} (λ_k = {:.6e}): {why}", lambda[k]))
+                    FailureAt::at(t, format!("the jump of measurement {k} (λ_k = {:.6e}): {why}", lambda[k]))
                 })?;
                 let after = moments(th)?;
                 fw.f += df;
@@ -634,7 +634,7 @@ impl<'a, S: Sde + ?Sized> AreaAction<'a, S> {
         if fw.f.is_finite() {
             Ok(fw)
         } else {
-            Err(AtTime::at(t, "the log-partition increments are not finite"))
+            Err(FailureAt::at(t, "the log-partition increments are not finite"))
         }
     }
 
@@ -659,7 +659,7 @@ impl<'a, S: Sde + ?Sized> AreaAction<'a, S> {
         let (a_plus, a_minus) = Self::backward(&fw);
         let z: Vec<f64> = fw.plus.iter().zip(&a_plus).map(|(p, a)| p.zeta + p.cz * a).collect();
         if let Some(k) = z.iter().position(|v| !v.is_finite()) {
-            let why = AtTime::at(self.times[k], "the adjoint's history at the measurement is not finite");
+            let why = FailureAt::at(self.times[k], "the adjoint's history at the measurement is not finite");
             return self.failed(Err(why));
         }
         Ok((fw.f, z, fw, a_minus))

@@ -51,9 +51,9 @@ use super::mean_optimal::{self, DualStart, Plan};
 /// How a closure's sweep failed (a numerical outcome): where and why, in words for the report
 /// ([`EffectiveAction::last_failure`]).
 #[derive(Debug, Clone)]
-struct SweepFailure(String);
+struct FailureAt(String);
 
-impl SweepFailure {
+impl FailureAt {
     /// A failure at time `t` of the sweep.
     fn at(t: f64, why: impl std::fmt::Display) -> Self {
         let t = match t.abs() {
@@ -61,7 +61,7 @@ impl SweepFailure {
             a if a >= 1e-3 => format!("{t:.4}"),
             _ => format!("{t:.2e}"),
         };
-        SweepFailure(format!("at t = {t}: {why}"))
+        FailureAt(format!("at t = {t}: {why}"))
     }
 }
 

@@ -31,7 +31,7 @@ use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
 
 use nalgebra::DMatrix;
 
-use super::SweepFailure;
+use super::FailureAt;
 use crate::action::dual::{ActionValue, DualData, EffectiveAction, History, SweepFailure as Failure, Swept};
 use crate::{Error, Result};
 
@@ -318,7 +318,7 @@ struct EventInterval {
 }
 
 /// How the forward sweep picks the multiplier of measurement k from λ(t_k−).
-type Choose<'c> = dyn FnMut(usize, &[f64]) -> std::result::Result<Vec<f64>, SweepFailure> + 'c;
+type Choose<'c> = dyn FnMut(usize, &[f64]) -> std::result::Result<Vec<f64>, FailureAt> + 'c;
 
 /// γ at every event and the stage derivatives of every step.
 type Adjoint = (Vec<Vec<f64>>, StepDerivs);
@@ -608,7 +608,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         h_guess: &mut f64,
         steps: &mut Steps,
         work: &mut RkWork,
-    ) -> std::result::Result<(), SweepFailure> {
+    ) -> std::result::Result<(), FailureAt> {
         let EventInterval { start: t, end: t_end, next_measurement } = interval;
         let span = t_end - t;
         if span <= 0.0 {
@@ -629,7 +629,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             work.k1_time = None;
             let hess = if self.keep_hessians { &mut work.hess[..rr * r] } else { &mut [][..] };
             self.stage_derivatives(tc, y, &mut work.k[..r], &mut work.jac[..rr], hess)
-                .map_err(|e| SweepFailure::at(tc, e.0))?;
+                .map_err(|e| FailureAt::at(tc, e.0))?;
             work.k1_time = Some(tc);
         }
         while tc < t_end {
@@ -691,13 +691,13 @@ impl<D: ClosureDrift> ClosureAction<D> {
                     ),
                     None => format!("the error control rejected {rejections} steps, down to {h:.1e}"),
                 };
-                return Err(SweepFailure::at(tc, why));
+                return Err(FailureAt::at(tc, why));
             }
         }
         Ok(())
     }
 
-    fn forward(&self, events: &Events, lambda: &[f64]) -> std::result::Result<Forward, SweepFailure> {
+    fn forward(&self, events: &Events, lambda: &[f64]) -> std::result::Result<Forward, FailureAt> {
         let s = self.measured.len();
         self.forward_with(events, &mut |k, _| Ok(lambda[k * s..(k + 1) * s].to_vec()))
     }
@@ -707,7 +707,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         &self,
         events: &Events,
         choose: &mut Choose<'_>,
-    ) -> std::result::Result<Forward, SweepFailure> {
+    ) -> std::result::Result<Forward, FailureAt> {
         let ne = events.times.len();
         let span = events.times[ne - 1] - events.times[0];
         let mut h = if span > 0.0 { 1e-3 * span } else { 1.0 };
@@ -749,7 +749,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             }
             out.lambda_minus.push(y.clone());
             let te = events.times[e];
-            let mut m = self.drift.moments(&y).map_err(|why| SweepFailure::at(te, why.0))?;
+            let mut m = self.drift.moments(&y).map_err(|why| FailureAt::at(te, why.0))?;
             if let Some(k) = events.meas[e] {
                 let before = m;
                 let lk = choose(k, &y)?;
@@ -760,7 +760,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 m = self
                     .drift
                     .moments(&y)
-                    .map_err(|why| SweepFailure::at(te, format!("after the jump, {}", why.0)))?;
+                    .map_err(|why| FailureAt::at(te, format!("after the jump, {}", why.0)))?;
                 out.f += m.log_partition - before.log_partition;
                 out.mu_minus.push(before.mean);
                 out.cov_minus.push(before.covariance);
@@ -771,10 +771,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         }
         self.step_hint.store(out.steps.len(), Relaxed);
         if !out.f.is_finite() {
-            return Err(SweepFailure::at(
-                events.times[ne - 1],
-                "the log-partition increments are not finite",
-            ));
+            return Err(FailureAt::at(events.times[ne - 1], "the log-partition increments are not finite"));
         }
         Ok(out)
     }
@@ -787,7 +784,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         events: &Events,
         fw: &Forward,
         second: bool,
-    ) -> std::result::Result<Adjoint, SweepFailure> {
+    ) -> std::result::Result<Adjoint, FailureAt> {
         with_size!(self.drift.n_params(), r => self.backward_sized(r, events, fw, second))
     }
 
@@ -799,7 +796,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         events: &Events,
         fw: &Forward,
         second: bool,
-    ) -> std::result::Result<Adjoint, SweepFailure> {
+    ) -> std::result::Result<Adjoint, FailureAt> {
         let rr = r * r;
         let ne = events.times.len();
         let mut gamma = vec![0.0; r];
@@ -846,7 +843,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                         } else {
                             self.drift
                                 .w_second_with_jacobian(ti, yi, ki, &mut w, ji, hi)
-                                .map_err(|why| SweepFailure::at(ti, why.0))?;
+                                .map_err(|why| FailureAt::at(ti, why.0))?;
                         }
                         &*ji
                     } else {
@@ -871,7 +868,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             }
         }
         if let Some(e) = out.iter().position(|g| g.iter().any(|v| !v.is_finite())) {
-            return Err(SweepFailure::at(events.times[e], "the adjoint is not finite"));
+            return Err(FailureAt::at(events.times[e], "the adjoint is not finite"));
         }
         Ok((out, derivs))
     }
@@ -895,7 +892,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         events: &Events,
         lambda: &[f64],
         second: bool,
-    ) -> std::result::Result<(Forward, Vec<Vec<f64>>, StepDerivs), SweepFailure> {
+    ) -> std::result::Result<(Forward, Vec<Vec<f64>>, StepDerivs), FailureAt> {
         self.sweeps += 1;
         let fw = self.forward(events, lambda)?;
         self.steps += fw.steps.len();
@@ -926,7 +923,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         &mut self,
         events: &Events,
         lambda: &[f64],
-    ) -> std::result::Result<(Vec<Vec<f64>>, Tangents), SweepFailure> {
+    ) -> std::result::Result<(Vec<Vec<f64>>, Tangents), FailureAt> {
         // The forward sweep of the last evaluation at λ (the accepted Newton iterate) is reused:
         // taken out of the cache and put back at the end.
         let kept = match self.cache.take() {
@@ -1022,7 +1019,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             self.cache = Some((l, fw, g0));
         }
         if out.values.iter().any(|v| !v.is_finite()) {
-            return Err(SweepFailure("the tangents of the sweep are not finite".into()));
+            return Err(FailureAt("the tangents of the sweep are not finite".into()));
         }
         Ok((base, out))
     }
@@ -1222,7 +1219,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let drift = &self.drift;
         let meas_times = &self.meas_times;
         let r_dim = drift.n_params();
-        let mut choose = |k: usize, y: &[f64]| -> std::result::Result<Vec<f64>, SweepFailure> {
+        let mut choose = |k: usize, y: &[f64]| -> std::result::Result<Vec<f64>, FailureAt> {
             let idx: Vec<usize> = (0..s).filter(|&b| !data.r[k * s + b].is_nan()).collect();
             let mut lk = vec![0.0; s];
             for _ in 0..50 {
@@ -1230,7 +1227,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 for (b, &a) in measured.iter().enumerate() {
                     yy[a] += lk[b];
                 }
-                let m = drift.moments(&yy).map_err(|why| SweepFailure::at(meas_times[k], why.0))?;
+                let m = drift.moments(&yy).map_err(|why| FailureAt::at(meas_times[k], why.0))?;
                 let na = idx.len();
                 let mut jac = DMatrix::zeros(na, na);
                 let mut g = nalgebra::DVector::zeros(na);
@@ -1244,7 +1241,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 }
                 let scale: f64 = idx.iter().map(|&b| data.variance[k * s + b]).fold(0.0, f64::max);
                 if g.iter().any(|v| !v.is_finite()) {
-                    return Err(SweepFailure::at(meas_times[k], "the filter's jump is not finite"));
+                    return Err(FailureAt::at(meas_times[k], "the filter's jump is not finite"));
                 }
                 if g.amax() <= 1e-12 * (1.0 + scale) {
                     break;
@@ -1252,7 +1249,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 let d = jac
                     .cholesky()
                     .ok_or_else(|| {
-                        SweepFailure::at(meas_times[k], "the filter's jump has no positive curvature")
+                        FailureAt::at(meas_times[k], "the filter's jump has no positive curvature")
                     })?
                     .solve(&g);
                 for (i, &b) in idx.iter().enumerate() {
@@ -1260,7 +1257,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 }
             }
             if lk.iter().any(|v| !v.is_finite()) {
-                return Err(SweepFailure::at(meas_times[k], "the filter's jump is not finite"));
+                return Err(FailureAt::at(meas_times[k], "the filter's jump is not finite"));
             }
             chosen[k * s..(k + 1) * s].copy_from_slice(&lk);
             Ok(lk)
@@ -1289,8 +1286,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
     }
 
     /// The value of a sweep, or `None` with its failure kept as [`EffectiveAction::last_failure`].
-    fn failed<T>(&mut self, swept: std::result::Result<T, SweepFailure>) -> Option<T> {
-        swept.map_err(|SweepFailure(why)| self.last_failure = Some(why)).ok()
+    fn failed<T>(&mut self, swept: std::result::Result<T, FailureAt>) -> Option<T> {
+        swept.map_err(|FailureAt(why)| self.last_failure = Some(why)).ok()
     }
 
     /// The linear moment of every state (index into M).
