@@ -759,3 +759,52 @@ fn gaussian_closure_estimate_is_repeatable_and_smooth_in_one_datum() {
     assert!(d1 > 0.0 && d1 < 1e-2, "moving datum {k} by 1e-4 moved the path by {d1}");
     assert!((d2 / d1 - 2.0).abs() < 0.05, "not first order in the datum: {d1} then {d2}");
 }
+
+#[test]
+fn the_quadrature_check_refines_a_box_that_does_not_resolve_the_density() {
+    // The quartic closure on a double-well record, on boxes of P panels, against 24 panels. After
+    // the dual converges on P, the history at its multipliers is recomputed on ⌈1.5 P⌉ panels;
+    // where a mean moves by more than 0.01 of the state's sd, or the sweeps failed on P, the
+    // estimate is solved again on the finer box (at most `refine` = 2 times).
+    let case = double_well_case(5, 20.0);
+    let problem = case.problem();
+    let options = ClosureOptions::new().with_dispersion(false);
+    let run = |family: ExponentialFamily| {
+        Estimator::ExpClosure(Closure::new(family, options.clone())).run(&problem).unwrap().estimate
+    };
+    let quartic = || ExponentialFamily::of_degree(4);
+    let reference = run(quartic().with_panels(24).with_refine(0));
+    let off = |e: &PathEstimate| sup_diff(&e.path.values, &reference.path.values);
+    let check = |e: &PathEstimate, key: &str| e.details["quadrature"][key].clone();
+    // 5 panels (40 nodes): converged, 0.013 from the reference; checked: moved by more than the
+    // tolerance on 8 panels, solved there from the 5-panel solution, 6·10⁻⁴ from it.
+    let unchecked = run(quartic().with_panels(5).with_refine(0));
+    let checked = run(quartic().with_panels(5));
+    assert_eq!((unchecked.status, checked.status), (Status::Converged, Status::Converged));
+    assert!(!unchecked.details.contains_key("quadrature"));
+    assert_eq!(check(&checked, "nodes"), "8 panels");
+    assert_eq!(check(&checked, "checked_on"), "12 panels");
+    assert_eq!(check(&checked, "refinements"), 1);
+    assert!(check(&checked, "shift").as_f64().unwrap() <= 0.01);
+    assert!(
+        off(&unchecked) > 0.01 && off(&checked) < 0.1 * off(&unchecked),
+        "{} {}",
+        off(&unchecked),
+        off(&checked)
+    );
+    // 2 panels: the sweeps fail; checked, the estimate is solved afresh on 3, then 5 panels.
+    assert_eq!(run(quartic().with_panels(2).with_refine(0)).status, Status::NumericalFailure);
+    let rescued = run(quartic().with_panels(2));
+    assert_eq!(rescued.status, Status::Converged);
+    assert_eq!(check(&rescued, "nodes"), "5 panels");
+    // The default 12 panels resolve this density: checked on 18, kept, the same path.
+    let default = run(quartic());
+    assert_eq!(check(&default, "refinements"), 0);
+    assert!(check(&default, "shift").as_f64().unwrap() < 1e-4);
+    assert_eq!(default.path.values, run(quartic().with_refine(0)).path.values);
+    // The tolerance must be positive.
+    let mut bad = quartic();
+    bad.refine_tolerance = 0.0;
+    let err = Estimator::ExpClosure(Closure::new(bad, options.clone())).run(&problem).unwrap_err();
+    assert!(err.to_string().contains("refine_tolerance"), "{err}");
+}

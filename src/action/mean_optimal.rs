@@ -34,6 +34,9 @@ pub enum DualStart {
     /// The end of the branch of stationary points from the prior, followed in the measurement
     /// precision ([`follow_branch`]).
     Continuation,
+    /// The solution on a closure's coarser nodes, whose quadrature moved the estimate
+    /// ([`crate::action::closure::ClosureFamily::refined`]).
+    Coarser,
 }
 
 /// What the standard deviations of a mean-optimal estimate are.
@@ -69,6 +72,25 @@ pub struct CoarseStage {
     pub iterations: usize,
     /// The relative tolerance of its sweeps.
     pub rtol: f64,
+}
+
+/// The quadrature check of a closure estimate on refinable nodes ([`crate::action::closure::closure_estimate`]), in
+/// the report's details.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct QuadratureCheck {
+    /// The nodes of the estimate.
+    pub nodes: String,
+    /// The finer nodes of the last check, when one was made.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub checked_on: Option<String>,
+    /// The largest shift of a state's mean on those finer nodes at the estimate's multipliers,
+    /// in standard deviations of the state (`None` when no check was made or the finer nodes'
+    /// sweep failed).
+    pub shift: Option<f64>,
+    /// The check's tolerance.
+    pub tolerance: f64,
+    /// How many times the nodes were refined.
+    pub refinements: usize,
 }
 
 /// How to solve: the dual's options at the requested tolerances, and what else to do.
@@ -209,9 +231,21 @@ fn history_at<A: EffectiveAction + ?Sized>(
 pub fn solve<A: EffectiveAction + ?Sized>(
     action: &mut A,
     data: &DualData,
-    (start, start_kind): (Vec<f64>, DualStart),
+    start: (Vec<f64>, DualStart),
     plan: &Plan,
 ) -> Result<Solution> {
+    let (dual, from) = solve_dual(action, data, start, plan)?;
+    finish(action, data, dual, from, plan.dispersion)
+}
+
+/// The dual of [`solve`] without the history: its solution, where it started (`Zero` when the
+/// retry from λ = 0 is the one reported) and its coarse stage. Errors: as [`solve`].
+pub fn solve_dual<A: EffectiveAction + ?Sized>(
+    action: &mut A,
+    data: &DualData,
+    (start, start_kind): (Vec<f64>, DualStart),
+    plan: &Plan,
+) -> Result<(DualSolution, (DualStart, Option<CoarseStage>))> {
     let (mut dual, coarse_stage) = attempt(action, data, &start, plan)?;
     let mut start = start_kind;
     if plan.retry_from_zero && !dual.status.is_success() {
@@ -222,7 +256,21 @@ pub fn solve<A: EffectiveAction + ?Sized>(
         }
         (dual.iterations, dual.evaluations) = totals;
     }
-    let with_dispersion = plan.dispersion && dual.status.is_success();
+    Ok((dual, (start, coarse_stage)))
+}
+
+/// The estimate at the dual's solution `dual`: the history at λ* with the ensemble dispersion
+/// when `dispersion` and the dual succeeded (else the density's variance), the status, and where
+/// and why a sweep failed. `from` is where the dual started and its coarse stage. Errors: as
+/// [`solve`].
+pub fn finish<A: EffectiveAction + ?Sized>(
+    action: &mut A,
+    data: &DualData,
+    dual: DualSolution,
+    (start, coarse_stage): (DualStart, Option<CoarseStage>),
+    dispersion: bool,
+) -> Result<Solution> {
+    let with_dispersion = dispersion && dual.status.is_success();
     let (history, sd, sd_kind, history_failure) =
         match history_at(action, data, &dual.lambda, with_dispersion)? {
             Ok((history, sd, kind)) => (history, sd, kind, None),
@@ -328,6 +376,9 @@ pub struct DualDetails {
     /// For a `numerical-failure`: where and why the last sweep that failed failed.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sweep_failure: Option<String>,
+    /// A closure's quadrature check, on nodes that can be refined.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub quadrature: Option<QuadratureCheck>,
 }
 
 impl Solution {
@@ -352,6 +403,7 @@ impl Solution {
             sd: self.sd_kind,
             history_failure: self.history_failure,
             sweep_failure: self.sweep_failure.clone(),
+            quadrature: None,
         }
     }
 }

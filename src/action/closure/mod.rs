@@ -44,9 +44,11 @@ use crate::model::Sde;
 use crate::{Error, Result};
 
 use super::continuation::BranchRule;
-use super::dual::{DualData, DualOptions, EffectiveAction};
+use super::dual::DualSolution;
+use super::dual::{DualData, DualOptions, EffectiveAction, History};
 use super::exact::gaussian_dual_data;
-use super::mean_optimal::{self, DualStart, Plan};
+use super::mean_optimal::{self, CoarseStage, DualStart, Plan, QuadratureCheck};
+use crate::Status;
 
 /// How a closure's sweep failed (a numerical outcome): where and why, in words for the report
 /// ([`EffectiveAction::last_failure`]).
@@ -90,6 +92,26 @@ pub trait ClosureFamily: Serialize + DeserializeOwned + Default + Clone + Debug 
         &self,
         problem: &EstimationProblem<'a, S, StateMeasurement>,
     ) -> Result<FamilySetup<Self::Drift<'a, S>>>;
+
+    /// The family on finer nodes, to check an estimate's quadrature against and to solve on
+    /// when the check fails ([`closure_estimate`]); `None` (the default) for a family whose
+    /// expectations are not refined, or when no further refinement is allowed.
+    fn refined(&self) -> Option<Refinement<Self>> {
+        None
+    }
+}
+
+/// A finer quadrature of a family's expectations ([`ClosureFamily::refined`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Refinement<F> {
+    /// The family on the finer nodes.
+    pub finer: F,
+    /// The largest shift of a state's mean, at the estimate's multipliers, from the nodes to the
+    /// finer nodes that the check accepts, in standard deviations of the state under the
+    /// closure's density.
+    pub tolerance: f64,
+    /// The nodes and the finer nodes, as written in reports (`12 panels`, `18 panels`).
+    pub nodes: (String, String),
 }
 
 /// A family's drift on a model with its start (see [`ClosureFamily::setup`]).
@@ -371,9 +393,18 @@ pub fn closure_action<'a, S: Sde + ?Sized, F: ClosureFamily>(
     closure: &Closure<F>,
 ) -> Result<ClosureAction<F::Drift<'a, S>>> {
     common_checks(problem, closure)?;
-    let setup = closure.family.setup(problem)?;
-    let outs = output_times(problem.t0, &problem.data.times, &closure.options)?;
-    let tolerances = SweepTolerances { rtol: closure.options.rtol, atol: closure.options.atol };
+    action_of(problem, &closure.family, &closure.options)
+}
+
+/// The [`ClosureAction`] of `family` with `options` on a checked problem.
+fn action_of<'a, S: Sde + ?Sized, F: ClosureFamily>(
+    problem: &EstimationProblem<'a, S, StateMeasurement>,
+    family: &F,
+    options: &ClosureOptions,
+) -> Result<ClosureAction<F::Drift<'a, S>>> {
+    let setup = family.setup(problem)?;
+    let outs = output_times(problem.t0, &problem.data.times, options)?;
+    let tolerances = SweepTolerances { rtol: options.rtol, atol: options.atol };
     ClosureAction::try_new(
         setup.drift,
         problem.t0,
@@ -423,32 +454,122 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
     let start = Instant::now();
     common_checks(problem, closure)?;
     let data = gaussian_dual_data(problem)?;
-    let mut action = closure_action(problem, closure)?;
     let options = &closure.options;
+    let mut family = closure.family.clone();
+    let mut action = action_of(problem, &family, options)?;
+    let plan = dual_plan(&data, options);
+    let (dual, from) = solve_dual(&mut action, &data, &plan, options.branch, None)?;
+    let mut sol = mean_optimal::finish(&mut action, &data, dual, from, options.dispersion)?;
+    let mut work = (0, 0);
+    let mut check = None;
+    while let Some(refinement) = family.refined() {
+        let mut finer = action_of(problem, &refinement.finer, options)?;
+        let (nodes, finer_nodes) = refinement.nodes;
+        let refinements = check.as_ref().map_or(0, |c: &QuadratureCheck| c.refinements);
+        let shift = match sol.status {
+            s if s.is_success() => Some(mean_shift(&sol.history, &mut finer, &sol.dual.lambda)?),
+            Status::NumericalFailure => None,
+            _ => break,
+        };
+        let accepted = matches!(shift, Some(Some(s)) if s <= refinement.tolerance);
+        check = Some(QuadratureCheck {
+            nodes: if accepted { nodes } else { finer_nodes.clone() },
+            checked_on: Some(finer_nodes),
+            shift: shift.flatten(),
+            tolerance: refinement.tolerance,
+            refinements: refinements + usize::from(!accepted),
+        });
+        if accepted {
+            add_work(&mut work, finer.work());
+            break;
+        }
+        // The coarser solution is the start on the finer nodes when there is one.
+        let warm = shift.is_some().then(|| sol.dual.lambda.clone());
+        let (mut dual, from) = solve_dual(&mut finer, &data, &plan, options.branch, warm)?;
+        dual.iterations += sol.dual.iterations;
+        dual.evaluations += sol.dual.evaluations;
+        sol = mean_optimal::finish(&mut finer, &data, dual, from, options.dispersion)?;
+        add_work(&mut work, action.work());
+        (family, action) = (refinement.finer, finer);
+    }
+    add_work(&mut work, action.work());
+    let mut details = sol.details(Some(family.describe()), Some(work), &plan);
+    details.quadrature = check;
+    Ok(dual_path_estimate(problem, F::METHOD, sol, details, start))
+}
+
+/// The dual's plan of a closure: two stages (inexact Newton, the sweeps' accuracy matched to the
+/// distance from the optimum) when a coarser tolerance than `rtol` exists, a retry from λ = 0;
+/// the dispersion is [`mean_optimal::finish`]'s.
+fn dual_plan(data: &DualData, options: &ClosureOptions) -> Plan {
     let (rtol, atol) = (options.rtol, options.atol);
-    let fine = fine_dual_options(&data, rtol, atol, options);
-    // Two stages (inexact Newton, the sweeps' accuracy matched to the distance from the
-    // optimum) when a coarser tolerance exists; the filter start runs with the coarse sweeps.
     let coarse_rtol = (COARSE_FACTOR * rtol).min(COARSE_RTOL);
     let coarse = (coarse_rtol > rtol).then_some((coarse_rtol, atol * coarse_rtol / rtol));
-    if let Some((c_rtol, c_atol)) = coarse {
-        action.set_tolerances(c_rtol, c_atol)?;
-    }
-    let plan = Plan {
-        dual: fine,
+    Plan {
+        dual: fine_dual_options(data, rtol, atol, options),
         stages: coarse.map(|c| (c, (rtol, atol))),
         retry_from_zero: true,
-        dispersion: options.dispersion,
-    };
-    let sol = match options.branch {
-        BranchRule::Continuation => mean_optimal::solve_on_branch(&mut action, &data, &plan)?,
-        BranchRule::Filter => {
-            let begin = dual_start(&mut action, &data)?;
-            mean_optimal::solve(&mut action, &data, begin, &plan)?
+        dispersion: false,
+    }
+}
+
+/// The dual's solution on `action` by `branch`, from `warm` (a solution on coarser nodes) when
+/// given, else from the closure's filter; with where it started and its coarse stage.
+fn solve_dual<D: ClosureDrift>(
+    action: &mut ClosureAction<D>,
+    data: &DualData,
+    plan: &Plan,
+    branch: BranchRule,
+    warm: Option<Vec<f64>>,
+) -> Result<(DualSolution, (DualStart, Option<CoarseStage>))> {
+    // The filter start runs with the first stage's coarse sweeps.
+    if let Some(((rtol, atol), _)) = plan.stages {
+        action.set_tolerances(rtol, atol)?;
+    }
+    match (branch, warm) {
+        (BranchRule::Continuation, _) => {
+            let sol = mean_optimal::solve_on_branch(action, data, plan)?;
+            Ok((sol.dual, (sol.start, sol.coarse_stage)))
         }
-    };
-    let details = sol.details(Some(closure.family.describe()), action.work(), &plan);
-    Ok(dual_path_estimate(problem, F::METHOD, sol, details, start))
+        (BranchRule::Filter, Some(lambda)) => {
+            mean_optimal::solve_dual(action, data, (lambda, DualStart::Coarser), plan)
+        }
+        (BranchRule::Filter, None) => {
+            let begin = dual_start(action, data)?;
+            mean_optimal::solve_dual(action, data, begin, plan)
+        }
+    }
+}
+
+/// The largest shift of a state's mean over the output times from `history` (at λ) to
+/// `finer`'s history at λ, in units of the state's typical standard deviation on the path (the
+/// root mean square over the output times of `finer`'s √variance, negative values taken as 0:
+/// a mean-optimal history's variance is not that of a density and may vanish); `None` when
+/// `finer`'s sweep fails.
+fn mean_shift<D: ClosureDrift>(
+    history: &History,
+    finer: &mut ClosureAction<D>,
+    lambda: &[f64],
+) -> Result<Option<f64>> {
+    let Ok(fine) = finer.history(lambda, false)? else { return Ok(None) };
+    let n = fine.mean.first().map_or(0, Vec::len);
+    let times = fine.variance.len().max(1) as f64;
+    let shift = (0..n)
+        .map(|i| {
+            let scale = (fine.variance.iter().map(|v| v[i].max(0.0)).sum::<f64>() / times).sqrt();
+            let moved =
+                history.mean.iter().zip(&fine.mean).map(|(a, b)| (a[i] - b[i]).abs()).fold(0.0, f64::max);
+            moved / scale.max(f64::MIN_POSITIVE)
+        })
+        .fold(0.0, f64::max);
+    Ok(Some(shift))
+}
+
+fn add_work(total: &mut (usize, usize), work: Option<(usize, usize)>) {
+    if let Some((sweeps, steps)) = work {
+        total.0 += sweeps;
+        total.1 += steps;
+    }
 }
 
 /// The [`PathEstimate`] of a dual closure from its solution: the history as the path with the

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use super::gaussian_prior;
 use super::tensor::{Order, TensorPlan, TensorWork};
-use crate::action::closure::{ClosureFamily, FamilySetup};
+use crate::action::closure::{ClosureFamily, FamilySetup, Refinement};
 use crate::estimate::{EstimationProblem, Method};
 use crate::model::observation::StateMeasurement;
 use crate::model::prior::Prior;
@@ -933,6 +933,16 @@ pub struct ExponentialFamily {
     /// on a grid that follows the density (`density`, with `density_panels`, `density_width`
     /// and `density_tolerance`).
     pub nodes: NodeRule,
+    /// On the box: how many times its panels may grow by half (⌈1.5 P⌉) when the quadrature
+    /// check fails. After the dual converges on P panels, the history at its multipliers is
+    /// computed again on ⌈1.5 P⌉; if a state's mean moves by more than `refine_tolerance` of its
+    /// standard deviation, or the sweeps failed on P, the estimate is solved again on the finer
+    /// box (from the coarser solution), and checked again while refinements remain. Default 2;
+    /// 0 turns the check off.
+    pub refine: usize,
+    /// The quadrature check's tolerance: the largest shift of a state's mean from P to ⌈1.5 P⌉
+    /// panels, in standard deviations of the state under the closure's density. Default 0.01.
+    pub refine_tolerance: f64,
     /// Nodes that follow the density: the panels × 8 Gauss–Legendre points per axis the
     /// refinement starts from. Default 3 (24 per axis, 576 nodes in 2-D).
     pub density_panels: usize,
@@ -979,6 +989,8 @@ impl Default for ExponentialFamily {
             domain: Vec::new(),
             panels: 12,
             nodes: NodeRule::Box,
+            refine: 2,
+            refine_tolerance: 0.01,
             density_panels: 3,
             density_width: 6.0,
             density_tolerance: 1e-4,
@@ -1016,6 +1028,12 @@ impl ExponentialFamily {
         self
     }
 
+    /// Sets how many times the box may be refined by the quadrature check (0: no check).
+    pub fn with_refine(mut self, refine: usize) -> Self {
+        self.refine = refine;
+        self
+    }
+
     /// Whether the nodes follow the density.
     fn follows_density(&self) -> bool {
         self.nodes == NodeRule::Density
@@ -1040,6 +1058,12 @@ impl ClosureFamily for ExponentialFamily {
         if self.panels == 0 {
             return Err(Error::invalid("panels", "must be at least 1, got 0"));
         }
+        if !(self.refine_tolerance > 0.0 && self.refine_tolerance.is_finite()) {
+            return Err(Error::invalid(
+                "refine_tolerance",
+                format!("must be positive and finite, got {}", self.refine_tolerance),
+            ));
+        }
         if self.density_panels == 0 || self.density_panels > MAX_DENSITY_PANELS / 2 {
             return Err(Error::invalid(
                 "density_panels",
@@ -1062,6 +1086,17 @@ impl ClosureFamily for ExponentialFamily {
             Some((a, b)) => Err(Error::invalid("domain", format!("need finite a < b, got [{a}, {b}]"))),
             None => Ok(()),
         }
+    }
+
+    /// The box with ⌈1.5 P⌉ panels and one refinement fewer, while any remain.
+    fn refined(&self) -> Option<Refinement<Self>> {
+        if self.follows_density() || self.refine == 0 {
+            return None;
+        }
+        let panels = (3 * self.panels).div_ceil(2);
+        let finer = ExponentialFamily { panels, refine: self.refine - 1, ..self.clone() };
+        let nodes = (format!("{} panels", self.panels), format!("{panels} panels"));
+        Some(Refinement { finer, tolerance: self.refine_tolerance, nodes })
     }
 
     fn setup<'a, S: Sde + ?Sized>(
