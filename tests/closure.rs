@@ -792,11 +792,18 @@ fn the_quadrature_check_refines_a_box_that_does_not_resolve_the_density() {
         off(&unchecked),
         off(&checked)
     );
-    // 2 panels: the sweeps fail; checked, the estimate is solved afresh on 3, then 5 panels.
-    assert_eq!(run(quartic().with_panels(2).with_refine(0)).status, Status::NumericalFailure);
-    let rescued = run(quartic().with_panels(2));
+    // 3 panels: the sweeps fail; checked, the estimate is solved afresh once, on 5 panels,
+    // which converge, move by more than the tolerance on 8 and are refined to 8. 4 panels fail,
+    // and so do 6: a failure is retried once only.
+    assert_eq!(run(quartic().with_panels(3).with_refine(0)).status, Status::NumericalFailure);
+    let rescued = run(quartic().with_panels(3));
     assert_eq!(rescued.status, Status::Converged);
-    assert_eq!(check(&rescued, "nodes"), "5 panels");
+    assert_eq!(check(&rescued, "nodes"), "8 panels");
+    assert_eq!(check(&rescued, "refinements"), 2);
+    let failed = run(quartic().with_panels(4));
+    assert_eq!(failed.status, Status::NumericalFailure);
+    assert_eq!(check(&failed, "nodes"), "6 panels");
+    assert_eq!(check(&failed, "refinements"), 1);
     // The default 12 panels resolve this density: checked on 18, kept, the same path.
     let default = run(quartic());
     assert_eq!(check(&default, "refinements"), 0);

@@ -466,9 +466,12 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
         let mut finer = action_of(problem, &refinement.finer, options)?;
         let (nodes, finer_nodes) = refinement.nodes;
         let refinements = check.as_ref().map_or(0, |c: &QuadratureCheck| c.refinements);
+        // A failed estimate is retried once, on the first finer box, and not on a branch
+        // (whose failures are folds and saddles, not the nodes).
+        let retry = refinements == 0 && options.branch == BranchRule::Filter;
         let shift = match sol.status {
             s if s.is_success() => Some(mean_shift(&sol.history, &mut finer, &sol.dual.lambda)?),
-            Status::NumericalFailure => None,
+            Status::NumericalFailure if retry => None,
             _ => break,
         };
         let accepted = matches!(shift, Some(Some(s)) if s <= refinement.tolerance);
