@@ -74,18 +74,17 @@ pub struct CoarseStage {
     pub rtol: f64,
 }
 
-/// The quadrature check of a closure estimate on refinable nodes ([`crate::action::closure::closure_estimate`]), in
-/// the report's details.
+/// The quadrature check of a closure estimate on refinable nodes, in the report's details
+/// ([`crate::action::closure::closure_estimate`]).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct QuadratureCheck {
     /// The nodes of the estimate.
     pub nodes: String,
-    /// The finer nodes of the last check, when one was made.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub checked_on: Option<String>,
-    /// The largest shift of a state's mean on those finer nodes at the estimate's multipliers,
-    /// in standard deviations of the state (`None` when no check was made or the finer nodes'
-    /// sweep failed).
+    /// The finer nodes of the last check.
+    pub checked_on: String,
+    /// The largest shift of a state's mean from the coarser to the finer nodes of the last
+    /// check, at the coarser estimate's multipliers, in units of the state's typical standard
+    /// deviation on the path (`None` when a sweep failed on either).
     pub shift: Option<f64>,
     /// The check's tolerance.
     pub tolerance: f64,

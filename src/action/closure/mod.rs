@@ -107,8 +107,8 @@ pub struct Refinement<F> {
     /// The family on the finer nodes.
     pub finer: F,
     /// The largest shift of a state's mean, at the estimate's multipliers, from the nodes to the
-    /// finer nodes that the check accepts, in standard deviations of the state under the
-    /// closure's density.
+    /// finer nodes that the check accepts, in units of the state's typical standard deviation
+    /// on the path (the root mean square over the output times).
     pub tolerance: f64,
     /// The nodes and the finer nodes, as written in reports (`12 panels`, `18 panels`).
     pub nodes: (String, String),
@@ -477,7 +477,7 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
         let accepted = matches!(shift, Some(Some(s)) if s <= refinement.tolerance);
         check = Some(QuadratureCheck {
             nodes: if accepted { nodes } else { finer_nodes.clone() },
-            checked_on: Some(finer_nodes),
+            checked_on: finer_nodes,
             shift: shift.flatten(),
             tolerance: refinement.tolerance,
             refinements: refinements + usize::from(!accepted),
