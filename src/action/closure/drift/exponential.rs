@@ -936,13 +936,14 @@ pub struct ExponentialFamily {
     /// On the box: how many times its panels may grow by half (⌈1.5 P⌉) when the quadrature
     /// check fails. After the dual converges on P panels, the history at its multipliers is
     /// computed again on ⌈1.5 P⌉; if a state's mean moves by more than `refine_tolerance` of its
-    /// standard deviation, the estimate is solved again on the finer box (from the coarser
-    /// solution), and checked again while refinements remain. An estimate that fails
+    /// typical standard deviation on the path, the estimate is solved again on the finer box
+    /// (from the coarser solution), and checked again while refinements remain. An estimate that fails
     /// (`numerical-failure`) on the first box is solved afresh once on the next. Default 2; 0
     /// turns the check off.
     pub refine: usize,
     /// The quadrature check's tolerance: the largest shift of a state's mean from P to ⌈1.5 P⌉
-    /// panels, in standard deviations of the state under the closure's density. Default 0.01.
+    /// panels, in units of the state's typical standard deviation on the path (the root mean
+    /// square over the output times of the closure's history). Default 0.01.
     pub refine_tolerance: f64,
     /// Nodes that follow the density: the panels × 8 Gauss–Legendre points per axis the
     /// refinement starts from. Default 3 (24 per axis, 576 nodes in 2-D).
