@@ -461,26 +461,28 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
     let (dual, from) = solve_dual(&mut action, &data, &plan, options.branch, None)?;
     let mut sol = mean_optimal::finish(&mut action, &data, dual, from, options.dispersion)?;
     let mut work = (0, 0);
-    let mut check = None;
+    let (mut check, mut refinements) = (None, 0);
     while let Some(refinement) = family.refined() {
+        // A converged estimate is checked; a failed one is retried once, on the first finer
+        // box, and not on a branch (whose failures are folds and saddles, not the nodes).
+        let converged = sol.status.is_success();
+        let retry = sol.status == Status::NumericalFailure
+            && refinements == 0
+            && options.branch == BranchRule::Filter;
+        if !(converged || retry) {
+            break;
+        }
         let mut finer = action_of(problem, &refinement.finer, options)?;
-        let (nodes, finer_nodes) = refinement.nodes;
-        let refinements = check.as_ref().map_or(0, |c: &QuadratureCheck| c.refinements);
-        // A failed estimate is retried once, on the first finer box, and not on a branch
-        // (whose failures are folds and saddles, not the nodes).
-        let retry = refinements == 0 && options.branch == BranchRule::Filter;
-        let shift = match sol.status {
-            s if s.is_success() => Some(mean_shift(&sol.history, &mut finer, &sol.dual.lambda)?),
-            Status::NumericalFailure if retry => None,
-            _ => break,
-        };
+        let shift = converged.then(|| mean_shift(&sol.history, &mut finer, &sol.dual.lambda)).transpose()?;
         let accepted = matches!(shift, Some(Some(s)) if s <= refinement.tolerance);
+        refinements += usize::from(!accepted);
+        let (nodes, finer_nodes) = refinement.nodes;
         check = Some(QuadratureCheck {
             nodes: if accepted { nodes } else { finer_nodes.clone() },
             checked_on: finer_nodes,
             shift: shift.flatten(),
             tolerance: refinement.tolerance,
-            refinements: refinements + usize::from(!accepted),
+            refinements,
         });
         if accepted {
             add_work(&mut work, finer.work());
