@@ -191,6 +191,14 @@ fn area_closure_estimates_the_double_well_and_refuses_what_it_cannot_take() {
     let run = Estimator::new(Method::AreaClosure).run(&rec.problem()).unwrap();
     assert!(run.estimate.status.is_success(), "{:?}", run.estimate.status);
     assert!(run.estimate.path.values.iter().all(|v| v[0].is_finite()));
+    // A box that does not cover the data: an error naming the datum, not a truncated estimate.
+    let narrow = AreaClosure::default().with_domain(-0.5, 0.5);
+    let err = Estimator::AreaClosure(narrow).run(&rec.problem()).unwrap_err();
+    assert!(
+        matches!(err, onsager::Error::InvalidOption { .. })
+            && err.to_string().contains("the box [-0.5, 0.5] of state `x` does not cover the datum y = "),
+        "{err}"
+    );
     // Two states: not applicable, with the reason.
     let p = onsager::model::library::preset("lorenz63").unwrap();
     let data = onsager::data::Dataset { names: vec![], times: vec![], values: vec![] };

@@ -45,7 +45,7 @@ use nalgebra::DMatrix;
 use onsager_closures::{Exponential, Polynomial, Reference};
 
 use super::drift::{gaussian_prior, ClosureDrift, ExponentialDrift};
-use super::{invalid, output_times, ClosureOptions, FailureAt};
+use super::{check_box_covers_data, default_domain, invalid, output_times, ClosureOptions, FailureAt};
 use crate::action::continuation::BranchRule;
 use crate::action::dual::{
     ActionValue, DualData, DualOptions, EffectiveAction, History, SweepFailure, Swept,
@@ -78,7 +78,9 @@ pub enum JumpRule {
 #[non_exhaustive]
 pub struct AreaClosure {
     /// Support [a, b] of the family (its quadrature box); `None`: the range of the data and of
-    /// the initial prior (mean ± 5 sd), widened by half its width plus 1 on each side.
+    /// the initial prior (mean ± 5 sd), widened by half its width plus 1 on each side. It must
+    /// cover every datum ([`Error::InvalidOption`](crate::Error) otherwise): the family is
+    /// truncated to it.
     pub domain: Option<(f64, f64)>,
     /// Gauss–Legendre panels (8 points each) on the box. Default 12.
     pub panels: usize,
@@ -762,18 +764,6 @@ impl<S: Sde + ?Sized> EffectiveAction for AreaAction<'_, S> {
     }
 }
 
-/// The support of the family (see [`AreaClosure::domain`]).
-fn default_domain(values: &[f64], mean: f64, var: f64) -> (f64, f64) {
-    let sd = var.sqrt();
-    let (mut a, mut b) = (mean - 5.0 * sd, mean + 5.0 * sd);
-    for &v in values.iter().filter(|v| v.is_finite()) {
-        a = a.min(v);
-        b = b.max(v);
-    }
-    let w = b - a;
-    (a - 0.5 * w - 1.0, b + 0.5 * w + 1.0)
-}
-
 /// The area-rule closure's [`AreaAction`] for a problem with Z = x (the measured state), as
 /// [`area_estimate`] builds it. θ(t₀) matches the mean of the Gaussian x0 prior (the family's
 /// variance at that mean is the reference's, not the prior's).
@@ -809,6 +799,7 @@ pub fn area_action<'a, S: Sde + ?Sized>(
     let (m0, v0) = gaussian_prior(&problem.x0_prior[0], &problem.sde.state_names()[0])?;
     let values: Vec<f64> = problem.data.values.iter().map(|row| row[0]).collect();
     let domain = options.domain.unwrap_or_else(|| default_domain(&values, m0, v0));
+    check_box_covers_data(problem, &[domain])?;
     let family = ScalarArea::try_new(problem.sde, problem.theta, problem.t0, domain, options.panels, |x| x)?
         .with_jumps(options.jumps, options.jump_steps);
     let theta0 = family.theta_of_mean(m0).map_err(|_| {

@@ -300,6 +300,45 @@ fn invalid(name: &str, reason: impl Into<String>) -> Error {
     Error::InvalidOption { name: name.into(), reason: reason.into() }
 }
 
+/// The default support [a, b] of a family on a box, for one state: the range of its data
+/// `values` (non-finite ones skipped) and of its prior mean ± 5 sd, widened by half its width
+/// plus 1 on each side (the `domain` option of the exponential and area-rule closures).
+pub(crate) fn default_domain(values: &[f64], mean: f64, var: f64) -> (f64, f64) {
+    let sd = var.sqrt();
+    let (mut a, mut b) = (mean - 5.0 * sd, mean + 5.0 * sd);
+    for &v in values.iter().filter(|v| v.is_finite()) {
+        a = a.min(v);
+        b = b.max(v);
+    }
+    let w = b - a;
+    (a - 0.5 * w - 1.0, b + 0.5 * w + 1.0)
+}
+
+/// Checks that the box `domain` (one interval per state) covers every datum of a measured
+/// state: a family on the box is truncated to it, so a datum outside would be explained by a
+/// density that cannot reach it. Error ([`Error::InvalidOption`] `domain`): the first datum
+/// outside, its state and the box.
+pub(crate) fn check_box_covers_data<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    domain: &[(f64, f64)],
+) -> Result<()> {
+    let inside = |state: usize, y: f64| domain.get(state).is_none_or(|&(a, b)| (a..=b).contains(&y));
+    match problem.observation.first_datum_outside(problem.data, inside) {
+        Some((state, datum)) => {
+            let (a, b) = domain[state];
+            Err(invalid(
+                "domain",
+                format!(
+                    "the box [{a}, {b}] of state `{}` does not cover the datum {datum}: the box truncates the \
+                     density to it; widen `domain`",
+                    problem.sde.state_names()[state]
+                ),
+            ))
+        }
+        None => Ok(()),
+    }
+}
+
 /// The output grid t0 + kΔ up to the last measurement (and the extra times, none before t0).
 fn output_times(t0: f64, data_times: &[f64], options: &ClosureOptions) -> Result<Vec<f64>> {
     if let Some(&t) = options.extra_times.iter().find(|&&t| t < t0) {

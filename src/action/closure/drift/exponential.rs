@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use super::gaussian_prior;
 use super::tensor::{Order, TensorPlan, TensorWork};
-use crate::action::closure::{ClosureFamily, FamilySetup, Refinement};
+use crate::action::closure::{check_box_covers_data, default_domain, ClosureFamily, FamilySetup, Refinement};
 use crate::estimate::{EstimationProblem, Method};
 use crate::model::observation::StateMeasurement;
 use crate::model::prior::Prior;
@@ -1120,18 +1120,6 @@ impl ClosureFamily for ExponentialFamily {
     }
 }
 
-/// The support of the exponential family (see [`ClosureOptions::domain`]).
-fn default_domain(values: &[f64], mean: f64, var: f64) -> (f64, f64) {
-    let sd = var.sqrt();
-    let (mut a, mut b) = (mean - 5.0 * sd, mean + 5.0 * sd);
-    for &v in values.iter().filter(|v| v.is_finite()) {
-        a = a.min(v);
-        b = b.max(v);
-    }
-    let w = b - a;
-    (a - 0.5 * w - 1.0, b + 0.5 * w + 1.0)
-}
-
 fn exponential_setup<'a, S: Sde + ?Sized>(
     problem: &EstimationProblem<'a, S, StateMeasurement>,
     options: &ExponentialFamily,
@@ -1177,18 +1165,7 @@ fn exponential_setup<'a, S: Sde + ?Sized>(
         domain.push(options.domain.get(i).copied().unwrap_or_else(|| default_domain(&values, m0, v0)));
     }
     if !options.follows_density() {
-        let inside = |state: usize, y: f64| domain.get(state).is_none_or(|&(a, b)| (a..=b).contains(&y));
-        if let Some((state, datum)) = problem.observation.first_datum_outside(problem.data, inside) {
-            let (a, b) = domain[state];
-            return Err(Error::invalid(
-                "domain",
-                format!(
-                    "the box [{a}, {b}] of state `{}` does not cover the datum {datum}: the box truncates \
-                     the density to it; widen `domain`",
-                    names[state]
-                ),
-            ));
-        }
+        check_box_covers_data(problem, &domain)?;
     }
     let follow = options.follows_density().then_some(DensityNodes {
         degree: degree as u32,
