@@ -191,6 +191,10 @@ fn area_closure_estimates_the_double_well_and_refuses_what_it_cannot_take() {
     let run = Estimator::new(Method::AreaClosure).run(&rec.problem()).unwrap();
     assert!(run.estimate.status.is_success(), "{:?}", run.estimate.status);
     assert!(run.estimate.path.values.iter().all(|v| v[0].is_finite()));
+    // The default box is reported: the data and the prior mean ± 5 sd, widened.
+    let domain = &run.estimate.details["domain"][0];
+    let (a, b) = (domain[0].as_f64().unwrap(), domain[1].as_f64().unwrap());
+    assert!(rec.data.values.iter().all(|y| (a + 1.0..=b - 1.0).contains(&y[0])), "[{a}, {b}]");
     // A box that does not cover the data: an error naming the datum, not a truncated estimate.
     let narrow = AreaClosure::default().with_domain(-0.5, 0.5);
     let err = Estimator::AreaClosure(narrow).run(&rec.problem()).unwrap_err();

@@ -786,6 +786,11 @@ fn the_quadrature_check_refines_a_box_that_does_not_resolve_the_density() {
     assert_eq!(check(&checked, "checked_on"), "12 panels");
     assert_eq!(check(&checked, "refinements"), 1);
     assert!(check(&checked, "shift").as_f64().unwrap() <= 0.01);
+    // The box (the default `domain`) is reported, one interval per state; it covers the data.
+    let domain = &checked.details["domain"];
+    let (a, b) = (domain[0][0].as_f64().unwrap(), domain[0][1].as_f64().unwrap());
+    assert_eq!(domain.as_array().map(Vec::len), Some(1));
+    assert!(problem.data.values.iter().all(|y| (a..=b).contains(&y[0])), "[{a}, {b}]");
     assert!(
         off(&unchecked) > 0.01 && off(&checked) < 0.1 * off(&unchecked),
         "{} {}",

@@ -378,6 +378,10 @@ pub struct DualDetails {
     /// A closure's quadrature check, on nodes that can be refined.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub quadrature: Option<QuadratureCheck>,
+    /// The box a closure's family is truncated to, one interval [a, b] per state (its `domain`,
+    /// given or default), for a family on a fixed box.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub domain: Option<Vec<(f64, f64)>>,
 }
 
 impl Solution {
@@ -403,6 +407,7 @@ impl Solution {
             history_failure: self.history_failure,
             sweep_failure: self.sweep_failure.clone(),
             quadrature: None,
+            domain: None,
         }
     }
 }

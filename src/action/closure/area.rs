@@ -227,6 +227,7 @@ pub struct ScalarArea<'a, S: Sde + ?Sized> {
     z_nodes: Vec<f64>,
     jumps: JumpRule,
     jump_steps: usize,
+    domain: (f64, f64),
 }
 
 impl<S: Sde + ?Sized> std::fmt::Debug for ScalarArea<'_, S> {
@@ -322,7 +323,12 @@ impl<'a, S: Sde + ?Sized> ScalarArea<'a, S> {
             return Err(invalid("measured function", format!("Z is not finite at x = {x}")));
         }
         let drift = ExponentialDrift::try_new(sde, theta, family.clone())?;
-        Ok(ScalarArea { drift, family, nodes, z_nodes, jumps: JumpRule::Explicit, jump_steps: 32 })
+        Ok(ScalarArea { drift, family, nodes, z_nodes, jumps: JumpRule::Explicit, jump_steps: 32, domain })
+    }
+
+    /// The support [a, b] of the family (its box).
+    pub fn domain(&self) -> (f64, f64) {
+        self.domain
     }
 
     /// Sets the jump rule and the Runge–Kutta steps of an area-rule jump.
@@ -835,7 +841,8 @@ pub fn area_estimate<S: Sde + ?Sized>(
             mean_optimal::solve(&mut action, &data, begin, &plan)?
         }
     };
-    let details = sol.details(Some(describe(options)), action.work(), &plan);
+    let mut details = sol.details(Some(describe(options)), action.work(), &plan);
+    details.domain = Some(vec![action.family().domain()]);
     Ok(super::dual_path_estimate(problem, Method::AreaClosure, sol, details, start))
 }
 

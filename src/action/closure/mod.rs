@@ -539,6 +539,7 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
     add_work(&mut work, action.work());
     let mut details = sol.details(Some(family.describe()), Some(work), &plan);
     details.quadrature = check;
+    details.domain = action.drift().support();
     Ok(dual_path_estimate(problem, F::METHOD, sol, details, start))
 }
 

@@ -46,6 +46,8 @@ pub struct ExponentialDrift<'a, S: Sde + ?Sized> {
     /// not read t ([`Sde::drift_is_autonomous`]): evaluated at the first evaluation of the raw
     /// moment sums, then reused.
     box_drift: std::cell::OnceCell<Vec<f64>>,
+    /// The box the family is truncated to, per state, when it is known ([`ClosureDrift::support`]).
+    support: Option<Vec<(f64, f64)>>,
 }
 
 /// The nodes of an [`ExponentialDrift`]: the family on them and its node tables. The hot loops
@@ -176,7 +178,15 @@ impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
             square,
             work: Default::default(),
             box_drift: Default::default(),
+            support: None,
         })
+    }
+
+    /// The same closure, recording that its family is truncated to the box `domain` (one
+    /// interval per state), for [`ClosureDrift::support`].
+    pub fn on_box(mut self, domain: Vec<(f64, f64)>) -> Self {
+        self.support = Some(domain);
+        self
     }
 
     /// The family on the current nodes (for nodes that follow the density, those of the last
@@ -806,6 +816,10 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
 }
 
 impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
+    fn support(&self) -> Option<Vec<(f64, f64)>> {
+        self.support.clone()
+    }
+
     fn n_params(&self) -> usize {
         self.n_moments
     }
@@ -1221,7 +1235,7 @@ fn exponential_setup<'a, S: Sde + ?Sized>(
         Some(f) => {
             ExponentialDrift::following(problem.sde, problem.theta, family, (frame_mean, frame_chol), f)?
         }
-        None => ExponentialDrift::try_new(problem.sde, problem.theta, family)?,
+        None => ExponentialDrift::try_new(problem.sde, problem.theta, family)?.on_box(domain),
     };
     Ok((drift, lambda0))
 }

@@ -70,6 +70,13 @@ pub trait ClosureDrift {
     /// The dimension of the state x of the family.
     fn state_dim(&self) -> usize;
 
+    /// The box the family's densities are truncated to, one interval per state, if they are
+    /// (an exponential family on a fixed box); `None` for a support of all of Rⁿ or one that is
+    /// not known.
+    fn support(&self) -> Option<Vec<(f64, f64)>> {
+        None
+    }
+
     /// W(λ, t) into `out`.
     fn w(&self, t: f64, lambda: &[f64], out: &mut [f64]) -> std::result::Result<(), Unrealizable>;
 
