@@ -785,6 +785,7 @@ fn the_quadrature_check_refines_a_box_that_does_not_resolve_the_density() {
     assert_eq!(check(&checked, "nodes"), "8 panels");
     assert_eq!(check(&checked, "checked_on"), "12 panels");
     assert_eq!(check(&checked, "refinements"), 1);
+    assert_eq!(check(&checked, "accepted"), true);
     assert!(check(&checked, "shift").as_f64().unwrap() <= 0.01);
     // The box (the default `domain`) is reported, one interval per state; it covers the data.
     let domain = &checked.details["domain"];
@@ -805,14 +806,19 @@ fn the_quadrature_check_refines_a_box_that_does_not_resolve_the_density() {
     assert_eq!(rescued.status, Status::Converged);
     assert_eq!(check(&rescued, "nodes"), "8 panels");
     assert_eq!(check(&rescued, "refinements"), 2);
+    // The refinements ran out: the estimate on 8 panels is not checked, and the report says so.
+    assert_eq!(check(&rescued, "accepted"), false);
     let failed = run(quartic().with_panels(4));
     assert_eq!(failed.status, Status::NumericalFailure);
     assert_eq!(check(&failed, "nodes"), "6 panels");
     assert_eq!(check(&failed, "refinements"), 1);
-    // The default 12 panels resolve this density: checked on 18, kept, the same path.
+    assert_eq!(check(&failed, "accepted"), false);
+    // The default 12 panels resolve this density: checked on 18, kept, the same path. (The
+    // check's sweeps run at rtol 10⁻⁴: their error, not the nodes', is most of this shift.)
     let default = run(quartic());
     assert_eq!(check(&default, "refinements"), 0);
-    assert!(check(&default, "shift").as_f64().unwrap() < 1e-4);
+    assert_eq!(check(&default, "accepted"), true);
+    assert!(check(&default, "shift").as_f64().unwrap() < 1e-3, "{}", check(&default, "shift"));
     assert_eq!(default.path.values, run(quartic().with_refine(0)).path.values);
     // The tolerance must be positive.
     let mut bad = quartic();

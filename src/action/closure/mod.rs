@@ -370,6 +370,10 @@ const COARSE_FACTOR: f64 = 100.0;
 /// ... but at a relative tolerance of at most this (at 10⁻³ the step-size noise in F defeats the
 /// line search on the double-well duals).
 const COARSE_RTOL: f64 = 1e-4;
+/// The quadrature check's sweeps run at a relative tolerance of at most this fraction of the
+/// check's tolerance (and at most [`COARSE_RTOL`], at least the estimate's `rtol`): their error
+/// then moves the means by far less than the shift the check looks for.
+const CHECK_RTOL_FRACTION: f64 = 1e-2;
 /// The dual's residual, in measurement units, may stop at this fraction of the sweeps'
 /// accuracy ([`ClosureOptions::dual_matched_to_sweeps`]).
 const SWEEP_MATCH: f64 = 0.1;
@@ -512,7 +516,10 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
             break;
         }
         let mut finer = action_of(problem, &refinement.finer, options)?;
+        let rtol = (CHECK_RTOL_FRACTION * refinement.tolerance).min(COARSE_RTOL).max(options.rtol);
+        finer.set_tolerances(rtol, options.atol * rtol / options.rtol)?;
         let shift = converged.then(|| mean_shift(&sol.history, &mut finer, &sol.dual.lambda)).transpose()?;
+        finer.set_tolerances(options.rtol, options.atol)?;
         let accepted = matches!(shift, Some(Some(s)) if s <= refinement.tolerance);
         refinements += usize::from(!accepted);
         let (nodes, finer_nodes) = refinement.nodes;
@@ -522,6 +529,7 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
             shift: shift.flatten(),
             tolerance: refinement.tolerance,
             refinements,
+            accepted,
         });
         if accepted {
             add_work(&mut work, finer.work());
