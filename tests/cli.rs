@@ -276,6 +276,12 @@ fn messages_name_what_the_user_typed() {
     let dir = scratch("messages");
     let (code, _, err) = run(&["simulate", "--t-end", "5", "--seed", "3", "--out", "w.csv"], &dir);
     assert_eq!(code, 0, "{err}");
+    // An exponential closure on a box says which box and whether the quadrature check kept it.
+    let (code, out, err) =
+        run(&["estimate", "--data", "w.csv", "--method", "exp-closure", "--out", "e.csv"], &dir);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("  box (domain): x [-4.2863, 2.8589]"), "{out}");
+    assert!(out.contains("  quadrature: 12 panels (checked on 18 panels: shift "), "{out}");
     // A tiny sampling interval is refused before the times are allocated (it was a panic).
     for every in ["1e-300", "1e-8"] {
         let (code, _, err) = run(&["simulate", "--sample-every", every, "--out", "tiny.csv"], &dir);

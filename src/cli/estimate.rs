@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 
+use onsager::action::mean_optimal::DualDetails;
 use onsager::action::GridSpec;
 use onsager::data::Dataset;
 use onsager::estimate::{EstimationProblem, PathEstimate};
@@ -252,6 +253,33 @@ pub fn run(args: &EstimateArgs) -> Result<bool> {
     Ok(est.status.is_success())
 }
 
+/// A closure on a fixed box: the box per state, and the quadrature check's verdict.
+fn print_closure_box(est: &PathEstimate, states: &[String]) {
+    let Some(details) = est.details.get::<DualDetails>() else { return };
+    if let Some(domain) = &details.domain {
+        let boxes: Vec<String> =
+            states.iter().zip(domain).map(|(name, (a, b))| format!("{name} [{a:.4}, {b:.4}]")).collect();
+        outln!("  box (domain): {}", boxes.join(", "));
+    }
+    let Some(q) = &details.quadrature else { return };
+    if !est.status.is_success() {
+        outln!("  quadrature: {} after {} refinement(s)", q.nodes, q.refinements);
+    } else if q.accepted {
+        let shift = q.shift.map_or(String::new(), |s| format!(": shift {s:.2e}"));
+        outln!("  quadrature: {} (checked on {}{shift}, tolerance {})", q.nodes, q.checked_on, q.tolerance);
+    } else {
+        let why = match q.shift {
+            Some(s) => format!("the last moved the means by {s:.2e}, tolerance {}", q.tolerance),
+            None => "a sweep failed on the coarser nodes or in the check".to_string(),
+        };
+        outln!(
+            "  quadrature: {}, not checked: the refinements ran out ({}; {why}); raise `refine` or `panels`",
+            q.nodes,
+            q.refinements
+        );
+    }
+}
+
 fn print_summary(est: &PathEstimate, problem: &CliProblem<'_>) {
     outln!(
         "method {}: status {}, {} iterations, solve {:.3} s",
@@ -265,6 +293,7 @@ fn print_summary(est: &PathEstimate, problem: &CliProblem<'_>) {
             outln!("  {}: {why}", key.replace('_', " "));
         }
     }
+    print_closure_box(est, &problem.sde.state_names());
     let names = problem.sde.param_names();
     for (k, &i) in est.estimated.iter().enumerate() {
         let sd = est.theta_sd.as_ref().map_or(String::new(), |sd| format!(" ± {:.4}", sd[k]));
