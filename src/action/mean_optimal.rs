@@ -90,9 +90,9 @@ pub struct QuadratureCheck {
     pub tolerance: f64,
     /// How many times the nodes were refined.
     pub refinements: usize,
-    /// Whether the estimate's own nodes passed the check (`nodes` is not `checked_on`); false
-    /// when the refinements allowed ran out, so that the estimate on the last, finer nodes is
-    /// not checked, or when the estimate failed.
+    /// Whether the estimate's own nodes (`nodes`) passed the check on the finer `checked_on`;
+    /// false when the refinements allowed ran out, so that the estimate on the last nodes is not
+    /// checked, or when the estimate failed.
     pub accepted: bool,
 }
 
