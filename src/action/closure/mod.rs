@@ -516,10 +516,9 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
             break;
         }
         let mut finer = action_of(problem, &refinement.finer, options)?;
-        let rtol = (CHECK_RTOL_FRACTION * refinement.tolerance).min(COARSE_RTOL).max(options.rtol);
-        finer.set_tolerances(rtol, options.atol * rtol / options.rtol)?;
-        let shift = converged.then(|| mean_shift(&sol.history, &mut finer, &sol.dual.lambda)).transpose()?;
-        finer.set_tolerances(options.rtol, options.atol)?;
+        let shift = converged
+            .then(|| mean_shift(&sol.history, &mut finer, &sol.dual.lambda, refinement.tolerance, options))
+            .transpose()?;
         let accepted = matches!(shift, Some(Some(s)) if s <= refinement.tolerance);
         refinements += usize::from(!accepted);
         let (nodes, finer_nodes) = refinement.nodes;
@@ -557,7 +556,7 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
 fn dual_plan(data: &DualData, options: &ClosureOptions) -> Plan {
     let (rtol, atol) = (options.rtol, options.atol);
     let coarse_rtol = (COARSE_FACTOR * rtol).min(COARSE_RTOL);
-    let coarse = (coarse_rtol > rtol).then_some((coarse_rtol, atol * coarse_rtol / rtol));
+    let coarse = (coarse_rtol > rtol).then_some(scaled_tolerances(options, coarse_rtol));
     Plan {
         dual: fine_dual_options(data, rtol, atol, options),
         stages: coarse.map(|c| (c, (rtol, atol))),
@@ -594,17 +593,30 @@ fn solve_dual<D: ClosureDrift>(
     }
 }
 
+/// (rtol, atol) of `options` with rtol replaced by `rtol` and atol scaled with it.
+fn scaled_tolerances(options: &ClosureOptions, rtol: f64) -> (f64, f64) {
+    (rtol, options.atol * rtol / options.rtol)
+}
+
 /// The largest shift of a state's mean over the output times from `history` (at λ) to
 /// `finer`'s history at λ, in units of the state's typical standard deviation on the path (the
 /// root mean square over the output times of `finer`'s √variance, negative values taken as 0:
 /// a mean-optimal history's variance is not that of a density and may vanish); `None` when
-/// `finer`'s sweep fails.
+/// `finer`'s sweep fails. The sweeps run at rtol = [`CHECK_RTOL_FRACTION`] · `tolerance` (at
+/// most [`COARSE_RTOL`], at least `options.rtol`); `finer` is left at `options`' tolerances.
 fn mean_shift<D: ClosureDrift>(
     history: &History,
     finer: &mut ClosureAction<D>,
     lambda: &[f64],
+    tolerance: f64,
+    options: &ClosureOptions,
 ) -> Result<Option<f64>> {
-    let Ok(fine) = finer.history(lambda, false)? else { return Ok(None) };
+    let (rtol, atol) =
+        scaled_tolerances(options, (CHECK_RTOL_FRACTION * tolerance).min(COARSE_RTOL).max(options.rtol));
+    finer.set_tolerances(rtol, atol)?;
+    let swept = finer.history(lambda, false);
+    finer.set_tolerances(options.rtol, options.atol)?;
+    let Ok(fine) = swept? else { return Ok(None) };
     let n = fine.mean.first().map_or(0, Vec::len);
     let times = fine.variance.len().max(1) as f64;
     let shift = (0..n)
