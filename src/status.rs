@@ -45,11 +45,17 @@ pub enum Status {
     /// the estimate is not to be trusted. A note names the axis and the time; give a wider
     /// `--grid`.
     GridEdge,
+    /// A closure's quadrature nodes did not resolve its density: the estimate's nodes failed the
+    /// quadrature check (on finer nodes the means moved by more than its tolerance, or the
+    /// sweeps failed) and the refinements allowed ran out, so the estimate on the last nodes is
+    /// not verified. The report's `quadrature` details give the shift; raise `refine` or
+    /// `panels`.
+    Unresolved,
 }
 
 impl Status {
     /// Every status.
-    pub const ALL: [Status; 11] = [
+    pub const ALL: [Status; 12] = [
         Status::Converged,
         Status::Acceptable,
         Status::MaxIterations,
@@ -61,6 +67,7 @@ impl Status {
         Status::UserStop,
         Status::Degenerate,
         Status::GridEdge,
+        Status::Unresolved,
     ];
 
     /// Whether the result can be used as a converged one.
@@ -95,6 +102,10 @@ impl Status {
                 "the density of a grid estimator reaches the grid's edge, so the estimate is cut off; \
                  widen `--grid`"
             }
+            Status::Unresolved => {
+                "a closure's nodes did not resolve its density (finer nodes moved the estimate by more than the \
+                 check's tolerance and the refinements ran out); raise `refine` or `panels`"
+            }
         }
     }
 
@@ -119,6 +130,7 @@ impl Status {
             Status::UserStop => "user-stop",
             Status::Degenerate => "degenerate",
             Status::GridEdge => "grid-edge",
+            Status::Unresolved => "unresolved",
         }
     }
 }
@@ -141,6 +153,15 @@ mod tests {
             let line =
                 Status::glossary().lines().find(|l| l.trim_start().starts_with(s.name())).map(String::from);
             assert!(line.unwrap().ends_with(s.description()), "{s} in the glossary");
+        }
+    }
+
+    #[test]
+    fn the_readme_defines_every_status() {
+        let readme = include_str!("../README.md");
+        for s in Status::ALL {
+            let row = format!("| `{}` | {} |", s.name(), s.description());
+            assert!(readme.contains(&row), "README.md lacks the row {row}");
         }
     }
 }

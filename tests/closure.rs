@@ -803,11 +803,15 @@ fn the_quadrature_check_refines_a_box_that_does_not_resolve_the_density() {
     // and so do 6: a failure is retried once only.
     assert_eq!(run(quartic().with_panels(3).with_refine(0)).status, Status::NumericalFailure);
     let rescued = run(quartic().with_panels(3));
-    assert_eq!(rescued.status, Status::Converged);
     assert_eq!(check(&rescued, "nodes"), "8 panels");
     assert_eq!(check(&rescued, "refinements"), 2);
-    // The refinements ran out: the estimate on 8 panels is not checked, and the report says so.
+    // The refinements ran out: the estimate on 8 panels is not checked, and the report and the
+    // status say so; one more refinement checks it and lets it stand.
     assert_eq!(check(&rescued, "accepted"), false);
+    assert_eq!(rescued.status, Status::Unresolved);
+    let verified = run(quartic().with_panels(3).with_refine(3));
+    assert_eq!((verified.status, check(&verified, "accepted")), (Status::Converged, true.into()));
+    assert_eq!(verified.path.values, rescued.path.values);
     let failed = run(quartic().with_panels(4));
     assert_eq!(failed.status, Status::NumericalFailure);
     assert_eq!(check(&failed, "nodes"), "6 panels");

@@ -489,7 +489,8 @@ fn common_checks<S: Sde + ?Sized, F: ClosureFamily>(
 /// Errors ([`Error::InvalidOption`] unless noted): a non-Gaussian likelihood or prior, parameters
 /// to estimate, invalid options, a model the family cannot take (the exponential closure on more
 /// than two states). Non-convergence of the dual, or sweeps that leave the moment space, are
-/// the estimate's [`Status`](crate::Status).
+/// the estimate's [`Status`](crate::Status); so is a converged estimate on nodes that did not
+/// pass the quadrature check when no refinement was left ([`Status::Unresolved`]).
 pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
     closure: &Closure<F>,
@@ -544,6 +545,10 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
         (family, action) = (refinement.finer, finer);
     }
     add_work(&mut work, action.work());
+    // An estimate on nodes that did not pass the check is not labelled converged.
+    if sol.status.is_success() && check.as_ref().is_some_and(|c| !c.accepted) {
+        sol.status = Status::Unresolved;
+    }
     let mut details = sol.details(Some(family.describe()), Some(work), &plan);
     details.quadrature = check;
     details.domain = action.drift().support();
