@@ -41,9 +41,11 @@ pub enum Status {
     /// note names the parameter and the reason.
     Degenerate,
     /// The estimate's density reaches the edge of the grid of an exact grid method (more than
-    /// 10⁻³ of its mass in the outer cells at some time): the grid cuts the density off and
-    /// the estimate is not to be trusted. A note names the axis and the time; give a wider
-    /// `--grid`.
+    /// 10⁻³ of its mass in the outer cells at some time), or of the box of a closure on a box
+    /// (more than 10⁻³ of its mass near an end of an axis, and a wider box moves the means
+    /// beyond the check's tolerance after the widenings allowed): the grid cuts the density off
+    /// and the estimate is not to be trusted. A note or the report's `edge` names the axis and
+    /// the time; give a wider `--grid` (a closure's `domain`).
     GridEdge,
     /// A closure's quadrature nodes did not resolve its density: the estimate's nodes failed the
     /// quadrature check (on finer nodes the means moved by more than its tolerance, or the
@@ -99,8 +101,8 @@ impl Status {
                  name it"
             }
             Status::GridEdge => {
-                "the density of a grid estimator reaches the grid's edge, so the estimate is cut off; \
-                 widen `--grid`"
+                "the density of a grid estimator reaches the grid's edge (or that of a closure its box's), so \
+                 the estimate is cut off; widen `--grid` (a closure's `domain`)"
             }
             Status::Unresolved => {
                 "a closure's nodes did not resolve its density (finer nodes moved the estimate by more than the \

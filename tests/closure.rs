@@ -761,6 +761,47 @@ fn gaussian_closure_estimate_is_repeatable_and_smooth_in_one_datum() {
 }
 
 #[test]
+fn a_box_that_cuts_the_density_off_is_widened_or_reported() {
+    // The quartic closure on a double-well record, on a box just wider than the data's range:
+    // the density has more than 10⁻³ of its mass within 2 % of the box's width from an end. The
+    // box is widened (a quarter of its width at each end) and the estimate solved again, until
+    // a wider box no longer moves the means; with `widen = 0` the estimate is `grid-edge`.
+    let case = double_well_case(5, 20.0);
+    let problem = case.problem();
+    let options = ClosureOptions::new().with_dispersion(false);
+    let run = |family: ExponentialFamily| {
+        Estimator::ExpClosure(Closure::new(family, options.clone())).run(&problem).unwrap().estimate
+    };
+    let (lo, hi) = problem
+        .data
+        .values
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| (a.min(y[0]), b.max(y[0])));
+    let tight = || ExponentialFamily::of_degree(4).with_domain(&[(lo - 0.05, hi + 0.05)]);
+    let default = run(ExponentialFamily::of_degree(4));
+    let kept = run(tight().with_widen(0));
+    let widened = run(tight());
+    let detail = |e: &PathEstimate, key: &str| e.details[key].clone();
+    eprintln!(
+        "tight box: {}, {} from the default box; widened: {}, {}",
+        detail(&kept, "edge"),
+        sup_diff(&kept.path.values, &default.path.values),
+        detail(&widened, "widenings"),
+        sup_diff(&widened.path.values, &default.path.values)
+    );
+    assert_eq!(kept.status, Status::GridEdge);
+    assert!(detail(&kept, "edge")["mass"].as_f64().unwrap() > 1e-3);
+    // 3.6·10⁻³ from the default box's estimate; widened once, 4·10⁻⁶.
+    assert!(sup_diff(&kept.path.values, &default.path.values) > 1e-3);
+    assert!(widened.status.is_success(), "{}", widened.status);
+    assert!(detail(&widened, "widenings").as_u64().unwrap() >= 1);
+    assert!(sup_diff(&widened.path.values, &default.path.values) < 1e-4);
+    // The default box is wide enough: no edge, or one that a wider box shows not to matter.
+    assert_eq!(default.status, Status::Converged);
+    assert!(!default.details.contains_key("widenings"));
+}
+
+#[test]
 fn the_quadrature_check_refines_a_box_that_does_not_resolve_the_density() {
     // The quartic closure on a double-well record, on boxes of P panels, against 24 panels. After
     // the dual converges on P, the history at its multipliers is recomputed on ⌈1.5 P⌉ panels;

@@ -386,6 +386,25 @@ pub struct DualDetails {
     /// given or default), for a family on a fixed box.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub domain: Option<Vec<(f64, f64)>>,
+    /// For a closure on a box: where its density reaches the box's edge (more than
+    /// [`EDGE_MASS`](crate::action::exact::EDGE_MASS) of its mass near an end of an axis at
+    /// some time, on the sweep of the history), if it does; the status is then `grid-edge`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub edge: Option<crate::action::exact::GridEdge>,
+    /// For a closure on a box whose density reaches its edge: the largest shift of a state's
+    /// mean on the box with that axis widened, at the estimate's multipliers (as
+    /// [`QuadratureCheck::shift`]), when it is within the check's tolerance (the estimate
+    /// stands, the status is not `grid-edge`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub edge_shift: Option<f64>,
+    /// For a closure on a box: how many times the box was widened because the density reached
+    /// its edge (`widen`).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub widenings: usize,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 impl Solution {
@@ -412,6 +431,9 @@ impl Solution {
             sweep_failure: self.sweep_failure.clone(),
             quadrature: None,
             domain: None,
+            edge: None,
+            edge_shift: None,
+            widenings: 0,
         }
     }
 }

@@ -14,7 +14,7 @@ use onsager::model::library::{Model, Preset};
 use onsager::model::observation::StateMeasurement;
 use onsager::model::Sde;
 use onsager::path::Transcription;
-use onsager::Result;
+use onsager::{Result, Status};
 
 use super::{create_parent, LimitArgs, ModelArgs};
 
@@ -261,12 +261,27 @@ fn print_closure_box(est: &PathEstimate, states: &[String]) {
             states.iter().zip(domain).map(|(name, (a, b))| format!("{name} [{a:.4}, {b:.4}]")).collect();
         outln!("  box (domain): {}", boxes.join(", "));
     }
+    if let Some(e) = &details.edge {
+        let verdict = match details.edge_shift {
+            Some(s) => format!("on a wider box the means move by {s:.2e}, within the tolerance: kept"),
+            None => "widen `domain` or raise `widen`".to_string(),
+        };
+        outln!(
+            "  box edge: {:.1e} of the density's mass near the edge of `{}` at t = {}; {verdict}",
+            e.mass,
+            states[e.axis],
+            e.time
+        );
+    }
+    if details.widenings > 0 {
+        outln!("  box widened {} time(s): the density reached its edge", details.widenings);
+    }
     let Some(q) = &details.quadrature else { return };
-    if !est.status.is_success() {
-        outln!("  quadrature: {} after {} refinement(s)", q.nodes, q.refinements);
-    } else if q.accepted {
+    if q.accepted {
         let shift = q.shift.map_or(String::new(), |s| format!(": shift {s:.2e}"));
         outln!("  quadrature: {} (checked on {}{shift}, tolerance {})", q.nodes, q.checked_on, q.tolerance);
+    } else if est.status != Status::Unresolved {
+        outln!("  quadrature: {} after {} refinement(s)", q.nodes, q.refinements);
     } else {
         let why = match q.shift {
             Some(s) => format!("the last moved the means by {s:.2e}, tolerance {}", q.tolerance),

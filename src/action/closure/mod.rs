@@ -46,7 +46,7 @@ use crate::{Error, Result};
 use super::continuation::BranchRule;
 use super::dual::DualSolution;
 use super::dual::{DualData, DualOptions, EffectiveAction, History};
-use super::exact::gaussian_dual_data;
+use super::exact::{gaussian_dual_data, GridEdge};
 use super::mean_optimal::{self, CoarseStage, DualStart, Plan, QuadratureCheck};
 use crate::Status;
 
@@ -97,6 +97,14 @@ pub trait ClosureFamily: Serialize + DeserializeOwned + Default + Clone + Debug 
     /// when the check fails ([`closure_estimate`]); `None` (the default) for a family whose
     /// expectations are not refined, or when no further refinement is allowed.
     fn refined(&self) -> Option<Refinement<Self>> {
+        None
+    }
+
+    /// The family on a wider box, to check the estimate against and to solve on when the
+    /// density reaches the edge of `support` (the box of the family's drift) as `edge` says
+    /// ([`closure_estimate`]), with the check's tolerance (as [`Refinement::tolerance`]); `None`
+    /// (the default) for a family without a box, or when no further widening is allowed.
+    fn widened(&self, _support: &[(f64, f64)], _edge: &GridEdge) -> Option<(Self, f64)> {
         None
     }
 }
@@ -489,8 +497,10 @@ fn common_checks<S: Sde + ?Sized, F: ClosureFamily>(
 /// Errors ([`Error::InvalidOption`] unless noted): a non-Gaussian likelihood or prior, parameters
 /// to estimate, invalid options, a model the family cannot take (the exponential closure on more
 /// than two states). Non-convergence of the dual, or sweeps that leave the moment space, are
-/// the estimate's [`Status`](crate::Status); so is a converged estimate on nodes that did not
-/// pass the quadrature check when no refinement was left ([`Status::Unresolved`]).
+/// the estimate's [`Status`](crate::Status); so is a converged estimate whose density reaches
+/// the edge of the family's box on the history's sweep ([`Status::GridEdge`],
+/// [`ClosureAction::box_edge`]) or on nodes that did not pass the quadrature check when no
+/// refinement was left ([`Status::Unresolved`]).
 pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
     closure: &Closure<F>,
@@ -499,16 +509,82 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
     common_checks(problem, closure)?;
     let data = gaussian_dual_data(problem)?;
     let options = &closure.options;
-    let mut family = closure.family.clone();
-    let mut action = action_of(problem, &family, options)?;
     let plan = dual_plan(&data, options);
-    let (dual, from) = solve_dual(&mut action, &data, &plan, options.branch, None)?;
-    let mut sol = mean_optimal::finish(&mut action, &data, dual, from, options.dispersion)?;
-    let mut work = (0, 0);
-    let (mut check, mut refinements) = (None, 0);
+    let (mut family, mut warm, mut widenings) = (closure.family.clone(), None, 0);
+    let (mut iterations, mut evaluations, mut work) = (0, 0, (0, 0));
+    let mut edge_shift = None;
+    let Checked { family, action, mut sol, check, edge, .. } = loop {
+        let mut checked = solve_checked(problem, family.clone(), &data, &plan, options, warm)?;
+        checked.sol.dual.iterations += iterations;
+        checked.sol.dual.evaluations += evaluations;
+        add_work(&mut work, Some(checked.work));
+        // Where the density reaches the box's edge, the history at the estimate's multipliers
+        // is computed again on a wider box (with the nodes that passed the quadrature check);
+        // if a mean moves by more than the tolerance, the estimate is solved again there from
+        // its solution, while the family allows it.
+        let wider = (checked.edge.as_ref())
+            .filter(|_| checked.sol.status.is_success())
+            .and_then(|e| checked.family.widened(&checked.action.drift().support()?, e));
+        let Some((wider, tolerance)) = wider else { break checked };
+        let mut wide = action_of(problem, &wider, options)?;
+        let shift =
+            mean_shift(&checked.sol.history, &mut wide, &checked.sol.dual.lambda, tolerance, options)?;
+        add_work(&mut work, wide.work());
+        edge_shift = shift.filter(|&s| s <= tolerance);
+        if edge_shift.is_some() {
+            break checked;
+        }
+        (iterations, evaluations) = (checked.sol.dual.iterations, checked.sol.dual.evaluations);
+        (family, warm, widenings) = (wider, Some(checked.sol.dual.lambda), widenings + 1);
+    };
+    // An estimate whose density the box cuts off (and moves the means), or on nodes that did
+    // not pass the check, is not labelled converged.
+    if sol.status.is_success() && edge.is_some() && edge_shift.is_none() {
+        sol.status = Status::GridEdge;
+    }
+    if sol.status.is_success() && check.as_ref().is_some_and(|c| !c.accepted) {
+        sol.status = Status::Unresolved;
+    }
+    let mut details = sol.details(Some(family.describe()), Some(work), &plan);
+    details.quadrature = check;
+    details.domain = action.drift().support();
+    details.edge = edge;
+    details.edge_shift = edge_shift;
+    details.widenings = widenings;
+    Ok(dual_path_estimate(problem, F::METHOD, sol, details, start))
+}
+
+/// A closure estimate on a family's nodes after the quadrature check: the family and action
+/// it ended on, the solution, the check, where the density reaches the box's edge, and the
+/// sweeps and steps of every action it took.
+struct Checked<'a, S: Sde + ?Sized + 'a, F: ClosureFamily> {
+    family: F,
+    action: ClosureAction<F::Drift<'a, S>>,
+    sol: mean_optimal::Solution,
+    check: Option<QuadratureCheck>,
+    edge: Option<GridEdge>,
+    work: (usize, usize),
+}
+
+/// The estimate on `family`'s nodes, from `warm` (a solution on another box) when given, else
+/// from the closure's filter; then the quadrature check: a converged estimate's history is
+/// computed again on the finer nodes of [`ClosureFamily::refined`] and, where it moves by more
+/// than the tolerance, the estimate is solved again there, while refinements remain. A failed
+/// estimate is retried once, on the first finer nodes, and not on a branch (whose failures are
+/// folds and saddles, not the nodes).
+fn solve_checked<'a, S: Sde + ?Sized, F: ClosureFamily>(
+    problem: &EstimationProblem<'a, S, StateMeasurement>,
+    mut family: F,
+    data: &DualData,
+    plan: &Plan,
+    options: &ClosureOptions,
+    warm: Option<Vec<f64>>,
+) -> Result<Checked<'a, S, F>> {
+    let mut action = action_of(problem, &family, options)?;
+    let (dual, from) = solve_dual(&mut action, data, plan, options.branch, warm)?;
+    let mut sol = mean_optimal::finish(&mut action, data, dual, from, options.dispersion)?;
+    let (mut check, mut refinements, mut work) = (None, 0, (0, 0));
     while let Some(refinement) = family.refined() {
-        // A converged estimate is checked; a failed one is retried once, on the first finer
-        // box, and not on a branch (whose failures are folds and saddles, not the nodes).
         let converged = sol.status.is_success();
         let retry = sol.status == Status::NumericalFailure
             && refinements == 0
@@ -537,22 +613,16 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
         }
         // The coarser solution is the start on the finer nodes when there is one.
         let warm = shift.is_some().then(|| sol.dual.lambda.clone());
-        let (mut dual, from) = solve_dual(&mut finer, &data, &plan, options.branch, warm)?;
+        let (mut dual, from) = solve_dual(&mut finer, data, plan, options.branch, warm)?;
         dual.iterations += sol.dual.iterations;
         dual.evaluations += sol.dual.evaluations;
-        sol = mean_optimal::finish(&mut finer, &data, dual, from, options.dispersion)?;
+        sol = mean_optimal::finish(&mut finer, data, dual, from, options.dispersion)?;
         add_work(&mut work, action.work());
         (family, action) = (refinement.finer, finer);
     }
     add_work(&mut work, action.work());
-    // An estimate on nodes that did not pass the check is not labelled converged.
-    if sol.status.is_success() && check.as_ref().is_some_and(|c| !c.accepted) {
-        sol.status = Status::Unresolved;
-    }
-    let mut details = sol.details(Some(family.describe()), Some(work), &plan);
-    details.quadrature = check;
-    details.domain = action.drift().support();
-    Ok(dual_path_estimate(problem, F::METHOD, sol, details, start))
+    let edge = action.box_edge();
+    Ok(Checked { family, action, sol, check, edge, work })
 }
 
 /// The dual's plan of a closure: two stages (inexact Newton, the sweeps' accuracy matched to the

@@ -33,6 +33,7 @@ use nalgebra::DMatrix;
 
 use super::FailureAt;
 use crate::action::dual::{ActionValue, DualData, EffectiveAction, History, SweepFailure as Failure, Swept};
+use crate::action::exact::{GridEdge, EDGE_MASS};
 use crate::{Error, Result};
 
 use super::drift::{ClosureDrift, Unrealizable};
@@ -279,6 +280,9 @@ struct Forward {
     cov: Vec<Vec<f64>>,
     /// F = Σ ΔF_k.
     f: f64,
+    /// On the history's sweeps, the largest [`ClosureDrift::edge_mass`] over the events (before
+    /// and after each jump), when the family has a box.
+    edge: Option<GridEdge>,
 }
 
 /// The stage derivatives of the accepted steps that the tangent sweeps need, indexed as
@@ -374,6 +378,8 @@ pub struct ClosureAction<D: ClosureDrift> {
     steps: usize,
     /// Where and why the last sweep that failed failed.
     last_failure: Option<String>,
+    /// [`Forward::edge`] of the last history sweep.
+    edge: Option<GridEdge>,
 }
 
 impl<D: ClosureDrift> std::fmt::Debug for ClosureAction<D> {
@@ -468,6 +474,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             sweeps: 0,
             steps: 0,
             last_failure: None,
+            edge: None,
         })
     }
 
@@ -726,6 +733,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             mu: Vec::with_capacity(ne),
             cov: Vec::with_capacity(ne),
             f: 0.0,
+            edge: None,
         };
         let mut y = self.lambda0.clone();
         let mut work = RkWork::new(y.len(), self.keep_hessians);
@@ -740,6 +748,17 @@ impl<D: ClosureDrift> ClosureAction<D> {
                 };
             }
         }
+        // The box's edge is weighed on the history's sweeps, before and after each jump.
+        let weigh_edge = |y: &[f64], time: f64, edge: &mut Option<GridEdge>| {
+            if !events.resolve_adjoint {
+                return;
+            }
+            if let Some((axis, mass)) = self.drift.edge_mass(y) {
+                if edge.is_none_or(|w| mass > w.mass) {
+                    *edge = Some(GridEdge { axis, time, mass });
+                }
+            }
+        };
         for (e, &next_measurement) in next.iter().enumerate() {
             if e > 0 {
                 let interval =
@@ -749,6 +768,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             }
             out.lambda_minus.push(y.clone());
             let te = events.times[e];
+            weigh_edge(&y, te, &mut out.edge);
             let mut m = self.drift.moments(&y).map_err(|why| FailureAt::at(te, why.0))?;
             if let Some(k) = events.meas[e] {
                 let before = m;
@@ -762,6 +782,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                     .moments(&y)
                     .map_err(|why| FailureAt::at(te, format!("after the jump, {}", why.0)))?;
                 out.f += m.log_partition - before.log_partition;
+                weigh_edge(&y, te, &mut out.edge);
                 out.mu_minus.push(before.mean);
                 out.cov_minus.push(before.covariance);
                 out.mu_plus.push(m.mean.clone());
@@ -896,6 +917,9 @@ impl<D: ClosureDrift> ClosureAction<D> {
         self.sweeps += 1;
         let fw = self.forward(events, lambda)?;
         self.steps += fw.steps.len();
+        if events.resolve_adjoint {
+            self.edge = fw.edge;
+        }
         let (g, derivs) = self.backward(events, &fw, second)?;
         Ok((fw, g, derivs))
     }
@@ -941,7 +965,12 @@ impl<D: ClosureDrift> ClosureAction<D> {
         };
         let (fw, g, derivs, restore) = match kept {
             Some((l, fw, g0)) => match self.backward(events, &fw, true) {
-                Ok((g, derivs)) => (fw, g, derivs, Some((l, g0))),
+                Ok((g, derivs)) => {
+                    if events.resolve_adjoint {
+                        self.edge = fw.edge;
+                    }
+                    (fw, g, derivs, Some((l, g0)))
+                }
                 Err(e) => {
                     self.cache = Some((l, fw, g0));
                     return Err(e);
@@ -1283,6 +1312,14 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let value = self.value(&events, lambda, false);
         let Some((fw, g, _)) = self.failed(value) else { return Ok(Err(Failure::Unrealizable)) };
         Ok(Ok(MomentPaths { m: Self::moments_at_events(&fw, &g), mu: fw.mu, times: events.times }))
+    }
+
+    /// Where the density of the last history sweep reaches the edge of the family's box: the
+    /// largest mass near an edge ([`ClosureDrift::edge_mass`]) at an output or measurement time
+    /// (before or after the jump), when it exceeds [`EDGE_MASS`]; `None` for a family without
+    /// a box or before any history sweep.
+    pub fn box_edge(&self) -> Option<GridEdge> {
+        self.edge.filter(|e| e.mass > EDGE_MASS)
     }
 
     /// The value of a sweep, or `None` with its failure kept as [`EffectiveAction::last_failure`].

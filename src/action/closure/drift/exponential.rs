@@ -3,13 +3,14 @@
 
 use onsager_closures::{cholesky_into, cholesky_solve_in_place, dot, frame_grid, Exponential, TrialFamily};
 
-use super::{diffusion_matrix, unrealizable, ClosureDrift, FamilyMoments, Unrealizable};
+use super::{diffusion_matrix, unrealizable, ClosureDrift, FamilyMoments, Unrealizable, EDGE_BAND};
 use onsager_closures::LegendreOptions;
 use serde::{Deserialize, Serialize};
 
 use super::gaussian_prior;
 use super::tensor::{Order, TensorPlan, TensorWork};
 use crate::action::closure::{check_box_covers_data, default_domain, ClosureFamily, FamilySetup, Refinement};
+use crate::action::exact::GridEdge;
 use crate::estimate::{EstimationProblem, Method};
 use crate::model::observation::StateMeasurement;
 use crate::model::prior::Prior;
@@ -820,6 +821,32 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
         self.support.clone()
     }
 
+    /// The node probabilities at λ summed over the nodes within [`EDGE_BAND`] of the box's
+    /// width from either end of each axis; `None` for nodes that follow the density, or where
+    /// the density is not normalizable at λ.
+    fn edge_mass(&self, lambda: &[f64]) -> Option<(usize, f64)> {
+        let support = self.support.as_ref()?;
+        let held = self.nodes.borrow();
+        if held.frame.is_some() {
+            return None;
+        }
+        let ExpWork { s, p_all, .. } = &mut *self.work.borrow_mut();
+        held.family.node_probabilities_into(lambda, s, p_all).ok()?;
+        let (n, points) = (support.len(), held.family.grid().points());
+        let mut worst: Option<(usize, f64)> = None;
+        for (axis, &(a, b)) in support.iter().enumerate() {
+            let band = EDGE_BAND * (b - a);
+            let mass: f64 = (p_all.iter().enumerate())
+                .filter(|&(k, _)| !(a + band..=b - band).contains(&points[k * n + axis]))
+                .map(|(_, &pk)| pk)
+                .sum();
+            if worst.is_none_or(|(_, m)| mass > m) {
+                worst = Some((axis, mass));
+            }
+        }
+        worst
+    }
+
     fn n_params(&self) -> usize {
         self.n_moments
     }
@@ -955,6 +982,15 @@ pub struct ExponentialFamily {
     /// (`numerical-failure`) on the first box is solved afresh once on the next. Default 2; 0
     /// turns the check off.
     pub refine: usize,
+    /// On the box: how many times an axis may widen when the density reaches its edge (more than
+    /// 10⁻³ of its mass within 2 % of the axis's width from an end, at an output or a
+    /// measurement time, on the history's sweep). The history at the estimate's multipliers is
+    /// computed again on the box with that axis grown by half its width (a quarter at each
+    /// end); if a state's mean moves there by more than `refine_tolerance`, the estimate is
+    /// solved again on the wider box from its solution (with the quadrature check), and so on.
+    /// Default 2; an estimate whose box still cuts the density off and moves the means after
+    /// the last, or with 0, ends `grid-edge`.
+    pub widen: usize,
     /// The quadrature check's tolerance: the largest shift of a state's mean from P to ⌈1.5 P⌉
     /// panels, in units of the state's typical standard deviation on the path (the root mean
     /// square over the output times of the closure's history). Default 0.01.
@@ -1006,6 +1042,7 @@ impl Default for ExponentialFamily {
             panels: 12,
             nodes: NodeRule::Box,
             refine: 2,
+            widen: 2,
             refine_tolerance: 0.01,
             density_panels: 3,
             density_width: 6.0,
@@ -1047,6 +1084,12 @@ impl ExponentialFamily {
     /// Sets how many times the box may be refined by the quadrature check (0: no check).
     pub fn with_refine(mut self, refine: usize) -> Self {
         self.refine = refine;
+        self
+    }
+
+    /// The same family with `widen` widenings of the box allowed ([`ExponentialFamily::widen`]).
+    pub fn with_widen(mut self, widen: usize) -> Self {
+        self.widen = widen;
         self
     }
 
@@ -1102,6 +1145,18 @@ impl ClosureFamily for ExponentialFamily {
             Some((a, b)) => Err(Error::invalid("domain", format!("need finite a < b, got [{a}, {b}]"))),
             None => Ok(()),
         }
+    }
+
+    /// The box with the axis of `edge` widened by half, a quarter at each end, and one widening
+    /// fewer, while any remain; checked to `refine_tolerance`.
+    fn widened(&self, support: &[(f64, f64)], edge: &GridEdge) -> Option<(Self, f64)> {
+        if self.follows_density() || self.widen == 0 {
+            return None;
+        }
+        let mut domain = support.to_vec();
+        let (a, b) = *domain.get(edge.axis)?;
+        domain[edge.axis] = (a - 0.25 * (b - a), b + 0.25 * (b - a));
+        Some((ExponentialFamily { domain, widen: self.widen - 1, ..self.clone() }, self.refine_tolerance))
     }
 
     /// The box with ⌈1.5 P⌉ panels and one refinement fewer, while any remain.
@@ -1262,6 +1317,32 @@ mod tests {
             let cw: f64 = (0..4).map(|b| c[(a as usize - 1) * 4 + b] * w[b]).sum();
             assert_relative_eq!(cw, v, epsilon = 1e-9, max_relative = 1e-9);
         }
+    }
+
+    #[test]
+    fn the_edge_mass_of_a_uniform_density_is_the_weight_of_the_outer_nodes() {
+        // λ = 0 on [−2, 2] (Lebesgue reference): the uniform density. Its mass within 2 % of the
+        // width of each end lies on the three outermost of the eight Gauss–Legendre points of the
+        // end panels (at 0.0199, 0.1017 and 0.2372 of a panel, 12 panels): the weights
+        // 0.1012285363, 0.2223810345, 0.3137066459 of the rule on [−1, 1] (Abramowitz & Stegun,
+        // Table 25.4), half of each per unit panel, 1/12 of the mass per panel, at both ends.
+        let grid = onsager_closures::panel_grid(&[(-2.0, 2.0)], 12, 8).unwrap();
+        let family = Exponential::polynomial(grid, onsager_closures::Reference::Lebesgue, 4).unwrap();
+        let drift = ExponentialDrift::try_new(&DoubleWell, &[0.5], family).unwrap().on_box(vec![(-2.0, 2.0)]);
+        let outer = (0.1012285363 + 0.2223810345 + 0.3137066459) / 2.0;
+        let (axis, mass) = drift.edge_mass(&[0.0; 4]).unwrap();
+        assert_eq!(axis, 0);
+        assert_relative_eq!(mass, 2.0 * outer / 12.0, max_relative = 1e-9);
+        // A density of sd 0.2 at 0 has next to none there (e^{−46} of its peak at the outermost
+        // nodes); without a box there is no edge.
+        let narrow = [0.0, -0.5 / 0.04, 0.0, 0.0];
+        assert!(drift.edge_mass(&narrow).unwrap().1 < 1e-15);
+        let grid = onsager_closures::panel_grid(&[(-2.0, 2.0)], 12, 8).unwrap();
+        let family = Exponential::polynomial(grid, onsager_closures::Reference::Lebesgue, 4).unwrap();
+        assert_eq!(
+            ExponentialDrift::try_new(&DoubleWell, &[0.5], family).unwrap().edge_mass(&[0.0; 4]),
+            None
+        );
     }
 
     #[test]

@@ -45,6 +45,12 @@ pub(crate) fn gaussian_prior(p: &Prior, state: &str) -> Result<(f64, f64)> {
     }
 }
 
+/// The band at each end of an axis of a closure's box, as a fraction of its width, in which
+/// [`ClosureDrift::edge_mass`] weighs the density: with eight Gauss–Legendre points per panel,
+/// it holds the outermost node for any number of panels and the three outermost at 12 (the
+/// exact grid weighs its outer 1 % of cells, [`crate::action::exact::EDGE_MASS`]).
+pub const EDGE_BAND: f64 = 0.02;
+
 /// Why W could not be evaluated at λ: the density is not normalizable or its moments are not
 /// realizable (a numerical outcome of a sweep, not misuse).
 #[derive(Debug, Clone, PartialEq)]
@@ -74,6 +80,13 @@ pub trait ClosureDrift {
     /// (an exponential family on a fixed box); `None` for a support of all of Rⁿ or one that is
     /// not known.
     fn support(&self) -> Option<Vec<(f64, f64)>> {
+        None
+    }
+
+    /// The largest mass of the density at λ near the edge of its box (within
+    /// [`EDGE_BAND`] of the box's width from either end of an axis), with that axis, for a
+    /// family truncated to a fixed box; `None` otherwise.
+    fn edge_mass(&self, _lambda: &[f64]) -> Option<(usize, f64)> {
         None
     }
 
