@@ -106,7 +106,8 @@ impl Status {
             }
             Status::Unresolved => {
                 "a closure's nodes did not resolve its density (finer nodes moved the estimate by more than the \
-                 check's tolerance and the refinements ran out); raise `refine` or `panels`"
+                 check's tolerance, or its sweeps failed on them, and the refinements ran out); raise `refine` or \
+                 `panels`"
             }
         }
     }

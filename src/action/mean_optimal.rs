@@ -37,6 +37,9 @@ pub enum DualStart {
     /// The solution on a closure's coarser nodes, whose quadrature moved the estimate
     /// ([`crate::action::closure::ClosureFamily::refined`]).
     Coarser,
+    /// The solution on a closure's narrower box, whose edge cut the density off and moved the
+    /// estimate ([`crate::action::closure::ClosureFamily::widened`]).
+    Narrower,
 }
 
 /// What the standard deviations of a mean-optimal estimate are.
@@ -388,13 +391,14 @@ pub struct DualDetails {
     pub domain: Option<Vec<(f64, f64)>>,
     /// For a closure on a box: where its density reaches the box's edge (more than
     /// [`EDGE_MASS`](crate::action::exact::EDGE_MASS) of its mass near an end of an axis at
-    /// some time, on the sweep of the history), if it does; the status is then `grid-edge`.
+    /// some time, on the sweep of the history), if it does. With `edge_shift` within the
+    /// tolerance the estimate stands; otherwise a converged estimate is `grid-edge`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub edge: Option<crate::action::exact::GridEdge>,
     /// For a closure on a box whose density reaches its edge: the largest shift of a state's
     /// mean on the box with that axis widened, at the estimate's multipliers (as
-    /// [`QuadratureCheck::shift`]), when it is within the check's tolerance (the estimate
-    /// stands, the status is not `grid-edge`).
+    /// [`QuadratureCheck::shift`]; `None` when that sweep failed). Within the quadrature check's
+    /// tolerance (`refine_tolerance`) the estimate stands.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub edge_shift: Option<f64>,
     /// For a closure on a box: how many times the box was widened because the density reached

@@ -253,7 +253,8 @@ pub fn run(args: &EstimateArgs) -> Result<bool> {
     Ok(est.status.is_success())
 }
 
-/// A closure on a fixed box: the box per state, and the quadrature check's verdict.
+/// A closure on a fixed box: the box per state, where its density reaches the box's edge and
+/// what a wider box showed, how many times it was widened, and the quadrature check's verdict.
 fn print_closure_box(est: &PathEstimate, states: &[String]) {
     let Some(details) = est.details.get::<DualDetails>() else { return };
     if let Some(domain) = &details.domain {
@@ -262,9 +263,13 @@ fn print_closure_box(est: &PathEstimate, states: &[String]) {
         outln!("  box (domain): {}", boxes.join(", "));
     }
     if let Some(e) = &details.edge {
-        let verdict = match details.edge_shift {
-            Some(s) => format!("on a wider box the means move by {s:.2e}, within the tolerance: kept"),
-            None => "widen `domain` or raise `widen`".to_string(),
+        let moved = |s: f64| format!("on a wider box the means move by {s:.2e}");
+        let verdict = match (est.status, details.edge_shift) {
+            (Status::GridEdge, Some(s)) => format!("{}; widen `domain` or raise `widen`", moved(s)),
+            (Status::GridEdge, None) => "widen `domain` or raise `widen`".to_string(),
+            (status, Some(s)) if status.is_success() => format!("{}, within the tolerance: kept", moved(s)),
+            (_, Some(s)) => moved(s),
+            (_, None) => "the wider box's sweep failed".to_string(),
         };
         outln!(
             "  box edge: {:.1e} of the density's mass near the edge of `{}` at t = {}; {verdict}",
@@ -280,7 +285,7 @@ fn print_closure_box(est: &PathEstimate, states: &[String]) {
     if q.accepted {
         let shift = q.shift.map_or(String::new(), |s| format!(": shift {s:.2e}"));
         outln!("  quadrature: {} (checked on {}{shift}, tolerance {})", q.nodes, q.checked_on, q.tolerance);
-    } else if est.status != Status::Unresolved {
+    } else if !matches!(est.status, Status::Unresolved | Status::GridEdge) {
         outln!("  quadrature: {} after {} refinement(s)", q.nodes, q.refinements);
     } else {
         let why = match q.shift {

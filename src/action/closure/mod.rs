@@ -100,11 +100,12 @@ pub trait ClosureFamily: Serialize + DeserializeOwned + Default + Clone + Debug 
         None
     }
 
-    /// The family on a wider box, to check the estimate against and to solve on when the
-    /// density reaches the edge of `support` (the box of the family's drift) as `edge` says
-    /// ([`closure_estimate`]), with the check's tolerance (as [`Refinement::tolerance`]); `None`
-    /// (the default) for a family without a box, or when no further widening is allowed.
-    fn widened(&self, _support: &[(f64, f64)], _edge: &GridEdge) -> Option<(Self, f64)> {
+    /// The family on a wider box, to check the estimate on these nodes against when its
+    /// density reaches the edge of `support` (the box of the family's drift) as `edge` says,
+    /// and to solve on if the means move ([`closure_estimate`]); `start` is the family the
+    /// estimate started from (the refinements and widenings it allows). `None` (the default)
+    /// for a family without a box.
+    fn widened(&self, _start: &Self, _support: &[(f64, f64)], _edge: &GridEdge) -> Option<Widening<Self>> {
         None
     }
 }
@@ -120,6 +121,22 @@ pub struct Refinement<F> {
     pub tolerance: f64,
     /// The nodes and the finer nodes, as written in reports (`12 panels`, `18 panels`).
     pub nodes: (String, String),
+}
+
+/// A wider box of a family's expectations ([`ClosureFamily::widened`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Widening<F> {
+    /// The family on the wider box with the estimate's last nodes, to check it on.
+    pub check: F,
+    /// The family on the wider box with the nodes, refinements and widenings (one fewer) the
+    /// estimate started with, to solve on.
+    pub wider: F,
+    /// The largest shift of a state's mean, at the estimate's multipliers, from the box to the
+    /// wider box that lets the estimate stand (as [`Refinement::tolerance`]).
+    pub tolerance: f64,
+    /// Whether the estimate may be solved again on the wider box when the means move by more
+    /// (a widening is left).
+    pub may_solve: bool,
 }
 
 /// A family's drift on a model with its start (see [`ClosureFamily::setup`]).
@@ -512,34 +529,47 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
     let plan = dual_plan(&data, options);
     let (mut family, mut warm, mut widenings) = (closure.family.clone(), None, 0);
     let (mut iterations, mut evaluations, mut work) = (0, 0, (0, 0));
-    let mut edge_shift = None;
-    let Checked { family, action, mut sol, check, edge, .. } = loop {
+    // The last estimate whose box cut its density off, with the shift of its means on a wider
+    // box (beyond the tolerance).
+    let mut cut: Option<(Checked<'_, S, F>, Option<f64>)> = None;
+    // The estimate, the shift of its means on a wider box, and whether that lets it stand.
+    let (Checked { family, action, mut sol, check, edge, .. }, edge_shift, kept) = loop {
         let mut checked = solve_checked(problem, family.clone(), &data, &plan, options, warm)?;
         checked.sol.dual.iterations += iterations;
         checked.sol.dual.evaluations += evaluations;
         add_work(&mut work, Some(checked.work));
+        // A wider box that fails falls back on the estimate whose box cut the density off.
+        if !checked.sol.status.is_success() {
+            let Some((mut last, shift)) = cut else { break (checked, None, false) };
+            last.sol.dual.iterations = checked.sol.dual.iterations;
+            last.sol.dual.evaluations = checked.sol.dual.evaluations;
+            break (last, shift, false);
+        }
         // Where the density reaches the box's edge, the history at the estimate's multipliers
-        // is computed again on a wider box (with the nodes that passed the quadrature check);
-        // if a mean moves by more than the tolerance, the estimate is solved again there from
-        // its solution, while the family allows it.
-        let wider = (checked.edge.as_ref())
-            .filter(|_| checked.sol.status.is_success())
-            .and_then(|e| checked.family.widened(&checked.action.drift().support()?, e));
-        let Some((wider, tolerance)) = wider else { break checked };
-        let mut wide = action_of(problem, &wider, options)?;
+        // is computed again on a wider box (on the estimate's last nodes); if a mean moves by
+        // more than the tolerance, the estimate is solved again on the wider box (on the nodes
+        // it started with) from its solution, while the family allows it.
+        let widening = (checked.edge.as_ref())
+            .and_then(|e| checked.family.widened(&family, &checked.action.drift().support()?, e));
+        let Some(Widening { check, wider, tolerance, may_solve }) = widening else {
+            break (checked, None, false);
+        };
+        let mut wide = action_of(problem, &check, options)?;
         let shift =
             mean_shift(&checked.sol.history, &mut wide, &checked.sol.dual.lambda, tolerance, options)?;
         add_work(&mut work, wide.work());
-        edge_shift = shift.filter(|&s| s <= tolerance);
-        if edge_shift.is_some() {
-            break checked;
+        let kept = shift.is_some_and(|s| s <= tolerance);
+        if kept || !may_solve {
+            break (checked, shift, kept);
         }
         (iterations, evaluations) = (checked.sol.dual.iterations, checked.sol.dual.evaluations);
-        (family, warm, widenings) = (wider, Some(checked.sol.dual.lambda), widenings + 1);
+        let narrower = (checked.sol.dual.lambda.clone(), DualStart::Narrower);
+        (family, warm, widenings) = (wider, Some(narrower), widenings + 1);
+        cut = Some((checked, shift));
     };
-    // An estimate whose density the box cuts off (and moves the means), or on nodes that did
-    // not pass the check, is not labelled converged.
-    if sol.status.is_success() && edge.is_some() && edge_shift.is_none() {
+    // An estimate whose box cuts the density off in a way that moves the means, or on nodes
+    // that did not pass the quadrature check, is not labelled converged.
+    if sol.status.is_success() && edge.is_some() && !kept {
         sol.status = Status::GridEdge;
     }
     if sol.status.is_success() && check.as_ref().is_some_and(|c| !c.accepted) {
@@ -566,7 +596,7 @@ struct Checked<'a, S: Sde + ?Sized + 'a, F: ClosureFamily> {
     work: (usize, usize),
 }
 
-/// The estimate on `family`'s nodes, from `warm` (a solution on another box) when given, else
+/// The estimate on `family`'s nodes, from `warm` (a solution on a narrower box) when given, else
 /// from the closure's filter; then the quadrature check: a converged estimate's history is
 /// computed again on the finer nodes of [`ClosureFamily::refined`] and, where it moves by more
 /// than the tolerance, the estimate is solved again there, while refinements remain. A failed
@@ -578,7 +608,7 @@ fn solve_checked<'a, S: Sde + ?Sized, F: ClosureFamily>(
     data: &DualData,
     plan: &Plan,
     options: &ClosureOptions,
-    warm: Option<Vec<f64>>,
+    warm: Option<(Vec<f64>, DualStart)>,
 ) -> Result<Checked<'a, S, F>> {
     let mut action = action_of(problem, &family, options)?;
     let (dual, from) = solve_dual(&mut action, data, plan, options.branch, warm)?;
@@ -612,7 +642,7 @@ fn solve_checked<'a, S: Sde + ?Sized, F: ClosureFamily>(
             break;
         }
         // The coarser solution is the start on the finer nodes when there is one.
-        let warm = shift.is_some().then(|| sol.dual.lambda.clone());
+        let warm = shift.is_some().then(|| (sol.dual.lambda.clone(), DualStart::Coarser));
         let (mut dual, from) = solve_dual(&mut finer, data, plan, options.branch, warm)?;
         dual.iterations += sol.dual.iterations;
         dual.evaluations += sol.dual.evaluations;
@@ -640,14 +670,14 @@ fn dual_plan(data: &DualData, options: &ClosureOptions) -> Plan {
     }
 }
 
-/// The dual's solution on `action` by `branch`, from `warm` (a solution on coarser nodes) when
+/// The dual's solution on `action` by `branch`, from `warm` (a solution on other nodes) when
 /// given, else from the closure's filter; with where it started and its coarse stage.
 fn solve_dual<D: ClosureDrift>(
     action: &mut ClosureAction<D>,
     data: &DualData,
     plan: &Plan,
     branch: BranchRule,
-    warm: Option<Vec<f64>>,
+    warm: Option<(Vec<f64>, DualStart)>,
 ) -> Result<(DualSolution, (DualStart, Option<CoarseStage>))> {
     // The filter start runs with the first stage's coarse sweeps.
     if let Some(((rtol, atol), _)) = plan.stages {
@@ -658,9 +688,7 @@ fn solve_dual<D: ClosureDrift>(
             let sol = mean_optimal::solve_on_branch(action, data, plan)?;
             Ok((sol.dual, (sol.start, sol.coarse_stage)))
         }
-        (BranchRule::Filter, Some(lambda)) => {
-            mean_optimal::solve_dual(action, data, (lambda, DualStart::Coarser), plan)
-        }
+        (BranchRule::Filter, Some(start)) => mean_optimal::solve_dual(action, data, start, plan),
         (BranchRule::Filter, None) => {
             let begin = dual_start(action, data)?;
             mean_optimal::solve_dual(action, data, begin, plan)

@@ -915,6 +915,9 @@ impl<D: ClosureDrift> ClosureAction<D> {
         second: bool,
     ) -> std::result::Result<(Forward, Vec<Vec<f64>>, StepDerivs), FailureAt> {
         self.sweeps += 1;
+        if events.resolve_adjoint {
+            self.edge = None;
+        }
         let fw = self.forward(events, lambda)?;
         self.steps += fw.steps.len();
         if events.resolve_adjoint {
@@ -965,12 +968,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         };
         let (fw, g, derivs, restore) = match kept {
             Some((l, fw, g0)) => match self.backward(events, &fw, true) {
-                Ok((g, derivs)) => {
-                    if events.resolve_adjoint {
-                        self.edge = fw.edge;
-                    }
-                    (fw, g, derivs, Some((l, g0)))
-                }
+                Ok((g, derivs)) => (fw, g, derivs, Some((l, g0))),
                 Err(e) => {
                     self.cache = Some((l, fw, g0));
                     return Err(e);

@@ -9,7 +9,9 @@ use serde::{Deserialize, Serialize};
 
 use super::gaussian_prior;
 use super::tensor::{Order, TensorPlan, TensorWork};
-use crate::action::closure::{check_box_covers_data, default_domain, ClosureFamily, FamilySetup, Refinement};
+use crate::action::closure::{
+    check_box_covers_data, default_domain, ClosureFamily, FamilySetup, Refinement, Widening,
+};
 use crate::action::exact::GridEdge;
 use crate::estimate::{EstimationProblem, Method};
 use crate::model::observation::StateMeasurement;
@@ -982,14 +984,15 @@ pub struct ExponentialFamily {
     /// (`numerical-failure`) on the first box is solved afresh once on the next. Default 2; 0
     /// turns the check off.
     pub refine: usize,
-    /// On the box: how many times an axis may widen when the density reaches its edge (more than
-    /// 10⁻³ of its mass within 2 % of the axis's width from an end, at an output or a
-    /// measurement time, on the history's sweep). The history at the estimate's multipliers is
-    /// computed again on the box with that axis grown by half its width (a quarter at each
-    /// end); if a state's mean moves there by more than `refine_tolerance`, the estimate is
-    /// solved again on the wider box from its solution (with the quadrature check), and so on.
-    /// Default 2; an estimate whose box still cuts the density off and moves the means after
-    /// the last, or with 0, ends `grid-edge`.
+    /// On the box: how many times the box may be widened (one axis each time) when the density
+    /// reaches its edge (more than 10⁻³ of its mass within 2 % of an axis's width from an end,
+    /// at an output or a measurement time, on the history's sweep). The history at the
+    /// estimate's multipliers is computed again on the box with that axis grown by half its
+    /// width (a quarter at each end); if a state's mean moves there by more than
+    /// `refine_tolerance`, the estimate is solved again on the wider box from its solution
+    /// (with the quadrature check and the refinements of `refine`), and so on. Default 2; an
+    /// estimate whose box cuts the density off and whose means move on the wider box, with no
+    /// widening left (or 0), ends `grid-edge`.
     pub widen: usize,
     /// The quadrature check's tolerance: the largest shift of a state's mean from P to ⌈1.5 P⌉
     /// panels, in units of the state's typical standard deviation on the path (the root mean
@@ -1147,16 +1150,19 @@ impl ClosureFamily for ExponentialFamily {
         }
     }
 
-    /// The box with the axis of `edge` widened by half, a quarter at each end, and one widening
-    /// fewer, while any remain; checked to `refine_tolerance`.
-    fn widened(&self, support: &[(f64, f64)], edge: &GridEdge) -> Option<(Self, f64)> {
-        if self.follows_density() || self.widen == 0 {
+    /// The box with the axis of `edge` widened by half, a quarter at each end: checked on these
+    /// panels to `refine_tolerance`, solved on the panels and refinements of `start` with one
+    /// widening fewer.
+    fn widened(&self, start: &Self, support: &[(f64, f64)], edge: &GridEdge) -> Option<Widening<Self>> {
+        if self.follows_density() {
             return None;
         }
         let mut domain = support.to_vec();
         let (a, b) = *domain.get(edge.axis)?;
         domain[edge.axis] = (a - 0.25 * (b - a), b + 0.25 * (b - a));
-        Some((ExponentialFamily { domain, widen: self.widen - 1, ..self.clone() }, self.refine_tolerance))
+        let check = ExponentialFamily { domain: domain.clone(), ..self.clone() };
+        let wider = ExponentialFamily { domain, widen: start.widen.saturating_sub(1), ..start.clone() };
+        Some(Widening { check, wider, tolerance: self.refine_tolerance, may_solve: start.widen > 0 })
     }
 
     /// The box with ⌈1.5 P⌉ panels and one refinement fewer, while any remain.
