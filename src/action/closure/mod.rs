@@ -515,9 +515,9 @@ fn common_checks<S: Sde + ?Sized, F: ClosureFamily>(
 /// to estimate, invalid options, a model the family cannot take (the exponential closure on more
 /// than two states). Non-convergence of the dual, or sweeps that leave the moment space, are
 /// the estimate's [`Status`](crate::Status); so is a converged estimate whose density reaches
-/// the edge of the family's box on the history's sweep ([`Status::GridEdge`],
-/// [`ClosureAction::box_edge`]) or on nodes that did not pass the quadrature check when no
-/// refinement was left ([`Status::Unresolved`]).
+/// the edge of the family's box on the history's sweep ([`ClosureAction::box_edge`]) where a
+/// wider box moves the means and no widening is left ([`Status::GridEdge`]), or on nodes that
+/// did not pass the quadrature check when no refinement was left ([`Status::Unresolved`]).
 pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
     closure: &Closure<F>,
