@@ -735,6 +735,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             f: 0.0,
             edge: None,
         };
+        self.drift.start_sweep();
         let mut y = self.lambda0.clone();
         let mut work = RkWork::new(y.len(), self.keep_hessians);
         // For the history's sweeps, the next measurement time at or after each event.

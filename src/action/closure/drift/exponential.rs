@@ -40,6 +40,8 @@ pub struct ExponentialDrift<'a, S: Sde + ?Sized> {
     nodes: std::cell::RefCell<Nodes>,
     /// How the nodes follow the density, if they do.
     follow: Option<DensityNodes>,
+    /// Nodes that follow the density: those of the initial density, where every sweep starts.
+    initial: Option<Nodes>,
     n_moments: usize,
     linear: Vec<Option<usize>>,
     square: Vec<Option<usize>>,
@@ -174,6 +176,7 @@ impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
             sde,
             theta: theta.to_vec(),
             diffusion,
+            initial: follow.map(|_| nodes.clone()),
             nodes: std::cell::RefCell::new(nodes),
             follow,
             n_moments: r,
@@ -821,6 +824,12 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
 impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
     fn support(&self) -> Option<Vec<(f64, f64)>> {
         self.support.clone()
+    }
+
+    fn start_sweep(&self) {
+        if let Some(initial) = &self.initial {
+            *self.nodes.borrow_mut() = initial.clone();
+        }
     }
 
     /// The node probabilities at λ summed over the nodes within [`EDGE_BAND`] of the box's
@@ -1496,6 +1505,47 @@ mod tests {
         for (a, b) in jac.iter().zip(&fd) {
             assert!((a - b).abs() <= 1e-6 * scale, "{a} vs {b} (largest entry {scale})");
         }
+    }
+
+    /// A sweep starts on the initial density's frame, wherever the last sweep left the nodes:
+    /// from a frame that followed the density to (2, 2), the prior N((−1, −1), 0.2²I) piles up
+    /// on the frame's corner and the moves from there do not reach it; after
+    /// [`ClosureDrift::start_sweep`] W at the prior is that of a fresh drift.
+    #[test]
+    fn a_sweep_starts_on_the_initial_frame() {
+        use crate::model::library::DoubleWell2d;
+        // A Gaussian of mean (m, m) and sd 0.2 per state, in the family's order x, y, x², xy, y², ….
+        let gaussian = |m: f64| {
+            let mut l = [0.0; 14];
+            (l[0], l[1], l[2], l[4]) = (m / 0.04, m / 0.04, -0.5 / 0.04, -0.5 / 0.04);
+            l
+        };
+        let follow = DensityNodes { degree: 4, panels: 3, width: 6.0, tolerance: 1e-4 };
+        let chol = [0.2, 0.0, 0.0, 0.2];
+        let drift = || {
+            let family = density_family(&[-1.0, -1.0], &chol, 6.0, 3, 4).unwrap();
+            ExponentialDrift::following(
+                &DoubleWell2d,
+                &[0.5],
+                family,
+                (vec![-1.0, -1.0], chol.to_vec()),
+                follow,
+            )
+            .unwrap()
+        };
+        let (dr, fresh) = (drift(), drift());
+        let mut w = [0.0; 14];
+        for step in 0..=30 {
+            dr.w(0.0, &gaussian(-1.0 + 0.1 * f64::from(step)), &mut w).unwrap();
+        }
+        let centre = dr.nodes.borrow().frame.as_ref().unwrap().mean.clone();
+        assert!(centre.iter().all(|c| (c - 2.0).abs() < 0.1), "the frame followed to {centre:?}");
+        assert!(dr.w(0.0, &gaussian(-1.0), &mut w).is_err(), "the far frame does not find the prior");
+        dr.start_sweep();
+        let mut w_fresh = [0.0; 14];
+        dr.w(0.0, &gaussian(-1.0), &mut w).unwrap();
+        fresh.w(0.0, &gaussian(-1.0), &mut w_fresh).unwrap();
+        assert_eq!(w, w_fresh);
     }
 
     /// A density concentrated on a small part of a wide grid (N(1, 0.2²) on [−6, 6], 512 nodes):

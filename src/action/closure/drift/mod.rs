@@ -83,6 +83,12 @@ pub trait ClosureDrift {
         None
     }
 
+    /// Called at the start of every forward sweep, which begins at the initial λ: a family
+    /// whose nodes follow the density puts them back on the initial density's frame, so that a
+    /// sweep does not start on the frame where the last one ended (possibly far away, after a
+    /// trial λ of the dual's line search). The default does nothing.
+    fn start_sweep(&self) {}
+
     /// The largest mass of the density at λ near the edge of its box (within
     /// [`EDGE_BAND`] of the box's width from either end of an axis), with that axis, for a
     /// family truncated to a fixed box; `None` otherwise.
