@@ -7,7 +7,7 @@ use crate::error::{check_finite, check_len, Error};
 use crate::family::{Cumulants, TrialFamily};
 use crate::quadrature::{composite_gauss_legendre, tensor_product, Rule};
 use crate::scalar::{cholesky, Scalar};
-use crate::weights::normalize_log_weights;
+use crate::weights::normalize_log_weights_from_max;
 use num_dual::HyperDual64;
 
 /// A shared moment-function closure: `m(x, out)` writes $M(x)$ into `out`.
@@ -468,19 +468,20 @@ impl Exponential {
     /// [`Error::NotNormalizable`].
     pub fn node_probabilities_from_exponents(&self, s: &mut [f64], p: &mut Vec<f64>) -> Result<f64, Error> {
         check_len("exponents", s, self.log_base.len())?;
+        // One pass adds the base and finds the largest exponent (and any NaN); every entry of
+        // `p` is then written, so it is resized, not cleared.
+        let (mut max, mut nan) = (f64::NEG_INFINITY, false);
         for (v, &b) in s.iter_mut().zip(&self.log_base) {
             *v += b;
+            nan |= v.is_nan();
+            max = max.max(*v);
         }
-        p.clear();
         p.resize(s.len(), 0.0);
-        match normalize_log_weights(s, p) {
-            Some(f) if !s.iter().any(|v| v.is_nan()) => Ok(f),
-            _ => {
-                let smax = s.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-                Err(Error::NotNormalizable {
-                    reason: format!("lambda^T M overflows on the grid (max exponent {smax})"),
-                })
-            }
+        match normalize_log_weights_from_max(s, max, p) {
+            Some(f) if !nan => Ok(f),
+            _ => Err(Error::NotNormalizable {
+                reason: format!("lambda^T M overflows on the grid (max exponent {max})"),
+            }),
         }
     }
 

@@ -87,6 +87,6 @@ pub use gaussian::{Gaussian, GaussianRule};
 pub use quadrature::Rule;
 pub use scalar::{
     cholesky, cholesky_into, cholesky_inverse, cholesky_inverse_into, cholesky_log_det, cholesky_solve,
-    cholesky_solve_in_place, dot, Scalar,
+    cholesky_solve_in_place, cholesky_solve_rows_in_place, dot, Scalar,
 };
-pub use weights::{normalize_log_weights, NEGLIGIBLE_LOG_WEIGHT};
+pub use weights::{normalize_log_weights, normalize_log_weights_from_max, NEGLIGIBLE_LOG_WEIGHT};

@@ -112,6 +112,51 @@ pub fn cholesky_solve_in_place<D: Scalar>(l: &[D], y: &mut [D]) -> Result<(), Er
     Ok(())
 }
 
+/// Solves $L L^\top X = B$ in place for $m$ right-hand sides at once: `y` holds $B$ on entry
+/// and $X$ on return, row-major $n\times m$ (row $i$ is `y[i * m..(i + 1) * m]`), so each
+/// substitution step updates a whole contiguous row. For $m = 1$ it is
+/// [`cholesky_solve_in_place`].
+///
+/// # Errors
+/// [`Error::DimensionMismatch`] if $m = 0$, `y.len()` is not a multiple of $m$, or `l` is not
+/// $n\times n$ with $n$ = `y.len()` / $m$.
+pub fn cholesky_solve_rows_in_place<D: Scalar>(l: &[D], y: &mut [D], m: usize) -> Result<(), Error> {
+    if m == 0 || !y.len().is_multiple_of(m) {
+        return Err(Error::DimensionMismatch {
+            what: "right-hand sides (a multiple of m)",
+            expected: m,
+            got: y.len(),
+        });
+    }
+    let n = y.len() / m;
+    check_len("cholesky factor", l, n * n)?;
+    if m == 1 {
+        solve_in_place(l, y);
+        return Ok(());
+    }
+    for i in 0..n {
+        let (done, rest) = y.split_at_mut(i * m);
+        let row = &mut rest[..m];
+        for k in 0..i {
+            let c = l[i * n + k];
+            row.iter_mut().zip(&done[k * m..(k + 1) * m]).for_each(|(v, &u)| *v -= c * u);
+        }
+        let inv = l[i * n + i].recip();
+        row.iter_mut().for_each(|v| *v *= inv);
+    }
+    for i in (0..n).rev() {
+        let (head, tail) = y.split_at_mut((i + 1) * m);
+        let row = &mut head[i * m..];
+        for k in (i + 1)..n {
+            let c = l[k * n + i];
+            row.iter_mut().zip(&tail[(k - i - 1) * m..(k - i) * m]).for_each(|(v, &u)| *v -= c * u);
+        }
+        let inv = l[i * n + i].recip();
+        row.iter_mut().for_each(|v| *v *= inv);
+    }
+    Ok(())
+}
+
 /// y ← (LLᵀ)⁻¹y for a factor of matching size (checked by the callers).
 fn solve_in_place<D: Scalar>(l: &[D], y: &mut [D]) {
     let n = y.len();
@@ -230,6 +275,19 @@ mod tests {
             epsilon = 1e-13,
             max_relative = 1e-13
         );
+        // Several right-hand sides at once: each column as its own solve, to round-off.
+        let mut rows = [1.0, 3.0, -2.0, 0.25, 0.5, -1.0];
+        cholesky_solve_rows_in_place(&l, &mut rows, 2).unwrap();
+        for (j, b) in [[1.0, -2.0, 0.5], [3.0, 0.25, -1.0]].iter().enumerate() {
+            let x = cholesky_solve(&l, b).unwrap();
+            for i in 0..n {
+                assert_relative_eq!(rows[i * 2 + j], x[i], epsilon = 1e-14, max_relative = 1e-14);
+            }
+        }
+        assert!(matches!(
+            cholesky_solve_rows_in_place(&l, &mut [0.0; 5], 2),
+            Err(Error::DimensionMismatch { .. })
+        ));
         // Identity: A x = b for the solve, allocating and in place alike.
         let rhs = [1.0, -2.0, 0.5];
         let x = cholesky_solve(&l, &rhs).unwrap();

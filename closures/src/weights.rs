@@ -18,6 +18,15 @@ pub const NEGLIGIBLE_LOG_WEIGHT: f64 = -50.0;
 pub fn normalize_log_weights(log_w: &[f64], out: &mut [f64]) -> Option<f64> {
     // (f64::max returns the other argument when one is NaN.)
     let max = log_w.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    normalize_log_weights_from_max(log_w, max, out)
+}
+
+/// [`normalize_log_weights`] for a caller that has the largest log-weight `max` at hand (the
+/// largest of the non-NaN entries of `log_w`; a wrong `max` gives wrong weights).
+///
+/// # Panics
+/// If `out` is shorter than `log_w`.
+pub fn normalize_log_weights_from_max(log_w: &[f64], max: f64, out: &mut [f64]) -> Option<f64> {
     if !max.is_finite() {
         return None;
     }
@@ -27,8 +36,10 @@ pub fn normalize_log_weights(log_w: &[f64], out: &mut [f64]) -> Option<f64> {
         *w = if l - max >= NEGLIGIBLE_LOG_WEIGHT { (l - max).exp() } else { 0.0 };
         total += *w;
     }
+    // total ≥ 1: the largest weight is e⁰.
+    let inv = total.recip();
     for w in out[..log_w.len()].iter_mut() {
-        *w /= total;
+        *w *= inv;
     }
     Some(max + total.ln())
 }

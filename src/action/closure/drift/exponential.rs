@@ -1,7 +1,9 @@
 //! The exponential-family closure drift on the fixed nodes of an [`Exponential`] family
 //! ([`ExponentialDrift`]).
 
-use onsager_closures::{cholesky_into, cholesky_solve_in_place, dot, frame_grid, Exponential, TrialFamily};
+use onsager_closures::{
+    cholesky_into, cholesky_solve_rows_in_place, dot, frame_grid, Exponential, TrialFamily,
+};
 
 use super::{diffusion_matrix, unrealizable, ClosureDrift, FamilyMoments, Unrealizable, EDGE_BAND};
 use onsager_closures::LegendreOptions;
@@ -508,13 +510,19 @@ impl SpdFactor {
 
     /// x = C⁻¹b in place.
     pub(super) fn solve(&self, x: &mut [f64]) {
-        for (v, s) in x.iter_mut().zip(&self.scale) {
-            *v *= s;
-        }
-        cholesky_solve_in_place(&self.l, x).expect("the factor and x have matching sizes");
-        for (v, s) in x.iter_mut().zip(&self.scale) {
-            *v *= s;
-        }
+        self.solve_rows(x, 1);
+    }
+
+    /// X = C⁻¹B in place for B row-major R × m (`m` right-hand sides, every column at once).
+    pub(super) fn solve_rows(&self, x: &mut [f64], m: usize) {
+        let scale_rows = |x: &mut [f64]| {
+            for (row, s) in x.chunks_exact_mut(m).zip(&self.scale) {
+                row.iter_mut().for_each(|v| *v *= s);
+            }
+        };
+        scale_rows(x);
+        cholesky_solve_rows_in_place(&self.l, x, m).expect("the factor and x have matching sizes");
+        scale_rows(x);
     }
 }
 

@@ -196,15 +196,7 @@ impl TensorPlan {
                 jac[i * r + j] = (0..=j).map(|k| jt[i * r + k] * a[j * r + k]).sum();
             }
         }
-        let col = &mut work.scratch[0];
-        for j in 0..r {
-            col.clear();
-            col.extend((0..r).map(|i| jac[i * r + j]));
-            solve_upper_transposed(a, r, col);
-            for i in 0..r {
-                jac[i * r + j] = col[i];
-            }
-        }
+        solve_upper_transposed(a, r, jac);
         if order == Order::Hessian {
             self.hessian(kappa, work, hess);
         }
@@ -378,7 +370,7 @@ impl TensorPlan {
         let mut third = std::mem::take(&mut work.scratch[1]);
         let w_poly = linear_poly(&work.w, &work.at, &work.mu);
         expect_dd(&work.sums, &w_poly, &work.at, &work.mu, &mut third);
-        let TensorWork { sums, mu, at, generator, v, c, jac, scratch: [col, ..], .. } = &mut *work;
+        let TensorWork { sums, mu, at, generator, v, c, jac, .. } = &mut *work;
         jac.clear();
         jac.resize(r * r, 0.0);
         for a in 0..r {
@@ -386,14 +378,7 @@ impl TensorPlan {
                 jac[a * r + j] = expect(sums, &generator[a], at[j]) - v[a] * mu[j] - third[a * r + j];
             }
         }
-        for j in 0..r {
-            col.clear();
-            col.extend((0..r).map(|a| jac[a * r + j]));
-            c.solve(col);
-            for a in 0..r {
-                jac[a * r + j] = col[a];
-            }
-        }
+        c.solve_rows(jac, r);
         work.scratch[1] = third;
     }
 
@@ -519,10 +504,18 @@ fn solve_lower(l: &[f64], r: usize, x: &mut [f64]) {
     }
 }
 
-/// x = L⁻ᵀx for L lower triangular (row-major r × r).
+/// X = L⁻ᵀX for L lower triangular (row-major r × r) and X row-major r × m, m = `x.len()` / r
+/// (every column at once; a vector for m = 1).
 fn solve_upper_transposed(l: &[f64], r: usize, x: &mut [f64]) {
+    let m = x.len() / r;
     for i in (0..r).rev() {
-        let s: f64 = (i + 1..r).map(|k| l[k * r + i] * x[k]).sum();
-        x[i] = (x[i] - s) / l[i * r + i];
+        let (head, tail) = x.split_at_mut((i + 1) * m);
+        let row = &mut head[i * m..];
+        for k in i + 1..r {
+            let c = l[k * r + i];
+            row.iter_mut().zip(&tail[(k - i - 1) * m..(k - i) * m]).for_each(|(v, &u)| *v -= c * u);
+        }
+        let inv = l[i * r + i].recip();
+        row.iter_mut().for_each(|v| *v *= inv);
     }
 }
