@@ -468,8 +468,9 @@ impl Exponential {
     /// [`Error::NotNormalizable`].
     pub fn node_probabilities_from_exponents(&self, s: &mut [f64], p: &mut Vec<f64>) -> Result<f64, Error> {
         check_len("exponents", s, self.log_base.len())?;
-        // One pass adds the base and finds the largest exponent (and any NaN); every entry of
-        // `p` is then written, so it is resized, not cleared.
+        // One pass adds the base and finds the largest exponent (and any NaN); on success every
+        // entry of `p` is then written, so it is resized, not cleared (on an error it is
+        // unspecified).
         let (mut max, mut nan) = (f64::NEG_INFINITY, false);
         for (v, &b) in s.iter_mut().zip(&self.log_base) {
             *v += b;

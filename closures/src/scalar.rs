@@ -115,7 +115,8 @@ pub fn cholesky_solve_in_place<D: Scalar>(l: &[D], y: &mut [D]) -> Result<(), Er
 /// Solves $L L^\top X = B$ in place for $m$ right-hand sides at once: `y` holds $B$ on entry
 /// and $X$ on return, row-major $n\times m$ (row $i$ is `y[i * m..(i + 1) * m]`), so each
 /// substitution step updates a whole contiguous row. For $m = 1$ it is
-/// [`cholesky_solve_in_place`].
+/// [`cholesky_solve_in_place`]; for $m > 1$ each column equals that solve to round-off (the
+/// rows are scaled by the diagonal's reciprocals instead of divided by it).
 ///
 /// # Errors
 /// [`Error::DimensionMismatch`] if $m = 0$, `y.len()` is not a multiple of $m$, or `l` is not

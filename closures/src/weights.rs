@@ -21,8 +21,8 @@ pub fn normalize_log_weights(log_w: &[f64], out: &mut [f64]) -> Option<f64> {
     normalize_log_weights_from_max(log_w, max, out)
 }
 
-/// [`normalize_log_weights`] for a caller that has the largest log-weight `max` at hand (the
-/// largest of the non-NaN entries of `log_w`; a wrong `max` gives wrong weights).
+/// [`normalize_log_weights`] for a caller that has the largest log-weight `max` at hand: it
+/// must be the largest of the non-NaN entries of `log_w` (another value gives wrong weights).
 ///
 /// # Panics
 /// If `out` is shorter than `log_w`.
@@ -36,7 +36,7 @@ pub fn normalize_log_weights_from_max(log_w: &[f64], max: f64, out: &mut [f64]) 
         *w = if l - max >= NEGLIGIBLE_LOG_WEIGHT { (l - max).exp() } else { 0.0 };
         total += *w;
     }
-    // total ≥ 1: the largest weight is e⁰.
+    // total ≥ 1: the entry equal to `max` has weight e⁰.
     let inv = total.recip();
     for w in out[..log_w.len()].iter_mut() {
         *w *= inv;

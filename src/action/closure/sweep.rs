@@ -370,6 +370,9 @@ pub struct ClosureAction<D: ClosureDrift> {
     mode_steps: Vec<f64>,
     atol: f64,
     cache: Option<(Vec<f64>, Forward, Vec<Vec<f64>>)>,
+    /// `sweeps` when the cached sweep ran: the tangents reuse it only if no sweep ran since (a
+    /// failed trial sweep leaves the cache alone but may move nodes that follow the density).
+    cache_sweeps: usize,
     /// The steps of the last forward sweep (the next sweep's room in its step arrays).
     step_hint: AtomicUsize,
     /// [`ClosureDrift::keeps_hessians`] of the drift.
@@ -469,6 +472,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             atol,
             mode_steps: graded_mode_steps(rtol),
             cache: None,
+            cache_sweeps: 0,
             step_hint: AtomicUsize::new(0),
             keep_hessians,
             sweeps: 0,
@@ -957,6 +961,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let kept = match self.cache.take() {
             Some((l, fw, g))
                 if l.as_slice() == lambda
+                    && self.cache_sweeps == self.sweeps
                     && events.times == self.fit_events.times
                     && events.resolve_adjoint == self.fit_events.resolve_adjoint =>
             {
@@ -1299,6 +1304,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let g = self.backward(&events, &fw, false);
         let (g, _) = self.failed(g)?;
         self.cache = Some((chosen.clone(), fw, g));
+        self.cache_sweeps = self.sweeps;
         Some(chosen)
     }
 
@@ -1364,6 +1370,7 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
                 let z = self.z_of(&events, &fw, &g);
                 let value = fw.f;
                 self.cache = Some((lambda.to_vec(), fw, g));
+                self.cache_sweeps = self.sweeps;
                 Ok(ActionValue { value, z })
             }
             None => Ok(ActionValue { value: f64::NAN, z: vec![f64::NAN; lambda.len()] }),
@@ -1484,6 +1491,9 @@ mod tests {
         }
         fn state_dim(&self) -> usize {
             self.0.state_dim()
+        }
+        fn start_sweep(&self) {
+            self.0.start_sweep()
         }
         fn w(&self, t: f64, lambda: &[f64], out: &mut [f64]) -> Result<(), Unrealizable> {
             self.0.w(t, lambda, out)

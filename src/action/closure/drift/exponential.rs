@@ -764,7 +764,7 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
 
     /// ∂W/∂λ = C⁻¹Σπ_k(g_k − (d_k·W)d_k)d_kᵀ into `jac` (row-major), of `work.z`.
     fn jacobian_of(work: &mut ExpWork, jac: &mut [f64]) {
-        let ExpWork { z, nodes: [wd, e, ..], col, .. } = work;
+        let ExpWork { z, nodes: [wd, e, ..], .. } = work;
         let r = z.w.len();
         let nodes = z.p.len();
         Self::project(&z.d, &z.w, wd);
@@ -781,17 +781,7 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
                 jac[a * r + j] = dot(e, &z.d[j * nodes..(j + 1) * nodes]);
             }
         }
-        col.clear();
-        col.resize(r, 0.0);
-        for j in 0..r {
-            for a in 0..r {
-                col[a] = jac[a * r + j];
-            }
-            z.c.solve(col);
-            for a in 0..r {
-                jac[a * r + j] = col[a];
-            }
-        }
+        z.c.solve_rows(&mut jac[..r * r], r);
     }
 
     /// ∇²(κᵀW) of [`ClosureDrift::w_second`] into `hess`, from the node values of `work.z` and

@@ -196,7 +196,7 @@ impl TensorPlan {
                 jac[i * r + j] = (0..=j).map(|k| jt[i * r + k] * a[j * r + k]).sum();
             }
         }
-        solve_upper_transposed(a, r, jac);
+        solve_upper_transposed(a, r, &mut jac[..r * r]);
         if order == Order::Hessian {
             self.hessian(kappa, work, hess);
         }
@@ -507,6 +507,7 @@ fn solve_lower(l: &[f64], r: usize, x: &mut [f64]) {
 /// X = L⁻ᵀX for L lower triangular (row-major r × r) and X row-major r × m, m = `x.len()` / r
 /// (every column at once; a vector for m = 1).
 fn solve_upper_transposed(l: &[f64], r: usize, x: &mut [f64]) {
+    debug_assert_eq!(x.len() % r, 0, "x has whole rows");
     let m = x.len() / r;
     for i in (0..r).rev() {
         let (head, tail) = x.split_at_mut((i + 1) * m);
