@@ -36,10 +36,8 @@ pub fn normalize_log_weights_from_max(log_w: &[f64], max: f64, out: &mut [f64]) 
         *w = if l - max >= NEGLIGIBLE_LOG_WEIGHT { (l - max).exp() } else { 0.0 };
         total += *w;
     }
-    // total ≥ 1: the entry equal to `max` has weight e⁰.
-    let inv = total.recip();
     for w in out[..log_w.len()].iter_mut() {
-        *w *= inv;
+        *w /= total;
     }
     Some(max + total.ln())
 }
