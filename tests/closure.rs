@@ -271,6 +271,15 @@ fn double_well_case(seed: u64, t_end: f64) -> DoubleWellRecord {
     record.with_theta_prior(Prior::flat()).with_x0_prior(Prior::gaussian(-1.0, 0.3))
 }
 
+/// The `exp-closure` estimate of `family` with `options` on `problem`.
+fn exp_closure(
+    problem: &EstimationProblem<'_, impl Sde, StateMeasurement>,
+    family: ExponentialFamily,
+    options: &ClosureOptions,
+) -> PathEstimate {
+    Estimator::ExpClosure(Closure::new(family, options.clone())).run(problem).unwrap().estimate
+}
+
 /// ∇²F of the tangent sweeps against central differences of the adjoint gradient z(λ).
 fn check_hessian<A: EffectiveAction>(action: &mut A, lambda: &[f64]) {
     let h = action.hessian(lambda).unwrap().unwrap();
@@ -519,7 +528,7 @@ fn quadratic_exponential_closure_in_2d_is_the_gaussian_closure_on_a_linear_model
     let following =
         ExponentialFamily::of_degree(2).with_nodes(NodeRule::Density).with_density_tolerance(1e-8);
     for family in [on_box, following] {
-        let e = Estimator::ExpClosure(Closure::new(family, options.clone())).run(&problem).unwrap().estimate;
+        let e = exp_closure(&problem, family, &options);
         assert_eq!(e.status, Status::Converged);
         assert_eq!(g.path.times, e.path.times);
         for (a, b) in g.path.values.iter().zip(&e.path.values) {
@@ -769,9 +778,7 @@ fn a_box_that_cuts_the_density_off_is_widened_or_reported() {
     let case = double_well_case(5, 20.0);
     let problem = case.problem();
     let options = ClosureOptions::new().with_dispersion(false);
-    let run = |family: ExponentialFamily| {
-        Estimator::ExpClosure(Closure::new(family, options.clone())).run(&problem).unwrap().estimate
-    };
+    let run = |family: ExponentialFamily| exp_closure(&problem, family, &options);
     let (lo, hi) = problem
         .data
         .values
@@ -810,9 +817,7 @@ fn the_quadrature_check_refines_a_box_that_does_not_resolve_the_density() {
     let case = double_well_case(5, 20.0);
     let problem = case.problem();
     let options = ClosureOptions::new().with_dispersion(false);
-    let run = |family: ExponentialFamily| {
-        Estimator::ExpClosure(Closure::new(family, options.clone())).run(&problem).unwrap().estimate
-    };
+    let run = |family: ExponentialFamily| exp_closure(&problem, family, &options);
     let quartic = || ExponentialFamily::of_degree(4);
     let reference = run(quartic().with_panels(24).with_refine(0));
     let off = |e: &PathEstimate| sup_diff(&e.path.values, &reference.path.values);
