@@ -108,6 +108,15 @@ pub trait ClosureFamily: Serialize + DeserializeOwned + Default + Clone + Debug 
     fn widened(&self, _start: &Self, _support: &[(f64, f64)], _edge: &GridEdge) -> Option<Widening<Self>> {
         None
     }
+
+    /// How far, in standard deviations of the density, the family's expectations may move when
+    /// its nodes move with the density: 0 (the default) for nodes that do not move. The nodes
+    /// move with λ in discrete steps, so the computed F and the history carry noise of about
+    /// this size, which no dual iteration resolves; the dual's tolerance is matched to it
+    /// ([`ClosureOptions::dual_matched_to_sweeps`]).
+    fn quadrature_noise(&self) -> f64 {
+        0.0
+    }
 }
 
 /// A finer quadrature of a family's expectations ([`ClosureFamily::refined`]).
@@ -405,10 +414,13 @@ const SWEEP_MATCH: f64 = 0.1;
 
 /// The dual's options at the requested sweep tolerances: `options.dual`, and with
 /// [`ClosureOptions::dual_matched_to_sweeps`] the tolerance raised to
-/// [`SWEEP_MATCH`] · min_a (rtol · max_k |r_ka| + atol) / max_k R_ka (per measured output a,
-/// over its present data) when that is larger, and stops short of it `Acceptable` only within
-/// 10 × that (or the default band 10³ × `dual.tolerance`, if larger).
-fn fine_dual_options(data: &DualData, rtol: f64, atol: f64, options: &ClosureOptions) -> DualOptions {
+/// [`SWEEP_MATCH`] · min_a (rtol · max_k |r_ka| + atol + q · max_k R_ka^{1/2}) / max_k R_ka
+/// (per measured output a, over its present data; q the family's
+/// [`ClosureFamily::quadrature_noise`], in measurement standard deviations) when that is
+/// larger, and stops short of it `Acceptable` only within 10 × that (or the default band
+/// 10³ × `dual.tolerance`, if larger).
+fn fine_dual_options(data: &DualData, sweeps: (f64, f64, f64), options: &ClosureOptions) -> DualOptions {
+    let (rtol, atol, noise) = sweeps;
     let strict = options.dual.clone();
     if !options.dual_matched_to_sweeps {
         return strict;
@@ -420,7 +432,7 @@ fn fine_dual_options(data: &DualData, rtol: f64, atol: f64, options: &ClosureOpt
             let present = || active.iter().copied().filter(|m| m % s == a);
             let r_max = present().map(|m| data.r[m].abs()).fold(0.0, f64::max);
             let var_max = present().map(|m| data.variance[m]).fold(0.0, f64::max);
-            let t = SWEEP_MATCH * (rtol * r_max + atol) / var_max;
+            let t = SWEEP_MATCH * (rtol * r_max + atol + noise * var_max.sqrt()) / var_max;
             t.is_finite().then_some(t)
         })
         .fold(f64::INFINITY, f64::min);
@@ -526,7 +538,7 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
     common_checks(problem, closure)?;
     let data = gaussian_dual_data(problem)?;
     let options = &closure.options;
-    let plan = dual_plan(&data, options);
+    let plan = dual_plan(&data, options, closure.family.quadrature_noise());
     let (mut family, mut warm, mut widenings) = (closure.family.clone(), None, 0);
     let (mut iterations, mut evaluations, mut work) = (0, 0, (0, 0));
     // The last estimate whose box cut its density off, with the shift of its means on a wider
@@ -658,12 +670,12 @@ fn solve_checked<'a, S: Sde + ?Sized, F: ClosureFamily>(
 /// The dual's plan of a closure: two stages (inexact Newton, the sweeps' accuracy matched to the
 /// distance from the optimum) when a coarser tolerance than `rtol` exists, a retry from λ = 0;
 /// the dispersion is [`mean_optimal::finish`]'s.
-fn dual_plan(data: &DualData, options: &ClosureOptions) -> Plan {
+fn dual_plan(data: &DualData, options: &ClosureOptions, noise: f64) -> Plan {
     let (rtol, atol) = (options.rtol, options.atol);
     let coarse_rtol = (COARSE_FACTOR * rtol).min(COARSE_RTOL);
     let coarse = (coarse_rtol > rtol).then_some(scaled_tolerances(options, coarse_rtol));
     Plan {
-        dual: fine_dual_options(data, rtol, atol, options),
+        dual: fine_dual_options(data, (rtol, atol, noise), options),
         stages: coarse.map(|c| (c, (rtol, atol))),
         retry_from_zero: true,
         dispersion: false,
@@ -785,17 +797,23 @@ mod tests {
             output_dim: 2,
         };
         let options = ClosureOptions::new();
-        let fine = fine_dual_options(&data, 1e-6, 1e-9, &options);
+        let fine = fine_dual_options(&data, (1e-6, 1e-9, 0.0), &options);
         let expect = 0.1 * (1e-6 * 2.0 + 1e-9) / 0.04;
         assert!((fine.tolerance - expect).abs() <= 1e-15 * expect, "{}", fine.tolerance);
         assert_eq!(fine.acceptable(), 10.0 * fine.tolerance);
         assert!(fine.validate().is_ok());
         // Off, a larger dual tolerance, or no present data: the dual's options as given.
         let off = options.clone().with_dual_matched_to_sweeps(false);
-        assert_eq!(fine_dual_options(&data, 1e-6, 1e-9, &off), off.dual);
+        assert_eq!(fine_dual_options(&data, (1e-6, 1e-9, 0.0), &off), off.dual);
         let tol = options.clone().with_dual(DualOptions::default().with_tolerance(1e-3));
-        assert_eq!(fine_dual_options(&data, 1e-6, 1e-9, &tol), tol.dual);
+        assert_eq!(fine_dual_options(&data, (1e-6, 1e-9, 0.0), &tol), tol.dual);
+        // Nodes that move with the density (quadrature noise q = 10⁻⁴ sd): output 0's sweeps
+        // err by 10⁻⁶·2 + 10⁻⁹ + 10⁻⁴·0.2 in z, giving 5.5·10⁻⁵, output 1's by
+        // 10⁻⁶·100 + 10⁻⁹ + 10⁻⁴·1, giving 2.0·10⁻⁵: now output 1's stands.
+        let noisy = fine_dual_options(&data, (1e-6, 1e-9, 1e-4), &options);
+        let expect = 0.1 * (1e-6 * 100.0 + 1e-9 + 1e-4 * 1.0) / 1.0;
+        assert!((noisy.tolerance - expect).abs() <= 1e-15 * expect, "{}", noisy.tolerance);
         let missing = DualData { r: vec![f64::NAN; 4], ..data };
-        assert_eq!(fine_dual_options(&missing, 1e-6, 1e-9, &options), options.dual);
+        assert_eq!(fine_dual_options(&missing, (1e-6, 1e-9, 0.0), &options), options.dual);
     }
 }

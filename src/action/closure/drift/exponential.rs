@@ -1173,6 +1173,16 @@ impl ClosureFamily for ExponentialFamily {
     }
 
     /// The box with ⌈1.5 P⌉ panels and one refinement fewer, while any remain.
+    /// Nodes that follow the density: `density_tolerance` (the accuracy, in standard deviations,
+    /// to which the nodes are refined; their frame moves with λ); a fixed box: 0.
+    fn quadrature_noise(&self) -> f64 {
+        if self.follows_density() {
+            self.density_tolerance
+        } else {
+            0.0
+        }
+    }
+
     fn refined(&self) -> Option<Refinement<Self>> {
         if self.follows_density() || self.refine == 0 {
             return None;
