@@ -351,7 +351,9 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
     /// covariance, both from the old nodes,
     /// and its panels are refined ([`ExponentialDrift::refined`]); then the test repeats on the
     /// new nodes, at most 8 times. Within a frame W, ∂W/∂λ and ∇²(κᵀW) are exact derivatives
-    /// of one another; across a move they agree to the node rule's tolerance.
+    /// of one another; across a move they agree to the node rule's tolerance. On success,
+    /// `work.s` and `work.p_all` hold the exponents and the probabilities at λ on the nodes it
+    /// leaves (for a fixed box it computes nothing).
     fn follow_density(&self, lambda: &[f64], work: &mut ExpWork) -> std::result::Result<(), Unrealizable> {
         let Some(opts) = self.follow else { return Ok(()) };
         let mut nodes = self.nodes.borrow_mut();
@@ -668,7 +670,11 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
         let n = family.dim();
         let r = family.n_moments();
         let ExpWork { z, s, fs, f, cov, p_all, .. } = work;
-        family.node_probabilities_into(lambda, s, p_all).map_err(unrealizable)?;
+        // Nodes that follow the density: `follow_density` has just computed the probabilities
+        // on these nodes at λ.
+        if self.follow.is_none() {
+            family.node_probabilities_into(lambda, s, p_all).map_err(unrealizable)?;
+        }
         let all = p_all.len();
         let lo = p_all.iter().position(|&pk| pk > 0.0).unwrap_or(0);
         let hi = p_all.iter().rposition(|&pk| pk > 0.0).map_or(all, |k| k + 1);
