@@ -182,8 +182,9 @@ pub struct ClosureOptions {
     pub dispersion: bool,
     /// Whether the dual may also stop where its optimality residual is a tenth of the sweeps'
     /// accuracy, in measurement units: max_m |λ_m − (r_m − z_m)/R_m| ≤
-    /// 0.1 · min_a (rtol · max_k |r_ka| + atol) / max_k R_ka, per measured output a over its
-    /// present data (reported as the detail `dual_tolerance`, the larger of this and
+    /// 0.1 · min_a (rtol · max_k |r_ka| + atol + q · max_k R_ka^{1/2}) / max_k R_ka, per measured
+    /// output a over its present data, with q the family's [`ClosureFamily::quadrature_noise`]
+    /// (0 on fixed nodes; reported as the detail `dual_tolerance`, the larger of this and
     /// `dual.tolerance`; a stop short of it is `Acceptable` within 10 × it). The remaining Newton
     /// correction of a residual ε is K⁻¹Rε, which moves z by ∇²F K⁻¹ Rε: at most Rε in the
     /// R⁻¹-weighted norm where ∇²F is positive semi-definite, about as much for the estimate in
