@@ -540,6 +540,40 @@ fn quadratic_exponential_closure_in_2d_is_the_gaussian_closure_on_a_linear_model
 }
 
 #[test]
+fn the_dual_tolerance_on_nodes_that_follow_the_density_allows_for_their_moves() {
+    // The quadratic family in 2-D on a damped rotation, y = x₀ + N(0, 0.2²) at t = 0.5, 1.0
+    // (|y| ≤ 0.4): on the box the matched tolerance is 0.1·(rtol·0.4 + atol)/0.04; on nodes
+    // that follow the density (q = 10⁻³) it is 0.1·(rtol·0.4 + atol + q·0.2)/0.04, and the
+    // estimate converges to it.
+    let obs = gaussian_measurement(0, 0.2);
+    let data = Dataset::try_new(vec!["y".into()], vec![0.5, 1.0], vec![vec![0.4], vec![0.2]]).unwrap();
+    let x0 = [Prior::gaussian(0.5, 0.3), Prior::gaussian(-0.3, 0.3)];
+    let problem = damped_rotation_problem(&obs, &x0, &data);
+    let options = ClosureOptions::new().with_dispersion(false);
+    let (rtol, atol) = (options.rtol, options.atol);
+    let tolerance =
+        |e: &PathEstimate| e.details.json().get("dual_tolerance").and_then(|v| v.as_f64()).unwrap();
+    let on_box = exp_closure(
+        &problem,
+        ExponentialFamily::of_degree(2).with_domain(&[(-3.5, 3.5), (-3.5, 3.5)]),
+        &options,
+    );
+    assert_eq!(on_box.status, Status::Converged);
+    assert_relative_eq!(tolerance(&on_box), 0.1 * (rtol * 0.4 + atol) / 0.04, max_relative = 1e-12);
+    let following = exp_closure(
+        &problem,
+        ExponentialFamily::of_degree(2).with_nodes(NodeRule::Density).with_density_tolerance(1e-3),
+        &options,
+    );
+    assert_eq!(following.status, Status::Converged);
+    assert_relative_eq!(
+        tolerance(&following),
+        0.1 * (rtol * 0.4 + atol + 1e-3 * 0.2) / 0.04,
+        max_relative = 1e-12
+    );
+}
+
+#[test]
 fn a_failed_sweep_is_reported_with_where_and_why() {
     // The quartic family on a box whose nodes are 7.5 apart cannot hold a density of sd 0.3:
     // the estimate is a numerical failure whose report says where the sweep failed and why.
