@@ -113,7 +113,7 @@ pub trait ClosureFamily: Serialize + DeserializeOwned + Default + Clone + Debug 
     /// its nodes move with the density: 0 (the default) for nodes that do not move. The nodes
     /// move with λ in discrete steps, so the computed F and the history carry noise of about
     /// this size, which no dual iteration resolves; the dual's tolerance is matched to it
-    /// ([`ClosureOptions::dual_matched_to_sweeps`]).
+    /// ([`ClosureOptions::dual_matched_to_sweeps`]). Finite and ≥ 0.
     fn quadrature_noise(&self) -> f64 {
         0.0
     }
@@ -184,7 +184,8 @@ pub struct ClosureOptions {
     /// accuracy, in measurement units: max_m |λ_m − (r_m − z_m)/R_m| ≤
     /// 0.1 · min_a (rtol · max_k |r_ka| + atol + q · max_k R_ka^{1/2}) / max_k R_ka, per measured
     /// output a over its present data, with q the family's [`ClosureFamily::quadrature_noise`]
-    /// (0 on fixed nodes; reported as the detail `dual_tolerance`, the larger of this and
+    /// in standard deviations of the density, R^{1/2} standing in for the density's sd (0 on
+    /// fixed nodes; reported as the detail `dual_tolerance`, the larger of this and
     /// `dual.tolerance`; a stop short of it is `Acceptable` within 10 × it). The remaining Newton
     /// correction of a residual ε is K⁻¹Rε, which moves z by ∇²F K⁻¹ Rε: at most Rε in the
     /// R⁻¹-weighted norm where ∇²F is positive semi-definite, about as much for the estimate in
@@ -416,12 +417,18 @@ const SWEEP_MATCH: f64 = 0.1;
 /// The dual's options at the requested sweep tolerances: `options.dual`, and with
 /// [`ClosureOptions::dual_matched_to_sweeps`] the tolerance raised to
 /// [`SWEEP_MATCH`] · min_a (rtol · max_k |r_ka| + atol + q · max_k R_ka^{1/2}) / max_k R_ka
-/// (per measured output a, over its present data; q the family's
-/// [`ClosureFamily::quadrature_noise`], in measurement standard deviations) when that is
-/// larger, and stops short of it `Acceptable` only within 10 × that (or the default band
-/// 10³ × `dual.tolerance`, if larger).
-fn fine_dual_options(data: &DualData, sweeps: (f64, f64, f64), options: &ClosureOptions) -> DualOptions {
-    let (rtol, atol, noise) = sweeps;
+/// (per measured output a, over its present data; q = `noise`, the family's
+/// [`ClosureFamily::quadrature_noise`] in standard deviations of the density, with the
+/// measurement's sd R^{1/2} standing in for the density's) when that is larger, and stops short
+/// of it `Acceptable` only within 10 × that (or the default band 10³ × `dual.tolerance`, if
+/// larger).
+fn fine_dual_options(
+    data: &DualData,
+    rtol: f64,
+    atol: f64,
+    noise: f64,
+    options: &ClosureOptions,
+) -> DualOptions {
     let strict = options.dual.clone();
     if !options.dual_matched_to_sweeps {
         return strict;
@@ -539,6 +546,7 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
     common_checks(problem, closure)?;
     let data = gaussian_dual_data(problem)?;
     let options = &closure.options;
+    // The refinements and widenings below keep the family's node rule, and with it its noise.
     let plan = dual_plan(&data, options, closure.family.quadrature_noise());
     let (mut family, mut warm, mut widenings) = (closure.family.clone(), None, 0);
     let (mut iterations, mut evaluations, mut work) = (0, 0, (0, 0));
@@ -676,7 +684,7 @@ fn dual_plan(data: &DualData, options: &ClosureOptions, noise: f64) -> Plan {
     let coarse_rtol = (COARSE_FACTOR * rtol).min(COARSE_RTOL);
     let coarse = (coarse_rtol > rtol).then_some(scaled_tolerances(options, coarse_rtol));
     Plan {
-        dual: fine_dual_options(data, (rtol, atol, noise), options),
+        dual: fine_dual_options(data, rtol, atol, noise, options),
         stages: coarse.map(|c| (c, (rtol, atol))),
         retry_from_zero: true,
         dispersion: false,
@@ -798,23 +806,23 @@ mod tests {
             output_dim: 2,
         };
         let options = ClosureOptions::new();
-        let fine = fine_dual_options(&data, (1e-6, 1e-9, 0.0), &options);
+        let fine = fine_dual_options(&data, 1e-6, 1e-9, 0.0, &options);
         let expect = 0.1 * (1e-6 * 2.0 + 1e-9) / 0.04;
         assert!((fine.tolerance - expect).abs() <= 1e-15 * expect, "{}", fine.tolerance);
         assert_eq!(fine.acceptable(), 10.0 * fine.tolerance);
         assert!(fine.validate().is_ok());
         // Off, a larger dual tolerance, or no present data: the dual's options as given.
         let off = options.clone().with_dual_matched_to_sweeps(false);
-        assert_eq!(fine_dual_options(&data, (1e-6, 1e-9, 0.0), &off), off.dual);
+        assert_eq!(fine_dual_options(&data, 1e-6, 1e-9, 0.0, &off), off.dual);
         let tol = options.clone().with_dual(DualOptions::default().with_tolerance(1e-3));
-        assert_eq!(fine_dual_options(&data, (1e-6, 1e-9, 0.0), &tol), tol.dual);
+        assert_eq!(fine_dual_options(&data, 1e-6, 1e-9, 0.0, &tol), tol.dual);
         // Nodes that move with the density (quadrature noise q = 10⁻⁴ sd): output 0's sweeps
         // err by 10⁻⁶·2 + 10⁻⁹ + 10⁻⁴·0.2 in z, giving 5.5·10⁻⁵, output 1's by
         // 10⁻⁶·100 + 10⁻⁹ + 10⁻⁴·1, giving 2.0·10⁻⁵: now output 1's stands.
-        let noisy = fine_dual_options(&data, (1e-6, 1e-9, 1e-4), &options);
+        let noisy = fine_dual_options(&data, 1e-6, 1e-9, 1e-4, &options);
         let expect = 0.1 * (1e-6 * 100.0 + 1e-9 + 1e-4 * 1.0) / 1.0;
         assert!((noisy.tolerance - expect).abs() <= 1e-15 * expect, "{}", noisy.tolerance);
         let missing = DualData { r: vec![f64::NAN; 4], ..data };
-        assert_eq!(fine_dual_options(&missing, (1e-6, 1e-9, 0.0), &options), options.dual);
+        assert_eq!(fine_dual_options(&missing, 1e-6, 1e-9, 0.0, &options), options.dual);
     }
 }

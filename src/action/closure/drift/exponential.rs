@@ -351,11 +351,11 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
     /// covariance, both from the old nodes,
     /// and its panels are refined ([`ExponentialDrift::refined`]); then the test repeats on the
     /// new nodes, at most 8 times. Within a frame W, ∂W/∂λ and ∇²(κᵀW) are exact derivatives
-    /// of one another; across a move they agree to the node rule's tolerance. On success,
-    /// `work.s` and `work.p_all` hold the exponents and the probabilities at λ on the nodes it
-    /// leaves (for a fixed box it computes nothing).
-    fn follow_density(&self, lambda: &[f64], work: &mut ExpWork) -> std::result::Result<(), Unrealizable> {
-        let Some(opts) = self.follow else { return Ok(()) };
+    /// of one another; across a move they agree to the node rule's tolerance. Returns whether
+    /// `work.s` and `work.p_all` now hold the exponents and the probabilities at λ on the nodes
+    /// it leaves (true for nodes that follow the density; a fixed box computes nothing).
+    fn follow_density(&self, lambda: &[f64], work: &mut ExpWork) -> std::result::Result<bool, Unrealizable> {
+        let Some(opts) = self.follow else { return Ok(false) };
         let mut nodes = self.nodes.borrow_mut();
         let n = nodes.family.dim();
         for _ in 0..8 {
@@ -375,7 +375,7 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
             let cut = edge - peak > opts.tolerance.ln();
             let moved = frame.moved(&mean, &cov);
             if !cut && !moved {
-                return Ok(());
+                return Ok(true);
             }
             let width = if moved { opts.width } else { frame.width * 1.5 };
             if width > MAX_DENSITY_WIDTH {
@@ -664,15 +664,13 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
     /// ([`onsager_closures::NEGLIGIBLE_LOG_WEIGHT`]), so W, ∂W/∂λ and ∇²(κᵀW) remain the
     /// exact derivatives of one another.
     fn zeroth(&self, t: f64, lambda: &[f64], work: &mut ExpWork) -> std::result::Result<(), Unrealizable> {
-        self.follow_density(lambda, work)?;
+        let computed = self.follow_density(lambda, work)?;
         let held = self.nodes.borrow();
         let family = &held.family;
         let n = family.dim();
         let r = family.n_moments();
         let ExpWork { z, s, fs, f, cov, p_all, .. } = work;
-        // Nodes that follow the density: `follow_density` has just computed the probabilities
-        // on these nodes at λ.
-        if self.follow.is_none() {
+        if !computed {
             family.node_probabilities_into(lambda, s, p_all).map_err(unrealizable)?;
         }
         let all = p_all.len();
@@ -1178,7 +1176,6 @@ impl ClosureFamily for ExponentialFamily {
         Some(Widening { check, wider, tolerance: self.refine_tolerance, may_solve: start.widen > 0 })
     }
 
-    /// The box with ⌈1.5 P⌉ panels and one refinement fewer, while any remain.
     /// Nodes that follow the density: `density_tolerance` (the accuracy, in standard deviations,
     /// to which the nodes are refined; their frame moves with λ); a fixed box: 0.
     fn quadrature_noise(&self) -> f64 {
@@ -1189,6 +1186,7 @@ impl ClosureFamily for ExponentialFamily {
         }
     }
 
+    /// The box with ⌈1.5 P⌉ panels and one refinement fewer, while any remain.
     fn refined(&self) -> Option<Refinement<Self>> {
         if self.follows_density() || self.refine == 0 {
             return None;
