@@ -49,10 +49,6 @@ pub struct ExponentialDrift<'a, S: Sde + ?Sized> {
     square: Vec<Option<usize>>,
     /// The buffers of one evaluation, reused (the drift is evaluated at every Runge–Kutta stage).
     work: std::cell::RefCell<ExpWork>,
-    /// The model's drift at every node of a fixed box, state-major, for a model whose drift does
-    /// not read t ([`Sde::drift_is_autonomous`]): evaluated at the first evaluation of the raw
-    /// moment sums, then reused.
-    box_drift: std::cell::OnceCell<Vec<f64>>,
     /// The box the family is truncated to, per state, when it is known ([`ClosureDrift::support`]).
     support: Option<Vec<(f64, f64)>>,
 }
@@ -68,8 +64,13 @@ struct Nodes {
     second: Vec<f64>,
     /// The frame x = m + Lξ of nodes that follow the density; `None` for a fixed box.
     frame: Option<Frame>,
-    /// The raw-moment sums of a fixed tensor box ([`TensorPlan`]), where they apply.
+    /// The raw-moment sums of a tensor grid ([`TensorPlan`]: a fixed box, or a frame of nodes
+    /// that follow the density), where they apply.
     tensor: Option<TensorPlan>,
+    /// The model's drift at every node, state-major, for a model whose drift does not read t
+    /// ([`Sde::drift_is_autonomous`]): evaluated at the first evaluation of the raw moment sums
+    /// on these nodes, then reused.
+    drift: std::cell::OnceCell<Vec<f64>>,
 }
 
 /// A frame of nodes that follow the density: centre m, lower-triangular L (row-major), the
@@ -80,6 +81,7 @@ struct Frame {
     mean: Vec<f64>,
     chol: Vec<f64>,
     width: f64,
+    panels: usize,
     edge: Vec<bool>,
 }
 
@@ -185,7 +187,6 @@ impl<'a, S: Sde + ?Sized> ExponentialDrift<'a, S> {
             linear,
             square,
             work: Default::default(),
-            box_drift: Default::default(),
             support: None,
         })
     }
@@ -224,7 +225,7 @@ impl Frame {
                 })
             })
             .collect();
-        Frame { mean, chol, width, edge }
+        Frame { mean, chol, width, panels, edge }
     }
 
     /// Whether a density of mean `mean` and covariance `cov` has left the frame: its mean
@@ -338,8 +339,20 @@ impl Nodes {
             out
         };
         let (jac, second) = (transpose(&jac, r * n), transpose(&second, r));
-        let tensor = if frame.is_none() { TensorPlan::of(&family) } else { None };
-        Ok(Nodes { family, jac, second, frame, tensor })
+        let tensor = match &frame {
+            None => TensorPlan::of(&family),
+            Some(f) => {
+                let axis = onsager_closures::quadrature::composite_gauss_legendre(
+                    -f.width,
+                    f.width,
+                    f.panels,
+                    POINTS_PER_PANEL,
+                )
+                .map_err(unrealizable)?;
+                TensorPlan::in_frame(&family, axis.points(), &f.mean, &f.chol)
+            }
+        };
+        Ok(Nodes { family, jac, second, frame, tensor, drift: Default::default() })
     }
 }
 
@@ -360,8 +373,8 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
         let n = nodes.family.dim();
         for _ in 0..8 {
             let frame = nodes.frame.as_ref().ok_or_else(|| Unrealizable("no frame for the nodes".into()))?;
-            let ExpWork { s, p_all, .. } = work;
-            nodes.family.node_probabilities_into(lambda, s, p_all).map_err(unrealizable)?;
+            let ExpWork { s, p_all, col, .. } = work;
+            probabilities(&nodes, lambda, (col, s, p_all))?;
             let (mean, cov) = state_moments(nodes.family.grid().points(), p_all, n);
             // log p at the nodes = s_k − log w_k (Lebesgue reference).
             let (mut peak, mut edge) = (f64::NEG_INFINITY, f64::NEG_INFINITY);
@@ -562,7 +575,24 @@ struct ExpWork {
     tensor: TensorWork,
 }
 
-/// The node probabilities π of `family` at λ into `p` and F = log Σ exp(…), on the tensor box
+/// The node probabilities π of the family of `nodes` at λ into `p` and F = log Σ exp(…), with
+/// λᵀM by their tensor plan where there is one ([`tensor_probabilities`]); `row` and `s` are
+/// scratch.
+fn probabilities(
+    nodes: &Nodes,
+    lambda: &[f64],
+    scratch: (&mut Vec<f64>, &mut Vec<f64>, &mut Vec<f64>),
+) -> std::result::Result<f64, Unrealizable> {
+    match &nodes.tensor {
+        Some(plan) => tensor_probabilities(&nodes.family, plan, lambda, scratch),
+        None => {
+            let (_, s, p) = scratch;
+            nodes.family.node_probabilities_into(lambda, s, p).map_err(unrealizable)
+        }
+    }
+}
+
+/// The node probabilities π of `family` at λ into `p` and F = log Σ exp(…), on the tensor grid
 /// of `plan` (λᵀM by [`TensorPlan::polynomial_into`]); λ of the wrong length or not finite goes
 /// to [`Exponential::node_probabilities_into`] for its error. `row` and `s` are scratch.
 fn tensor_probabilities(
@@ -581,10 +611,11 @@ fn tensor_probabilities(
 }
 
 impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
-    /// W and, by `order`, ∂W/∂λ and ∇²(κᵀW) into `out` by the raw-moment sums of a fixed
-    /// tensor box ([`TensorPlan`]); `None` where they do not apply (nodes that follow the
-    /// density, a family other than all monomials up to a degree), and the node sums of
-    /// [`ExponentialDrift::zeroth`] serve.
+    /// W and, by `order`, ∂W/∂λ and ∇²(κᵀW) into `out` by the raw-moment sums of a tensor grid
+    /// ([`TensorPlan`]: a fixed box, or the frame of nodes that follow the density, moved first
+    /// by [`ExponentialDrift::follow_density`]); `None` where they do not apply (a family other
+    /// than all monomials up to a degree), and the node sums of [`ExponentialDrift::zeroth`]
+    /// serve.
     fn tensor_sums(
         &self,
         t: f64,
@@ -593,15 +624,23 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
         kappa: &[f64],
         out: (&mut [f64], &mut [f64], &mut [f64]),
     ) -> Option<std::result::Result<(), Unrealizable>> {
+        self.nodes.borrow().tensor.as_ref()?;
+        let work = &mut *self.work.borrow_mut();
+        let computed = match self.follow_density(lambda, work) {
+            Ok(computed) => computed,
+            Err(e) => return Some(Err(e)),
+        };
         let held = self.nodes.borrow();
         let plan = held.tensor.as_ref()?;
-        let ExpWork { s, p_all, fs, f, col, tensor, .. } = &mut *self.work.borrow_mut();
+        let ExpWork { s, p_all, fs, f, col, tensor, .. } = work;
         let run = || {
-            tensor_probabilities(&held.family, plan, lambda, (col, s, p_all))?;
+            if !computed {
+                tensor_probabilities(&held.family, plan, lambda, (col, s, p_all))?;
+            }
             let points = held.family.grid().points();
             // π_k f_i(x_k), state-major (0 where π_k = 0).
             if self.sde.drift_is_autonomous() {
-                let all = self.box_drift.get_or_init(|| {
+                let all = held.drift.get_or_init(|| {
                     let (mut all, mut scratch) = (Vec::new(), Vec::new());
                     self.drift_at_nodes(t, points, &vec![1.0; p_all.len()], &mut all, &mut scratch);
                     all
@@ -625,7 +664,7 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
         Some(run())
     }
 
-    /// The moments of [`ClosureDrift::moments`] by the raw-moment table of a fixed tensor box;
+    /// The moments of [`ClosureDrift::moments`] by the raw-moment table of a tensor grid;
     /// `None` where it does not apply (as [`ExponentialDrift::tensor_sums`]).
     fn tensor_moments(&self, lambda: &[f64]) -> Option<std::result::Result<FamilyMoments, Unrealizable>> {
         let held = self.nodes.borrow();
@@ -1388,6 +1427,108 @@ mod tests {
         assert_eq!(dr.square_index(0), Some(1));
     }
 
+    /// W, ∂W/∂λ, ∇²(κᵀW), the moments and W alone of `fast` equal those of `nodes` at λ, each
+    /// to `tol` times its largest entry.
+    fn assert_same_sums<S: Sde + ?Sized>(
+        fast: &ExponentialDrift<S>,
+        nodes: &ExponentialDrift<S>,
+        lambda: &[f64],
+        kappa: &[f64],
+        tol: f64,
+    ) {
+        let r = lambda.len();
+        let z = || (vec![0.0; r], vec![0.0; r * r], vec![0.0; r * r]);
+        let ((mut w1, mut j1, mut h1), (mut w2, mut j2, mut h2)) = (z(), z());
+        fast.w_second(0.2, lambda, kappa, &mut w1, &mut j1, &mut h1).unwrap();
+        nodes.w_second(0.2, lambda, kappa, &mut w2, &mut j2, &mut h2).unwrap();
+        for (what, fast, nodes) in [("W", &w1, &w2), ("J", &j1, &j2), ("H", &h1, &h2)] {
+            let scale = nodes.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for (a, b) in fast.iter().zip(nodes) {
+                assert!(
+                    (a - b).abs() <= tol * scale,
+                    "{what}: {a} vs {b} (largest entry {scale}) at {lambda:?}"
+                );
+            }
+        }
+        let (m1, m2) = (fast.moments(lambda).unwrap(), nodes.moments(lambda).unwrap());
+        assert!((m1.log_partition - m2.log_partition).abs() <= tol * m2.log_partition.abs().max(1.0));
+        for (what, fast, nodes) in [("mean", &m1.mean, &m2.mean), ("C", &m1.covariance, &m2.covariance)] {
+            let scale = nodes.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for (a, b) in fast.iter().zip(nodes) {
+                assert!((a - b).abs() <= tol * scale, "{what}: {a} vs {b} (largest entry {scale})");
+            }
+        }
+        let mut w3 = vec![0.0; r];
+        fast.w(0.2, lambda, &mut w3).unwrap();
+        // The same sums with tables of another size: equal to round-off.
+        let scale = w1.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        for (a, b) in w1.iter().zip(&w3) {
+            assert!((a - b).abs() <= tol * scale, "W alone {b} is W of the Hessian's evaluation {a}");
+        }
+    }
+
+    /// On nodes that follow the density, the raw-moment sums in the frame x = m + Lξ (L not
+    /// diagonal: [`TensorPlan::in_frame`]) equal the node sums of [`ExponentialDrift::zeroth`]
+    /// on the same nodes: W, ∂W/∂λ, ∇²(κᵀW) and the moments, on a bimodal density with its
+    /// wells along the diagonal and on a narrow correlated Gaussian, each in the frame of its own
+    /// mean and covariance, to round-off times the condition of C (measured: within 1e-11 of
+    /// the largest entry on the bimodal density; on the narrow one, whose monomials are nearly
+    /// dependent near (1, 0.8), 2e-11 on W).
+    #[test]
+    fn raw_moment_sums_in_a_frame_equal_the_node_sums() {
+        use crate::model::library::DoubleWell2d;
+        let follow = DensityNodes { degree: 4, panels: 4, width: 6.0, tolerance: 1e-4 };
+        let kappa: Vec<f64> = (0..14).map(|a| ((a * 7 % 5) as f64 - 2.0) * 0.3).collect();
+        let check = |lambda: &[f64], tol: f64| {
+            let grid = onsager_closures::panel_grid(&[(-6.0, 6.0), (-6.0, 6.0)], 48, 8).unwrap();
+            let wide = Exponential::polynomial(grid, onsager_closures::Reference::Lebesgue, 4).unwrap();
+            let (mut s, mut p) = (Vec::new(), Vec::new());
+            wide.node_probabilities_into(lambda, &mut s, &mut p).unwrap();
+            let (mean, cov) = state_moments(wide.grid().points(), &p, 2);
+            let chol = onsager_closures::cholesky(&cov, 2).unwrap();
+            assert!(chol[2].abs() > 0.1 * chol[3], "the frame is not diagonal: {chol:?}");
+            let drift = || {
+                let family = density_family(&mean, &chol, follow.width, follow.panels, 4).unwrap();
+                ExponentialDrift::following(
+                    &DoubleWell2d,
+                    &[0.5],
+                    family,
+                    (mean.clone(), chol.clone()),
+                    follow,
+                )
+                .unwrap()
+            };
+            let (fast, nodes) = (drift(), drift());
+            assert!(fast.nodes.borrow().tensor.is_some(), "a frame of monomials is a tensor plan");
+            nodes.nodes.borrow_mut().tensor = None;
+            assert_same_sums(&fast, &nodes, lambda, &kappa, tol);
+            assert!(nodes.nodes.borrow().tensor.is_none(), "the nodes stayed on their frame");
+        };
+        let bimodal =
+            [0.5, 0.0, 4.0 - 1.0 / 0.6, 2.0 / 0.6, -1.0 / 0.6, 0.0, 0.0, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0, 0.0];
+        check(&bimodal, 1e-10);
+        // Mean (1, 0.8), covariance 0.04·[[1, 0.6], [0.6, 1]]: precision P = 25/0.64·[[1, −0.6], [−0.6, 1]].
+        let (m, q) = ([1.0, 0.8], 25.0 / 0.64);
+        let (p11, p12) = (q, -0.6 * q);
+        let narrow = [
+            p11 * m[0] + p12 * m[1],
+            p12 * m[0] + p11 * m[1],
+            -0.5 * p11,
+            -p12,
+            -0.5 * p11,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+        ];
+        check(&narrow, 1e-9);
+    }
+
     /// The raw-moment sums of a fixed tensor box ([`TensorPlan`]) equal the node sums of
     /// [`ExponentialDrift::zeroth`] (the same quadrature, summed another way): W, ∂W/∂λ and
     /// ∇²(κᵀW), on a bimodal, a concentrated and a spread density (quartic) and with the
@@ -1402,35 +1543,7 @@ mod tests {
             let nodes = ExponentialDrift::try_new(sde, &[0.5], family).unwrap();
             assert!(fast.nodes.borrow().tensor.is_some(), "a box of monomials is a tensor plan");
             nodes.nodes.borrow_mut().tensor = None;
-            let r = lambda.len();
-            let z = || (vec![0.0; r], vec![0.0; r * r], vec![0.0; r * r]);
-            let ((mut w1, mut j1, mut h1), (mut w2, mut j2, mut h2)) = (z(), z());
-            fast.w_second(0.2, lambda, kappa, &mut w1, &mut j1, &mut h1).unwrap();
-            nodes.w_second(0.2, lambda, kappa, &mut w2, &mut j2, &mut h2).unwrap();
-            for (what, fast, nodes) in [("W", &w1, &w2), ("J", &j1, &j2), ("H", &h1, &h2)] {
-                let scale = nodes.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-                for (a, b) in fast.iter().zip(nodes) {
-                    assert!(
-                        (a - b).abs() <= tol * scale,
-                        "{what}: {a} vs {b} (largest entry {scale}) at {lambda:?}"
-                    );
-                }
-            }
-            let (m1, m2) = (fast.moments(lambda).unwrap(), nodes.moments(lambda).unwrap());
-            assert!((m1.log_partition - m2.log_partition).abs() <= tol * m2.log_partition.abs().max(1.0));
-            for (what, fast, nodes) in [("mean", &m1.mean, &m2.mean), ("C", &m1.covariance, &m2.covariance)] {
-                let scale = nodes.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-                for (a, b) in fast.iter().zip(nodes) {
-                    assert!((a - b).abs() <= tol * scale, "{what}: {a} vs {b} (largest entry {scale})");
-                }
-            }
-            let mut w3 = vec![0.0; r];
-            fast.w(0.2, lambda, &mut w3).unwrap();
-            // The same sums with tables of another size: equal to round-off.
-            let scale = w1.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            for (a, b) in w1.iter().zip(&w3) {
-                assert!((a - b).abs() <= tol * scale, "W alone {b} is W of the Hessian's evaluation {a}");
-            }
+            assert_same_sums(&fast, &nodes, lambda, kappa, tol);
         }
         let box2 = |degree| {
             Exponential::polynomial(

@@ -29,6 +29,22 @@ pub(super) struct TensorPlan {
     exponents: Vec<Vec<usize>>,
     /// Per axis, the powers x^0, …, x^d of its points, power-major (row j holds x^j).
     powers: Vec<Vec<f64>>,
+    /// For nodes x = m + Lξ that follow the density, the frame: the axes are those of ξ.
+    frame: Option<Affine>,
+}
+
+/// The frame x = m + Lξ (L lower triangular, row-major) of a [`TensorPlan`] on the axes of ξ,
+/// with the expansion of the family's monomials in those of ξ: M(x) = BΞ(ξ) + M(m), B lower
+/// triangular (for exponents sorted by degree, the first descending within a degree, a power
+/// ξ₁^p ξ₂^q of x₁^a x₂^b has q ≤ b and so p ≥ a).
+#[derive(Debug, Clone)]
+struct Affine {
+    /// L⁻¹ (row-major, lower triangular).
+    inverse: Vec<f64>,
+    /// B (row-major R × R).
+    b: Vec<f64>,
+    /// M(m).
+    at_mean: Vec<f64>,
 }
 
 /// What an evaluation returns besides W: nothing, ∂W/∂λ, or ∂W/∂λ and ∇²(κᵀW).
@@ -59,6 +75,8 @@ pub(super) struct TensorWork {
     dense: Vec<f64>,
     a: Vec<f64>,
     scratch: [Vec<f64>; 2],
+    /// L⁻¹(π f) in a frame.
+    frame_drift: Vec<f64>,
 }
 
 /// One term c·(table entry at `at` + shift) of an expectation E[q ξ^γ].
@@ -73,8 +91,36 @@ impl TensorPlan {
     /// are all monomials of total degree 1 to d, sorted by degree. (In one dimension the node
     /// sums cost R²K with K ≈ 100 nodes, no more than the tables would.)
     pub(super) fn of(family: &Exponential) -> Option<TensorPlan> {
+        Self::on_axes(family, tensor_axes(family.grid().points())?, None)
+    }
+
+    /// The plan of `family` on nodes x = m + Lξ that follow the density, ξ on the tensor grid
+    /// of `axis` in each dimension ([`onsager_closures::frame_grid`]: `mean` = m, `chol` = L
+    /// row-major lower triangular), if its moments are all monomials of total degree 1 to d,
+    /// sorted by degree.
+    pub(super) fn in_frame(
+        family: &Exponential,
+        axis: &[f64],
+        mean: &[f64],
+        chol: &[f64],
+    ) -> Option<TensorPlan> {
+        let n = mean.len();
+        let exponents: Vec<Vec<usize>> =
+            family.exponents()?.iter().map(|e| e.iter().map(|&x| x as usize).collect()).collect();
+        let (b, at_mean) = monomial_map(&exponents, mean, chol);
+        let mut inverse = vec![0.0; n * n];
+        for j in 0..n {
+            let mut col: Vec<f64> = (0..n).map(|i| if i == j { 1.0 } else { 0.0 }).collect();
+            solve_lower(chol, n, &mut col);
+            (0..n).for_each(|i| inverse[i * n + j] = col[i]);
+        }
+        let frame = Affine { inverse, b, at_mean };
+        Self::on_axes(family, vec![axis.to_vec(); n], Some(frame))
+    }
+
+    fn on_axes(family: &Exponential, axes: Vec<Vec<f64>>, frame: Option<Affine>) -> Option<TensorPlan> {
         let n = family.dim();
-        if n != 2 {
+        if n != 2 || axes.len() != n || axes.iter().map(Vec::len).product::<usize>() != family.grid().len() {
             return None;
         }
         let exponents: Vec<Vec<usize>> =
@@ -92,26 +138,37 @@ impl TensorPlan {
         {
             return None;
         }
-        let axes = tensor_axes(family.grid().points())?;
         let powers = axes
             .iter()
             .map(|axis| (0..=degree).flat_map(|j| axis.iter().map(move |x| x.powi(j as i32))).collect())
             .collect();
-        Some(TensorPlan { axes, degree, exponents, powers })
+        Some(TensorPlan { axes, degree, exponents, powers, frame })
     }
 
     /// λᵀM(x_k) at every node into `s` (resized to K), by the axis tables: with X_i the powers
     /// x^0, …, x^d of axis i's points and Λ the (d + 1) × (d + 1) matrix of λ by exponent
-    /// (Λ_00 = 0), s = X₀ΛX₁ᵀ, d + 1 multiply-adds per node instead of R. The exponents of the
+    /// (Λ_00 = 0; in a frame, Λ of Bᵀλ on the axes of ξ and Λ_00 = λᵀM(m)), s = X₀ΛX₁ᵀ, d + 1
+    /// multiply-adds per node instead of R. The exponents of the
     /// family's density (`003_d2fc48a470e528fc.txt (II.36)`) without its base log-weights;
     /// `row` is scratch.
     pub(super) fn polynomial_into(&self, lambda: &[f64], row: &mut Vec<f64>, s: &mut Vec<f64>) {
         let d1 = self.degree + 1;
         let (outer, inner) = (self.axes[0].len(), self.axes[1].len());
         let mut by_exponent = vec![0.0; d1 * d1];
-        for (e, &l) in self.exponents.iter().zip(lambda) {
+        // In a frame, λᵀM(x) = (Bᵀλ)ᵀΞ(ξ) + λᵀM(m).
+        let (lambda, constant) = match &self.frame {
+            Some(f) => {
+                let r = lambda.len();
+                let bt: Vec<f64> =
+                    (0..r).map(|col| (col..r).map(|a| f.b[a * r + col] * lambda[a]).sum()).collect();
+                (std::borrow::Cow::Owned(bt), lambda.iter().zip(&f.at_mean).map(|(l, m)| l * m).sum())
+            }
+            None => (std::borrow::Cow::Borrowed(lambda), 0.0),
+        };
+        for (e, &l) in self.exponents.iter().zip(lambda.iter()) {
             by_exponent[e[0] * d1 + e[1]] = l;
         }
+        by_exponent[0] = constant;
         let (x0, x1) = (&self.powers[0], &self.powers[1]);
         s.clear();
         s.resize(outer * inner, 0.0);
@@ -147,8 +204,85 @@ impl TensorPlan {
     /// ∇²(κᵀW) into `hess`, from the node probabilities `p` and the drift-weighted
     /// probabilities `pf` (π_k f_i(x_k), state-major, 0 where π_k = 0), with the diffusion
     /// `diffusion` (row-major n × n).
+    ///
+    /// In a frame x = m + Lξ the sums run in ξ, whose drift is L⁻¹f and diffusion L⁻¹DL⁻ᵀ, for
+    /// the family of the monomials of ξ at λ̃ = Bᵀλ (the same density), and are carried back:
+    /// W = B⁻ᵀW̃, ∂W/∂λ = B⁻ᵀ(∂W̃/∂λ̃)Bᵀ, ∇²(κᵀW) = B∇²(κ̃ᵀW̃)Bᵀ with κ̃ = B⁻¹κ.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn evaluate(
+        &self,
+        order: Order,
+        p: &[f64],
+        pf: &[f64],
+        diffusion: &[f64],
+        kappa: &[f64],
+        work: &mut TensorWork,
+        out: (&mut [f64], &mut [f64], &mut [f64]),
+    ) -> Result<(), Unrealizable> {
+        let Some(frame) = &self.frame else {
+            return self.evaluate_on_axes(order, p, pf, diffusion, kappa, work, out);
+        };
+        let (n, r, nodes) = (self.n(), self.exponents.len(), p.len());
+        let inv = &frame.inverse;
+        // L⁻¹(π f), state-major, and L⁻¹DL⁻ᵀ.
+        let mut pf_xi = std::mem::take(&mut work.frame_drift);
+        pf_xi.clear();
+        pf_xi.resize(n * nodes, 0.0);
+        for i in 0..n {
+            for j in 0..=i {
+                let c = inv[i * n + j];
+                let (dst, src) = (i * nodes..(i + 1) * nodes, j * nodes..(j + 1) * nodes);
+                pf_xi[dst].iter_mut().zip(&pf[src]).for_each(|(v, &u)| *v += c * u);
+            }
+        }
+        let d_xi: Vec<f64> = (0..n * n)
+            .map(|ij| {
+                let (i, j) = (ij / n, ij % n);
+                (0..n)
+                    .map(|k| {
+                        inv[i * n + k] * (0..n).map(|l| diffusion[k * n + l] * inv[j * n + l]).sum::<f64>()
+                    })
+                    .sum()
+            })
+            .collect();
+        let mut kappa_xi = kappa.to_vec();
+        if !kappa_xi.is_empty() {
+            solve_lower(&frame.b, r, &mut kappa_xi);
+        }
+        let result = self.evaluate_on_axes(
+            order,
+            p,
+            &pf_xi,
+            &d_xi,
+            &kappa_xi,
+            work,
+            (&mut *out.0, &mut *out.1, &mut *out.2),
+        );
+        work.frame_drift = pf_xi;
+        result?;
+        let (w, jac, hess) = out;
+        let b = &frame.b;
+        solve_upper_transposed(b, r, w);
+        if order >= Order::Jacobian {
+            // B⁻ᵀ J̃ Bᵀ: J̃Bᵀ, then B⁻ᵀ on its columns.
+            let jb: Vec<f64> = (0..r * r)
+                .map(|ij| {
+                    let (i, j) = (ij / r, ij % r);
+                    (0..=j).map(|k| jac[i * r + k] * b[j * r + k]).sum()
+                })
+                .collect();
+            jac[..r * r].copy_from_slice(&jb);
+            solve_upper_transposed(b, r, &mut jac[..r * r]);
+        }
+        if order == Order::Hessian {
+            let h = hess[..r * r].to_vec();
+            lower_congruence(b, r, |k, j| h[k * r + j], hess);
+        }
+        Ok(())
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn evaluate_on_axes(
         &self,
         order: Order,
         p: &[f64],
@@ -207,7 +341,20 @@ impl TensorPlan {
     /// (`003_d2fc48a470e528fc.txt (II.37)–(II.38)`) by the raw-moment table to degree 2d per
     /// axis: μ̃ and C̃ in the basis ξ^β, then μ = Aμ̃ + c^α and C = AC̃Aᵀ; about K·(2d + 1)
     /// multiply-adds instead of the node sums' K·R²/2.
+    /// In a frame, μ = Bμ̃ + M(m) and C = BC̃Bᵀ from those of the monomials of ξ.
     pub(super) fn cumulants(&self, p: &[f64], work: &mut TensorWork) -> (Vec<f64>, Vec<f64>) {
+        let (mean, cov) = self.cumulants_on_axes(p, work);
+        let Some(frame) = &self.frame else { return (mean, cov) };
+        let r = mean.len();
+        let b = &frame.b;
+        let mean =
+            (0..r).map(|a| frame.at_mean[a] + (0..=a).map(|k| b[a * r + k] * mean[k]).sum::<f64>()).collect();
+        let mut out = vec![0.0; r * r];
+        lower_congruence(b, r, |k, j| cov[k * r + j], &mut out);
+        (mean, out)
+    }
+
+    fn cumulants_on_axes(&self, p: &[f64], work: &mut TensorWork) -> (Vec<f64>, Vec<f64>) {
         let r = self.exponents.len();
         let b = 2 * self.degree + 1;
         self.frame(p, work);
@@ -428,6 +575,69 @@ impl TensorPlan {
         }
         lower_congruence(&work.a, r, |k, j| h[k * r + j], hess);
     }
+}
+
+/// The expansion of the monomials x^α of `exponents` (sorted by degree, the first exponent
+/// descending within a degree) at x = m + Lξ in the monomials ξ^β of the same exponents:
+/// (B row-major R × R, lower triangular, and the constants M(m)). With x_i = m_i + Σ_j L_ij ξ_j
+/// as polynomials in ξ (coefficients by exponent, stride d + 1 per axis), each x^α is a product
+/// of them.
+fn monomial_map(exponents: &[Vec<usize>], mean: &[f64], chol: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let n = mean.len();
+    let degree = exponents.iter().map(|e| e.iter().sum::<usize>()).max().unwrap_or(0);
+    let stride = degree + 1;
+    let size = stride.pow(n as u32);
+    let unit = |i: usize| -> Vec<usize> { (0..n).map(|j| usize::from(i == j)).collect() };
+    let index = |e: &[usize]| table_index(e, stride);
+    // x_i as a polynomial in ξ.
+    let linear: Vec<Vec<f64>> = (0..n)
+        .map(|i| {
+            let mut q = vec![0.0; size];
+            q[0] = mean[i];
+            for j in 0..=i {
+                q[index(&unit(j))] += chol[i * n + j];
+            }
+            q
+        })
+        .collect();
+    // The exponent of each table position, for products.
+    let exponent_at = |mut k: usize| -> Vec<usize> {
+        let mut e = vec![0; n];
+        for i in (0..n).rev() {
+            e[i] = k % stride;
+            k /= stride;
+        }
+        e
+    };
+    let times = |q: &[f64], x: &[f64]| -> Vec<f64> {
+        let mut out = vec![0.0; size];
+        for (k, &qk) in q.iter().enumerate().filter(|(_, &v)| v != 0.0) {
+            let ek = exponent_at(k);
+            for (l, &xl) in x.iter().enumerate().filter(|(_, &v)| v != 0.0) {
+                let sum: Vec<usize> = ek.iter().zip(exponent_at(l)).map(|(a, b)| a + b).collect();
+                if sum.iter().sum::<usize>() <= degree {
+                    out[index(&sum)] += qk * xl;
+                }
+            }
+        }
+        out
+    };
+    let r = exponents.len();
+    let (mut b, mut constants) = (vec![0.0; r * r], vec![0.0; r]);
+    for (row, alpha) in exponents.iter().enumerate() {
+        let mut q = vec![0.0; size];
+        q[0] = 1.0;
+        for (i, &a) in alpha.iter().enumerate() {
+            for _ in 0..a {
+                q = times(&q, &linear[i]);
+            }
+        }
+        constants[row] = q[0];
+        for (col, beta) in exponents.iter().enumerate() {
+            b[row * r + col] = q[index(beta)];
+        }
+    }
+    (b, constants)
 }
 
 /// The position of the exponent `e` in a table of stride `b` per axis.
