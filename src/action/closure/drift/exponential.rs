@@ -53,15 +53,21 @@ pub struct ExponentialDrift<'a, S: Sde + ?Sized> {
     support: Option<Vec<(f64, f64)>>,
 }
 
+/// ∂M_a/∂x_i at row a·n + i and D : ∇∇M_a at row a, one row of node values each.
+type DerivativeTables = (Vec<f64>, Vec<f64>);
+
+/// The mean and covariance (row-major) of the moments.
+type MeanAndCovariance = (Vec<f64>, Vec<f64>);
+
 /// The nodes of an [`ExponentialDrift`]: the family on them and its node tables. The hot loops
 /// run over the nodes with one contiguous row per moment ("moment-major"): M_a(x_k) at row a is
 /// the family's [`Exponential::moment_table_by_moment`], ∂M_a/∂x_i(x_k) at row a·dim + i of
-/// `jac`, and D : ∇∇M_a(x_k) at row a of `second`.
+/// the first of `tables`, and D : ∇∇M_a(x_k) at row a of the second.
 #[derive(Clone)]
 struct Nodes {
     family: Exponential,
-    jac: Vec<f64>,
-    second: Vec<f64>,
+    /// ∂M_a/∂x_i and D : ∇∇M_a at the nodes ([`derivative_tables`]): for the node sums.
+    tables: std::cell::OnceCell<std::result::Result<DerivativeTables, Unrealizable>>,
     /// The frame x = m + Lξ of nodes that follow the density; `None` for a fixed box.
     frame: Option<Frame>,
     /// The raw-moment sums of a tensor grid ([`TensorPlan`]: a fixed box, or a frame of nodes
@@ -83,6 +89,8 @@ struct Frame {
     width: f64,
     panels: usize,
     edge: Vec<bool>,
+    /// log w_k of the nodes (filled by [`Nodes::try_new`]).
+    log_weights: Vec<f64>,
 }
 
 /// Nodes that follow the density (`nodes = density`): a tensor grid of `panels` × 8
@@ -225,7 +233,7 @@ impl Frame {
                 })
             })
             .collect();
-        Frame { mean, chol, width, panels, edge }
+        Frame { mean, chol, width, panels, edge, log_weights: Vec::new() }
     }
 
     /// Whether a density of mean `mean` and covariance `cov` has left the frame: its mean
@@ -305,40 +313,18 @@ pub(crate) fn density_family(
 }
 
 impl Nodes {
-    /// The node tables of `family` for the diffusion D (row-major n × n).
+    /// The nodes of `family` for the diffusion D (row-major n × n): their tensor plan where
+    /// there is one, else their derivative tables ([`derivative_tables`], needed only by the
+    /// node sums).
     fn try_new(
         family: Exponential,
         diffusion: &[f64],
         frame: Option<Frame>,
     ) -> std::result::Result<Nodes, Unrealizable> {
-        let n = family.dim();
-        let r = family.n_moments();
         let nodes = family.grid().len();
         if frame.as_ref().is_some_and(|f| f.edge.len() != nodes) {
             return Err(Unrealizable("the frame and the family have different nodes".into()));
         }
-        let mut jac = vec![0.0; nodes * r * n];
-        let mut second = vec![0.0; nodes * r];
-        let mut h = vec![0.0; r * n * n];
-        for (k, (x, _)) in family.grid().iter().enumerate() {
-            family
-                .moment_derivatives(x, &mut jac[k * r * n..(k + 1) * r * n], &mut h)
-                .map_err(unrealizable)?;
-            for a in 0..r {
-                second[k * r + a] = (0..n * n).map(|ij| diffusion[ij] * h[a * n * n + ij]).sum::<f64>();
-            }
-        }
-        // Node-major → moment-major.
-        let transpose = |m: &[f64], rows: usize| -> Vec<f64> {
-            let mut out = vec![0.0; m.len()];
-            for k in 0..nodes {
-                for a in 0..rows {
-                    out[a * nodes + k] = m[k * rows + a];
-                }
-            }
-            out
-        };
-        let (jac, second) = (transpose(&jac, r * n), transpose(&second, r));
         let tensor = match &frame {
             None => TensorPlan::of(&family),
             Some(f) => {
@@ -349,11 +335,56 @@ impl Nodes {
                     POINTS_PER_PANEL,
                 )
                 .map_err(unrealizable)?;
-                TensorPlan::in_frame(&family, axis.points(), &f.mean, &f.chol)
+                family
+                    .exponents()
+                    .and_then(|e| TensorPlan::in_frame(e, axis.points(), &f.mean, &f.chol))
+                    .filter(|plan| plan.len() == nodes)
             }
         };
-        Ok(Nodes { family, jac, second, frame, tensor, drift: Default::default() })
+        let tables = std::cell::OnceCell::new();
+        if tensor.is_none() {
+            tables.get_or_init(|| derivative_tables(&family, diffusion)).as_ref().map_err(Clone::clone)?;
+        }
+        let frame = frame
+            .map(|f| Frame { log_weights: family.grid().weights().iter().map(|w| w.ln()).collect(), ..f });
+        Ok(Nodes { family, tables, frame, tensor, drift: Default::default() })
     }
+
+    /// The derivative tables of [`derivative_tables`], computed at the first call.
+    fn tables(&self, diffusion: &[f64]) -> std::result::Result<&DerivativeTables, Unrealizable> {
+        self.tables.get_or_init(|| derivative_tables(&self.family, diffusion)).as_ref().map_err(Clone::clone)
+    }
+}
+
+/// ∂M_a/∂x_i at row a·n + i and D : ∇∇M_a at row a of the nodes of `family` (moment-major, one
+/// row of node values each), for the diffusion D (row-major n × n).
+fn derivative_tables(
+    family: &Exponential,
+    diffusion: &[f64],
+) -> std::result::Result<DerivativeTables, Unrealizable> {
+    let n = family.dim();
+    let r = family.n_moments();
+    let nodes = family.grid().len();
+    let mut jac = vec![0.0; nodes * r * n];
+    let mut second = vec![0.0; nodes * r];
+    let mut h = vec![0.0; r * n * n];
+    for (k, (x, _)) in family.grid().iter().enumerate() {
+        family.moment_derivatives(x, &mut jac[k * r * n..(k + 1) * r * n], &mut h).map_err(unrealizable)?;
+        for a in 0..r {
+            second[k * r + a] = (0..n * n).map(|ij| diffusion[ij] * h[a * n * n + ij]).sum::<f64>();
+        }
+    }
+    // Node-major → moment-major.
+    let transpose = |m: &[f64], rows: usize| -> Vec<f64> {
+        let mut out = vec![0.0; m.len()];
+        for k in 0..nodes {
+            for a in 0..rows {
+                out[a * nodes + k] = m[k * rows + a];
+            }
+        }
+        out
+    };
+    Ok((transpose(&jac, r * n), transpose(&second, r)))
 }
 
 impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
@@ -375,11 +406,14 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
             let frame = nodes.frame.as_ref().ok_or_else(|| Unrealizable("no frame for the nodes".into()))?;
             let ExpWork { s, p_all, col, .. } = work;
             probabilities(&nodes, lambda, (col, s, p_all))?;
-            let (mean, cov) = state_moments(nodes.family.grid().points(), p_all, n);
+            let (mean, cov) = match &nodes.tensor {
+                Some(plan) => plan.state_moments(p_all),
+                None => state_moments(nodes.family.grid().points(), p_all, n),
+            };
             // log p at the nodes = s_k − log w_k (Lebesgue reference).
             let (mut peak, mut edge) = (f64::NEG_INFINITY, f64::NEG_INFINITY);
-            for ((&sk, &wk), &e) in s.iter().zip(nodes.family.grid().weights()).zip(&frame.edge) {
-                let v = sk - wk.ln();
+            for ((&sk, &log_w), &e) in s.iter().zip(&frame.log_weights).zip(&frame.edge) {
+                let v = sk - log_w;
                 peak = peak.max(v);
                 if e {
                     edge = edge.max(v);
@@ -410,7 +444,9 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
 
     /// The family on the frame (m, L, width) with the fewest panels P (from `opts.panels`,
     /// scaled with the width, doubling) whose moments agree with those on 2P panels to
-    /// `opts.tolerance` times their standard deviations: max_a |μ_a(P) − μ_a(2P)|/√C_aa.
+    /// `opts.tolerance` times their standard deviations: max_a |μ_a(P) − μ_a(2P)|/√C_aa. The
+    /// moments on each candidate come from its tensor plan ([`frame_cumulants`]) where there is
+    /// one, and only the family of the P chosen is built.
     fn refined(
         &self,
         lambda: &[f64],
@@ -422,26 +458,62 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
         let degree = opts.degree;
         let mut panels = ((opts.panels as f64) * width / opts.width).ceil() as usize;
         let family = |p: usize| density_family(mean, chol, width, p, degree).map_err(unrealizable);
-        let mut coarse = family(panels)?;
+        let cumulants = |p: usize| match frame_cumulants(lambda, mean, chol, width, p, degree) {
+            Some(done) => done,
+            None => family(p)?.cumulants(lambda).map(|c| (c.mean, c.covariance)).map_err(unrealizable),
+        };
+        let (mut mu, mut cov) = cumulants(panels)?;
         while 2 * panels <= MAX_DENSITY_PANELS {
-            let fine = family(2 * panels)?;
-            let c = coarse.cumulants(lambda).map_err(unrealizable)?;
-            let mu = fine.mean(lambda).map_err(unrealizable)?;
+            let (mu_fine, cov_fine) = cumulants(2 * panels)?;
             let r = mu.len();
             let err = (0..r)
-                .map(|a| (c.mean[a] - mu[a]).abs() / c.covariance[a * r + a].max(f64::MIN_POSITIVE).sqrt())
+                .map(|a| (mu[a] - mu_fine[a]).abs() / cov[a * r + a].max(f64::MIN_POSITIVE).sqrt())
                 .fold(0.0, f64::max);
             if err <= opts.tolerance {
-                return Ok((coarse, panels));
+                return Ok((family(panels)?, panels));
             }
             panels *= 2;
-            coarse = fine;
+            (mu, cov) = (mu_fine, cov_fine);
         }
         Err(Unrealizable(format!(
             "the nodes that follow the density do not reach the tolerance {} with {MAX_DENSITY_PANELS} panels per axis",
             opts.tolerance
         )))
     }
+}
+
+/// The mean and covariance of M at λ for the polynomial family of total degree `degree` on the
+/// [`frame_grid`] of (m, L) with `panels` × 8 points per axis on ±`width`, by its tensor plan
+/// ([`TensorPlan::in_frame`]) without building the family; `None` where there is no plan.
+fn frame_cumulants(
+    lambda: &[f64],
+    mean: &[f64],
+    chol: &[f64],
+    width: f64,
+    panels: usize,
+    degree: u32,
+) -> Option<std::result::Result<MeanAndCovariance, Unrealizable>> {
+    let exponents = onsager_closures::Polynomial::try_new(mean.len(), degree).ok()?;
+    let axis =
+        onsager_closures::quadrature::composite_gauss_legendre(-width, width, panels, POINTS_PER_PANEL)
+            .ok()?;
+    let plan = TensorPlan::in_frame(exponents.exponents(), axis.points(), mean, chol)?;
+    if lambda.len() != plan.n_moments() || !lambda.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let (mut row, mut s) = (Vec::new(), Vec::new());
+    plan.polynomial_into(lambda, &mut row, &mut s);
+    // log w_k = log w_p + log w_q (the factor det L is common to all nodes).
+    let log_w: Vec<f64> = axis.weights().iter().map(|w| w.ln()).collect();
+    let per_axis = log_w.len();
+    for (k, sk) in s.iter_mut().enumerate() {
+        *sk += log_w[k / per_axis] + log_w[k % per_axis];
+    }
+    let mut p = vec![0.0; s.len()];
+    if onsager_closures::normalize_log_weights(&s, &mut p).is_none() {
+        return Some(Err(Unrealizable("the density has no mass on the frame's nodes".into())));
+    }
+    Some(Ok(plan.cumulants(&p, &mut TensorWork::default())))
 }
 
 /// `why` the nodes cannot hold the density at λ, with the reason no nodes can when its density
@@ -705,6 +777,7 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
     fn zeroth(&self, t: f64, lambda: &[f64], work: &mut ExpWork) -> std::result::Result<(), Unrealizable> {
         let computed = self.follow_density(lambda, work)?;
         let held = self.nodes.borrow();
+        let (jac, second) = held.tables(&self.diffusion)?;
         let family = &held.family;
         let n = family.dim();
         let r = family.n_moments();
@@ -736,10 +809,10 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
             let mu = dot(p, ma);
             d.extend(ma.iter().map(|&mk| mk - mu));
             pd.extend(p.iter().zip(&d[row.clone()]).map(|(&pk, &dk)| pk * dk));
-            g.extend_from_slice(&held.second[active(a)]);
+            g.extend_from_slice(&second[active(a)]);
             let ga = &mut g[row];
             for i in 0..n {
-                let ji = &held.jac[active(a * n + i)];
+                let ji = &jac[active(a * n + i)];
                 let fi = &fs[i * nodes..(i + 1) * nodes];
                 for ((gk, &jk), &fk) in ga.iter_mut().zip(ji).zip(fi) {
                     *gk += jk * fk;

@@ -39,6 +39,8 @@ pub(super) struct TensorPlan {
 /// ξ₁^p ξ₂^q of x₁^a x₂^b has q ≤ b and so p ≥ a).
 #[derive(Debug, Clone)]
 struct Affine {
+    mean: Vec<f64>,
+    chol: Vec<f64>,
     /// L⁻¹ (row-major, lower triangular).
     inverse: Vec<f64>,
     /// B (row-major R × R).
@@ -91,40 +93,43 @@ impl TensorPlan {
     /// are all monomials of total degree 1 to d, sorted by degree. (In one dimension the node
     /// sums cost R²K with K ≈ 100 nodes, no more than the tables would.)
     pub(super) fn of(family: &Exponential) -> Option<TensorPlan> {
-        Self::on_axes(family, tensor_axes(family.grid().points())?, None)
+        let axes = tensor_axes(family.grid().points())?;
+        if family.dim() != 2 || axes.iter().map(Vec::len).product::<usize>() != family.grid().len() {
+            return None;
+        }
+        Self::on_axes(family.exponents()?, axes)
     }
 
-    /// The plan of `family` on nodes x = m + Lξ that follow the density, ξ on the tensor grid
-    /// of `axis` in each dimension ([`onsager_closures::frame_grid`]: `mean` = m, `chol` = L
-    /// row-major lower triangular), if its moments are all monomials of total degree 1 to d,
-    /// sorted by degree.
+    /// The plan of the polynomial family of `exponents` on nodes x = m + Lξ that follow the
+    /// density, ξ on the tensor grid of `axis` in each dimension
+    /// ([`onsager_closures::frame_grid`]: `mean` = m, `chol` = L row-major lower triangular),
+    /// if they are all the exponents of total degree 1 to d in two states, sorted by degree.
     pub(super) fn in_frame(
-        family: &Exponential,
+        exponents: &[Vec<u32>],
         axis: &[f64],
         mean: &[f64],
         chol: &[f64],
     ) -> Option<TensorPlan> {
         let n = mean.len();
-        let exponents: Vec<Vec<usize>> =
-            family.exponents()?.iter().map(|e| e.iter().map(|&x| x as usize).collect()).collect();
-        let (b, at_mean) = monomial_map(&exponents, mean, chol);
+        let mut plan = Self::on_axes(exponents, vec![axis.to_vec(); n])?;
+        let (b, at_mean) = monomial_map(&plan.exponents, mean, chol);
         let mut inverse = vec![0.0; n * n];
         for j in 0..n {
             let mut col: Vec<f64> = (0..n).map(|i| if i == j { 1.0 } else { 0.0 }).collect();
             solve_lower(chol, n, &mut col);
             (0..n).for_each(|i| inverse[i * n + j] = col[i]);
         }
-        let frame = Affine { inverse, b, at_mean };
-        Self::on_axes(family, vec![axis.to_vec(); n], Some(frame))
+        plan.frame = Some(Affine { mean: mean.to_vec(), chol: chol.to_vec(), inverse, b, at_mean });
+        Some(plan)
     }
 
-    fn on_axes(family: &Exponential, axes: Vec<Vec<f64>>, frame: Option<Affine>) -> Option<TensorPlan> {
-        let n = family.dim();
-        if n != 2 || axes.len() != n || axes.iter().map(Vec::len).product::<usize>() != family.grid().len() {
+    fn on_axes(exponents: &[Vec<u32>], axes: Vec<Vec<f64>>) -> Option<TensorPlan> {
+        let n = axes.len();
+        if n != 2 {
             return None;
         }
         let exponents: Vec<Vec<usize>> =
-            family.exponents()?.iter().map(|e| e.iter().map(|&x| x as usize).collect()).collect();
+            exponents.iter().map(|e| e.iter().map(|&x| x as usize).collect()).collect();
         let degree = exponents.iter().map(|e| e.iter().sum::<usize>()).max()?;
         let complete = (degree + 1) * (degree + 2) / 2 - 1;
         let sorted = exponents.windows(2).all(|w| w[0].iter().sum::<usize>() <= w[1].iter().sum::<usize>());
@@ -142,7 +147,7 @@ impl TensorPlan {
             .iter()
             .map(|axis| (0..=degree).flat_map(|j| axis.iter().map(move |x| x.powi(j as i32))).collect())
             .collect();
-        Some(TensorPlan { axes, degree, exponents, powers, frame })
+        Some(TensorPlan { axes, degree, exponents, powers, frame: None })
     }
 
     /// λᵀM(x_k) at every node into `s` (resized to K), by the axis tables: with X_i the powers
@@ -184,6 +189,43 @@ impl TensorPlan {
                 }
             }
         }
+    }
+
+    /// The mean and covariance (row-major) of the state under the node probabilities `p`: those
+    /// of the axes' coordinates by sums over the grid's rows, centred (two passes), and in a
+    /// frame x = m + Lξ, m + Lμ_ξ and LΣ_ξLᵀ. About 4 multiply-adds per node.
+    pub(super) fn state_moments(&self, p: &[f64]) -> (Vec<f64>, Vec<f64>) {
+        let (ax0, ax1) = (&self.axes[0], &self.axes[1]);
+        let inner = ax1.len();
+        let mut columns = vec![0.0; inner];
+        let mut rows = Vec::with_capacity(ax0.len());
+        for row in p.chunks_exact(inner) {
+            rows.push(row.iter().sum::<f64>());
+            columns.iter_mut().zip(row).for_each(|(c, &pk)| *c += pk);
+        }
+        let mu = [dot(ax0, &rows), dot(ax1, &columns)];
+        let centred: Vec<f64> = ax1.iter().map(|x| x - mu[1]).collect();
+        let (mut c00, mut c01, mut c11) = (0.0, 0.0, 0.0);
+        for ((row, &x0), &r0) in p.chunks_exact(inner).zip(ax0).zip(&rows) {
+            let (mut s1, mut s2) = (0.0, 0.0);
+            for (&pk, &y) in row.iter().zip(&centred) {
+                let py = pk * y;
+                s1 += py;
+                s2 += py * y;
+            }
+            let d0 = x0 - mu[0];
+            c00 += r0 * d0 * d0;
+            c01 += d0 * s1;
+            c11 += s2;
+        }
+        let cov = [c00, c01, c01, c11];
+        let Some(f) = &self.frame else { return (mu.to_vec(), cov.to_vec()) };
+        let l = &f.chol;
+        let mean = (0..2).map(|i| f.mean[i] + (0..=i).map(|j| l[i * 2 + j] * mu[j]).sum::<f64>()).collect();
+        let lc: Vec<f64> =
+            (0..4).map(|ij| (0..2).map(|k| l[(ij / 2) * 2 + k] * cov[k * 2 + ij % 2]).sum()).collect();
+        let out = (0..4).map(|ij| (0..2).map(|k| lc[(ij / 2) * 2 + k] * l[(ij % 2) * 2 + k]).sum()).collect();
+        (mean, out)
     }
 
     /// The family's moment count R.
@@ -638,6 +680,10 @@ fn monomial_map(exponents: &[Vec<usize>], mean: &[f64], chol: &[f64]) -> (Vec<f6
         }
     }
     (b, constants)
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
 /// The position of the exponent `e` in a table of stride `b` per axis.
