@@ -28,8 +28,9 @@
 //! Group `closure_2d` (issue target: the two-state quartic exponential closure at least 10×
 //! faster than the exact 2-D grid, measured in one run): the `double-well-2d` preset record of
 //! seed 3 (x measured every 1 on [0, 10] with sd 0.5), the quartic closure on its default box
-//! (`exp-closure`, 48 × 48 nodes) and with `panels = 8` (32 × 32), against the exact
-//! mean-optimal estimator on the 80 × 80 grid on [−3, 3]² of the `closures-2d` experiment.
+//! (`exp-closure`, 48 × 48 nodes), with `panels = 8` (32 × 32) and on nodes that follow the
+//! density (`nodes = density`), against the exact mean-optimal estimator on the 80 × 80 grid on
+//! [−3, 3]² of the `closures-2d` experiment.
 
 use std::hint::black_box;
 use std::time::Duration;
@@ -38,7 +39,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 
 use onsager::action::{
     closure_estimate, mean_optimal, Closure, ClosureOptions, ExactOptions, ExponentialFamily, GridSpec,
-    TimeScheme,
+    NodeRule, TimeScheme,
 };
 use onsager::kalman::{estimate, gaussian_ksp, GaussianKspOptions, KalmanMethod, KalmanOptions};
 use onsager::model::library::{preset, Preset};
@@ -120,6 +121,8 @@ fn bench(c: &mut Criterion) {
     let problem = record.preset.problem(&record.data, &[]);
     let quartic = Closure::exponential(4, ClosureOptions::new());
     let coarse = Closure::new(ExponentialFamily::of_degree(4).with_panels(8), ClosureOptions::new());
+    let density =
+        Closure::new(ExponentialFamily::of_degree(4).with_nodes(NodeRule::Density), ClosureOptions::new());
     let exact = ExactOptions::new(GridSpec::new_2d([-3.0, -3.0], [3.0, 3.0], [80, 80]));
     let mut group = c.benchmark_group("closure_2d");
     group.sample_size(10).warm_up_time(Duration::from_millis(1)).measurement_time(Duration::from_secs(1));
@@ -128,6 +131,9 @@ fn bench(c: &mut Criterion) {
     });
     group.bench_function("quartic_closure_box_32", |b| {
         b.iter(|| black_box(closure_estimate(&problem, &coarse).expect("quartic")))
+    });
+    group.bench_function("quartic_closure_density", |b| {
+        b.iter(|| black_box(closure_estimate(&problem, &density).expect("quartic")))
     });
     group.bench_function("exact_mean_optimal_80x80", |b| {
         b.iter(|| black_box(mean_optimal(&problem, &exact).expect("mean-optimal")))

@@ -36,7 +36,7 @@ pub mod mean_optimal;
 
 pub use closure::{
     closure_estimate, Closure, ClosureAction, ClosureFamily, ClosureOptions, ExponentialFamily,
-    GaussianFamily,
+    GaussianFamily, NodeRule,
 };
 pub use continuation::{Branch, BranchEnd, BranchRule};
 pub use dual::{
