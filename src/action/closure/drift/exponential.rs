@@ -10,7 +10,7 @@ use onsager_closures::LegendreOptions;
 use serde::{Deserialize, Serialize};
 
 use super::gaussian_prior;
-use super::tensor::{Order, TensorPlan, TensorWork};
+use super::tensor::{solve_lower, Order, TensorPlan, TensorWork};
 use crate::action::closure::{
     check_box_covers_data, default_domain, ClosureFamily, FamilySetup, Refinement, Widening,
 };
@@ -24,7 +24,7 @@ use crate::{Error, Result};
 /// An exponential-family closure on the fixed nodes of an [`Exponential`] family (1-D or 2-D,
 /// the family's state = the model's full state). The generator averages
 /// g_k = f(x_k)·∇M(x_k) + D:∇∇M(x_k) (`003_d2fc48a470e528fc.txt (II.3)`) are formed at the
-/// nodes, with ∇M and ∇∇M computed once; then V = Σπ_k g_k, W = C⁻¹V and
+/// nodes, with ∇M and ∇∇M computed once per node set; then V = Σπ_k g_k, W = C⁻¹V and
 ///
 /// $$ \partial W/\partial\lambda = C^{-1}\sum_k \pi_k\,(g_k - (d_k\cdot W)\,d_k)\,d_k^\top,
 ///    \qquad d_k = M(x_k) - \mu , $$
@@ -242,7 +242,7 @@ impl Frame {
     fn moved(&self, mean: &[f64], cov: &[f64]) -> bool {
         let n = mean.len();
         let mut z: Vec<f64> = mean.iter().zip(&self.mean).map(|(a, b)| a - b).collect();
-        lower_solve(&self.chol, n, &mut z);
+        solve_lower(&self.chol, n, &mut z);
         if z.iter().any(|v| v.abs() > FRAME_DRIFT) {
             return true;
         }
@@ -252,12 +252,12 @@ impl Frame {
         let mut col = vec![0.0; n];
         for j in 0..n {
             (0..n).for_each(|i| col[i] = cov[i * n + j]);
-            lower_solve(&self.chol, n, &mut col);
+            solve_lower(&self.chol, n, &mut col);
             (0..n).for_each(|i| b[i * n + j] = col[i]);
         }
         for j in 0..n {
             col.copy_from_slice(&b[j * n..(j + 1) * n]);
-            lower_solve(&self.chol, n, &mut col);
+            solve_lower(&self.chol, n, &mut col);
             for (i, &v) in col.iter().enumerate() {
                 let identity = if i == j { 1.0 } else { 0.0 };
                 if (v - identity).abs() > FRAME_DRIFT || !v.is_finite() {
@@ -266,14 +266,6 @@ impl Frame {
             }
         }
         false
-    }
-}
-
-/// x = L⁻¹x in place, L lower triangular (row-major n × n).
-fn lower_solve(l: &[f64], n: usize, x: &mut [f64]) {
-    for i in 0..n {
-        let s: f64 = (0..i).map(|j| l[i * n + j] * x[j]).sum();
-        x[i] = (x[i] - s) / l[i * n + i];
     }
 }
 
@@ -503,6 +495,9 @@ fn frame_cumulants(
     }
     let (mut row, mut s) = (Vec::new(), Vec::new());
     plan.polynomial_into(lambda, &mut row, &mut s);
+    if s.iter().any(|v| v.is_nan()) {
+        return Some(Err(Unrealizable("the density's exponent is not a number on the frame's nodes".into())));
+    }
     // log w_k = log w_p + log w_q (the factor det L is common to all nodes).
     let log_w: Vec<f64> = axis.weights().iter().map(|w| w.ln()).collect();
     let per_axis = log_w.len();
@@ -1055,8 +1050,8 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
         Ok(())
     }
 
-    /// On a fixed tensor box by the raw-moment table ([`TensorPlan::cumulants`]), else by node
-    /// sums.
+    /// On a tensor grid (a fixed box, or the frame of nodes that follow the density) by the
+    /// raw-moment table ([`TensorPlan::cumulants`]), else by node sums.
     fn moments(&self, lambda: &[f64]) -> std::result::Result<FamilyMoments, Unrealizable> {
         self.follow_density(lambda, &mut self.work.borrow_mut())?;
         if let Some(moments) = self.tensor_moments(lambda) {
@@ -1600,6 +1595,42 @@ mod tests {
             0.0,
         ];
         check(&narrow, 1e-9);
+    }
+
+    /// In a frame, the moments that decide where the nodes move and how fine they are, from the
+    /// tensor plan, equal those of the node sums on the same nodes: the state's mean and
+    /// covariance ([`TensorPlan::state_moments`] against [`state_moments`]) and the moments of M
+    /// on a frame of P panels ([`frame_cumulants`] against the family's cumulants), on a bimodal
+    /// density in a correlated frame.
+    #[test]
+    fn the_frame_moments_by_the_plan_equal_the_node_sums() {
+        let (mean, chol) = ([0.1, 0.05], [0.8, 0.0, 0.6, 0.4]);
+        let bimodal =
+            [0.5, 0.0, 4.0 - 1.0 / 0.6, 2.0 / 0.6, -1.0 / 0.6, 0.0, 0.0, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0, 0.0];
+        for panels in [3, 6] {
+            let family = density_family(&mean, &chol, 6.0, panels, 4).unwrap();
+            let axis =
+                onsager_closures::quadrature::composite_gauss_legendre(-6.0, 6.0, panels, POINTS_PER_PANEL)
+                    .unwrap();
+            let plan =
+                TensorPlan::in_frame(family.exponents().unwrap(), axis.points(), &mean, &chol).unwrap();
+            let (mut s, mut p) = (Vec::new(), Vec::new());
+            family.node_probabilities_into(&bimodal, &mut s, &mut p).unwrap();
+            let close = |a: &[f64], b: &[f64], tol: f64, what: &str| {
+                let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                for (x, y) in a.iter().zip(b) {
+                    assert!((x - y).abs() <= tol * scale, "{what} on {panels} panels: {x} vs {y}");
+                }
+            };
+            let (m1, c1) = plan.state_moments(&p);
+            let (m2, c2) = state_moments(family.grid().points(), &p, 2);
+            close(&m1, &m2, 1e-13, "state mean");
+            close(&c1, &c2, 1e-13, "state covariance");
+            let (mu, cov) = frame_cumulants(&bimodal, &mean, &chol, 6.0, panels, 4).unwrap().unwrap();
+            let c = family.cumulants(&bimodal).unwrap();
+            close(&mu, &c.mean, 1e-10, "mean of M");
+            close(&cov, &c.covariance, 1e-10, "covariance of M");
+        }
     }
 
     /// The raw-moment sums of a fixed tensor box ([`TensorPlan`]) equal the node sums of

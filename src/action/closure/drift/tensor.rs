@@ -1,5 +1,6 @@
 //! The node sums of a polynomial exponential closure on a tensor grid, by raw moments
-//! ([`TensorPlan`]): the fast path of [`super::ExponentialDrift`] on a fixed box.
+//! ([`TensorPlan`]): the fast path of [`super::ExponentialDrift`] on a fixed box and on the frame
+//! x = m + Lξ of nodes that follow the density (whose grid is a tensor grid in ξ).
 //!
 //! With M the monomials x^α of total degree 1 to d and constant diffusion D, every node sum
 //! of W, ∂W/∂λ and ∇²(κᵀW) (`003_d2fc48a470e528fc.txt (II.3)`, `(II.43)`) is a linear
@@ -17,7 +18,7 @@
 use super::exponential::{covariance_failure, SpdFactor};
 use super::Unrealizable;
 use nalgebra::{DMatrixView, DMatrixViewMut};
-use onsager_closures::{Exponential, TrialFamily};
+use onsager_closures::{dot, Exponential, TrialFamily};
 
 /// A tensor grid in two dimensions (the last axis runs fastest: node k is
 /// (axes₀[k / K₁], axes₁[k mod K₁])) carrying the complete polynomial family of degree d, its
@@ -35,8 +36,8 @@ pub(super) struct TensorPlan {
 
 /// The frame x = m + Lξ (L lower triangular, row-major) of a [`TensorPlan`] on the axes of ξ,
 /// with the expansion of the family's monomials in those of ξ: M(x) = BΞ(ξ) + M(m), B lower
-/// triangular (for exponents sorted by degree, the first descending within a degree, a power
-/// ξ₁^p ξ₂^q of x₁^a x₂^b has q ≤ b and so p ≥ a).
+/// triangular for exponents sorted by degree, the first descending within a degree (a power
+/// ξ₁^p ξ₂^q of x₁^a x₂^b has q ≤ b, so within the degree a + b, p ≥ a: it comes no later).
 #[derive(Debug, Clone)]
 struct Affine {
     mean: Vec<f64>,
@@ -93,8 +94,11 @@ impl TensorPlan {
     /// are all monomials of total degree 1 to d, sorted by degree. (In one dimension the node
     /// sums cost R²K with K ≈ 100 nodes, no more than the tables would.)
     pub(super) fn of(family: &Exponential) -> Option<TensorPlan> {
+        if family.dim() != 2 {
+            return None;
+        }
         let axes = tensor_axes(family.grid().points())?;
-        if family.dim() != 2 || axes.iter().map(Vec::len).product::<usize>() != family.grid().len() {
+        if axes.iter().map(Vec::len).product::<usize>() != family.grid().len() {
             return None;
         }
         Self::on_axes(family.exponents()?, axes)
@@ -103,7 +107,8 @@ impl TensorPlan {
     /// The plan of the polynomial family of `exponents` on nodes x = m + Lξ that follow the
     /// density, ξ on the tensor grid of `axis` in each dimension
     /// ([`onsager_closures::frame_grid`]: `mean` = m, `chol` = L row-major lower triangular),
-    /// if they are all the exponents of total degree 1 to d in two states, sorted by degree.
+    /// if they are all the exponents of total degree 1 to d in two states, sorted by degree and
+    /// the first descending within a degree (B is then lower triangular; checked).
     pub(super) fn in_frame(
         exponents: &[Vec<u32>],
         axis: &[f64],
@@ -111,8 +116,15 @@ impl TensorPlan {
         chol: &[f64],
     ) -> Option<TensorPlan> {
         let n = mean.len();
+        if chol.len() != n * n {
+            return None;
+        }
         let mut plan = Self::on_axes(exponents, vec![axis.to_vec(); n])?;
         let (b, at_mean) = monomial_map(&plan.exponents, mean, chol);
+        let r = plan.exponents.len();
+        if (0..r).any(|a| (a + 1..r).any(|col| b[a * r + col] != 0.0)) {
+            return None;
+        }
         let mut inverse = vec![0.0; n * n];
         for j in 0..n {
             let mut col: Vec<f64> = (0..n).map(|i| if i == j { 1.0 } else { 0.0 }).collect();
@@ -163,7 +175,8 @@ impl TensorPlan {
         // In a frame, λᵀM(x) = (Bᵀλ)ᵀΞ(ξ) + λᵀM(m).
         let (lambda, constant) = match &self.frame {
             Some(f) => {
-                let r = lambda.len();
+                let r = self.exponents.len();
+                debug_assert_eq!(lambda.len(), r, "λ has one entry per moment");
                 let bt: Vec<f64> =
                     (0..r).map(|col| (col..r).map(|a| f.b[a * r + col] * lambda[a]).sum()).collect();
                 (std::borrow::Cow::Owned(bt), lambda.iter().zip(&f.at_mean).map(|(l, m)| l * m).sum())
@@ -220,12 +233,14 @@ impl TensorPlan {
         }
         let cov = [c00, c01, c01, c11];
         let Some(f) = &self.frame else { return (mu.to_vec(), cov.to_vec()) };
+        // L lower triangular: (LΣLᵀ)_ij = Σ_{k ≤ i, l ≤ j} L_ik Σ_kl L_jl.
         let l = &f.chol;
         let mean = (0..2).map(|i| f.mean[i] + (0..=i).map(|j| l[i * 2 + j] * mu[j]).sum::<f64>()).collect();
-        let lc: Vec<f64> =
-            (0..4).map(|ij| (0..2).map(|k| l[(ij / 2) * 2 + k] * cov[k * 2 + ij % 2]).sum()).collect();
-        let out = (0..4).map(|ij| (0..2).map(|k| lc[(ij / 2) * 2 + k] * l[(ij % 2) * 2 + k]).sum()).collect();
-        (mean, out)
+        let entry = |i: usize, j: usize| -> f64 {
+            (0..=i).map(|k| l[i * 2 + k] * (0..=j).map(|m| cov[k * 2 + m] * l[j * 2 + m]).sum::<f64>()).sum()
+        };
+        let (c00, c01, c11) = (entry(0, 0), entry(1, 0), entry(1, 1));
+        (mean, vec![c00, c01, c01, c11])
     }
 
     /// The family's moment count R.
@@ -342,7 +357,7 @@ impl TensorPlan {
             Order::Hessian => 4,
         };
         let b = level * self.degree + 1;
-        self.frame(p, work);
+        self.centre_and_scale(p, work);
         self.tables(p, b, Some((pf, (level - 1) * self.degree)), work);
         self.basis(b, diffusion, work);
         let TensorWork { sums, mu, at, c, cov, v, w: wt, generator, .. } = &mut *work;
@@ -393,13 +408,18 @@ impl TensorPlan {
             (0..r).map(|a| frame.at_mean[a] + (0..=a).map(|k| b[a * r + k] * mean[k]).sum::<f64>()).collect();
         let mut out = vec![0.0; r * r];
         lower_congruence(b, r, |k, j| cov[k * r + j], &mut out);
+        for i in 0..r {
+            for j in 0..i {
+                out[j * r + i] = out[i * r + j];
+            }
+        }
         (mean, out)
     }
 
     fn cumulants_on_axes(&self, p: &[f64], work: &mut TensorWork) -> (Vec<f64>, Vec<f64>) {
         let r = self.exponents.len();
         let b = 2 * self.degree + 1;
-        self.frame(p, work);
+        self.centre_and_scale(p, work);
         self.tables(p, b, None, work);
         self.transform(work);
         let (centre, sums, a) = (&work.centre, &work.sums, &work.a);
@@ -425,7 +445,7 @@ impl TensorPlan {
 
     /// The centre c (the density's mean) and scale s (its standard deviation, per axis), from
     /// the marginals of `p`.
-    fn frame(&self, p: &[f64], work: &mut TensorWork) {
+    fn centre_and_scale(&self, p: &[f64], work: &mut TensorWork) {
         let inner = self.axes.last().map_or(1, Vec::len);
         let TensorWork { centre, scale, scratch: [outer_marginal, inner_marginal], .. } = work;
         outer_marginal.clear();
@@ -682,10 +702,6 @@ fn monomial_map(exponents: &[Vec<usize>], mean: &[f64], chol: &[f64]) -> (Vec<f6
     (b, constants)
 }
 
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
-}
-
 /// The position of the exponent `e` in a table of stride `b` per axis.
 fn table_index(e: &[usize], b: usize) -> usize {
     e.iter().fold(0, |acc, &x| acc * b + x)
@@ -753,7 +769,7 @@ fn binomial(n: usize, k: usize) -> f64 {
 }
 
 /// x = L⁻¹x for L lower triangular (row-major r × r).
-fn solve_lower(l: &[f64], r: usize, x: &mut [f64]) {
+pub(super) fn solve_lower(l: &[f64], r: usize, x: &mut [f64]) {
     for i in 0..r {
         let s: f64 = (0..i).map(|k| l[i * r + k] * x[k]).sum();
         x[i] = (x[i] - s) / l[i * r + i];
@@ -774,5 +790,46 @@ fn solve_upper_transposed(l: &[f64], r: usize, x: &mut [f64]) {
         }
         let inv = l[i * r + i].recip();
         row.iter_mut().for_each(|v| *v *= inv);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// B Ξ(ξ) + M(m) = M(m + Lξ) for every monomial of the quartic and sextic families in two
+    /// states, at points ξ spread over a box (an identity of polynomials; to round-off), and B is
+    /// lower triangular.
+    #[test]
+    fn the_monomial_map_expands_the_monomials_at_m_plus_l_xi() {
+        let (mean, chol) = ([0.7, -1.3], [0.9, 0.0, -0.4, 0.6]);
+        for degree in [4u32, 6] {
+            let exponents: Vec<Vec<usize>> = onsager_closures::Polynomial::try_new(2, degree)
+                .unwrap()
+                .exponents()
+                .iter()
+                .map(|e| e.iter().map(|&x| x as usize).collect())
+                .collect();
+            let (b, at_mean) = monomial_map(&exponents, &mean, &chol);
+            let r = exponents.len();
+            let power =
+                |x: &[f64], e: &[usize]| x.iter().zip(e).map(|(v, &p)| v.powi(p as i32)).product::<f64>();
+            for a in 0..r {
+                assert!((a + 1..r).all(|col| b[a * r + col] == 0.0), "row {a} of B is lower triangular");
+            }
+            for k in 0..25 {
+                let xi = [-2.0 + 0.17 * k as f64, 1.5 - 0.13 * k as f64];
+                let x = [mean[0] + chol[0] * xi[0], mean[1] + chol[2] * xi[0] + chol[3] * xi[1]];
+                for (a, alpha) in exponents.iter().enumerate() {
+                    let expanded = at_mean[a]
+                        + (0..=a).map(|col| b[a * r + col] * power(&xi, &exponents[col])).sum::<f64>();
+                    let exact = power(&x, alpha);
+                    assert!(
+                        (expanded - exact).abs() <= 1e-12 * (1.0 + exact.abs()),
+                        "x^{alpha:?} at ξ = {xi:?}: {expanded} vs {exact}"
+                    );
+                }
+            }
+        }
     }
 }
