@@ -10,7 +10,7 @@ use onsager_closures::LegendreOptions;
 use serde::{Deserialize, Serialize};
 
 use super::gaussian_prior;
-use super::tensor::{solve_lower, Order, TensorPlan, TensorWork};
+use super::tensor::{solve_lower, NodeValues, Order, TensorPlan, TensorWork};
 use crate::action::closure::{
     check_box_covers_data, default_domain, ClosureFamily, FamilySetup, Refinement, Widening,
 };
@@ -726,7 +726,8 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
                     }
                 }
             }
-            plan.evaluate(order, p_all, fs, &self.diffusion, kappa, tensor, out)
+            let values = NodeValues { p: p_all, pf: fs, diffusion: &self.diffusion, kappa };
+            plan.evaluate(order, values, tensor, out)
         };
         Some(run())
     }

@@ -82,6 +82,17 @@ pub(super) struct TensorWork {
     frame_drift: Vec<f64>,
 }
 
+/// The node values an evaluation on a [`TensorPlan`] sums: the node probabilities `p`, the
+/// drift-weighted probabilities `pf` (π_k f_i(x_k), state-major, 0 where π_k = 0), the diffusion
+/// (row-major n × n) and κ of ∇²(κᵀW) (empty unless [`Order::Hessian`]).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct NodeValues<'a> {
+    pub(super) p: &'a [f64],
+    pub(super) pf: &'a [f64],
+    pub(super) diffusion: &'a [f64],
+    pub(super) kappa: &'a [f64],
+}
+
 /// One term c·(table entry at `at` + shift) of an expectation E[q ξ^γ].
 #[derive(Debug, Clone, Copy)]
 struct Term {
@@ -258,27 +269,22 @@ impl TensorPlan {
     }
 
     /// W into `w`, and for [`Order::Jacobian`] ∂W/∂λ into `jac`, for [`Order::Hessian`] also
-    /// ∇²(κᵀW) into `hess`, from the node probabilities `p` and the drift-weighted
-    /// probabilities `pf` (π_k f_i(x_k), state-major, 0 where π_k = 0), with the diffusion
-    /// `diffusion` (row-major n × n).
+    /// ∇²(κᵀW) into `hess`, from the node `values`.
     ///
     /// In a frame x = m + Lξ the sums run in ξ, whose drift is L⁻¹f and diffusion L⁻¹DL⁻ᵀ, for
     /// the family of the monomials of ξ at λ̃ = Bᵀλ (the same density), and are carried back:
     /// W = B⁻ᵀW̃, ∂W/∂λ = B⁻ᵀ(∂W̃/∂λ̃)Bᵀ, ∇²(κᵀW) = B∇²(κ̃ᵀW̃)Bᵀ with κ̃ = B⁻¹κ.
-    #[allow(clippy::too_many_arguments)]
     pub(super) fn evaluate(
         &self,
         order: Order,
-        p: &[f64],
-        pf: &[f64],
-        diffusion: &[f64],
-        kappa: &[f64],
+        values: NodeValues,
         work: &mut TensorWork,
         out: (&mut [f64], &mut [f64], &mut [f64]),
     ) -> Result<(), Unrealizable> {
         let Some(frame) = &self.frame else {
-            return self.evaluate_on_axes(order, p, pf, diffusion, kappa, work, out);
+            return self.evaluate_on_axes(order, values, work, out);
         };
+        let NodeValues { p, pf, diffusion, kappa } = values;
         let (n, r, nodes) = (self.n(), self.exponents.len(), p.len());
         let inv = &frame.inverse;
         // L⁻¹(π f), state-major, and L⁻¹DL⁻ᵀ.
@@ -306,15 +312,8 @@ impl TensorPlan {
         if !kappa_xi.is_empty() {
             solve_lower(&frame.b, r, &mut kappa_xi);
         }
-        let result = self.evaluate_on_axes(
-            order,
-            p,
-            &pf_xi,
-            &d_xi,
-            &kappa_xi,
-            work,
-            (&mut *out.0, &mut *out.1, &mut *out.2),
-        );
+        let in_xi = NodeValues { p, pf: &pf_xi, diffusion: &d_xi, kappa: &kappa_xi };
+        let result = self.evaluate_on_axes(order, in_xi, work, (&mut *out.0, &mut *out.1, &mut *out.2));
         work.frame_drift = pf_xi;
         result?;
         let (w, jac, hess) = out;
@@ -338,17 +337,14 @@ impl TensorPlan {
         Ok(())
     }
 
-    #[allow(clippy::too_many_arguments)]
     fn evaluate_on_axes(
         &self,
         order: Order,
-        p: &[f64],
-        pf: &[f64],
-        diffusion: &[f64],
-        kappa: &[f64],
+        values: NodeValues,
         work: &mut TensorWork,
         out: (&mut [f64], &mut [f64], &mut [f64]),
     ) -> Result<(), Unrealizable> {
+        let NodeValues { p, pf, diffusion, kappa } = values;
         let (w, jac, hess) = out;
         let r = self.exponents.len();
         let level = match order {
