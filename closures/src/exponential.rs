@@ -100,7 +100,7 @@ impl fmt::Debug for Reference {
     }
 }
 
-/// A tensor grid of composite Gauss–Legendre panels on a box in 1-D or 2-D: each axis
+/// A tensor grid of composite Gauss–Legendre panels on a box in 1-D, 2-D or 3-D: each axis
 /// $[a_i, b_i]$ gets `panels` panels of `points_per_panel` Gauss–Legendre points.
 ///
 /// Accuracy: see [`composite_gauss_legendre`]; with 8 points per panel and a panel width no
@@ -110,12 +110,12 @@ impl fmt::Debug for Reference {
 /// consistent to round-off whatever the grid.
 ///
 /// # Errors
-/// [`Error::InvalidOption`] for a dimension other than 1 or 2, or invalid panels.
+/// [`Error::InvalidOption`] for a dimension other than 1, 2 or 3, or invalid panels.
 pub fn panel_grid(bounds: &[(f64, f64)], panels: usize, points_per_panel: usize) -> Result<Rule, Error> {
-    if !(1..=2).contains(&bounds.len()) {
+    if !(1..=3).contains(&bounds.len()) {
         return Err(Error::InvalidOption {
             name: "bounds",
-            reason: format!("exponential families live on 1-D or 2-D grids, got {} axes", bounds.len()),
+            reason: format!("exponential families live on 1-D, 2-D or 3-D grids, got {} axes", bounds.len()),
         });
     }
     let axes = bounds

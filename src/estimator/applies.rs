@@ -39,7 +39,8 @@ impl Estimator {
     /// - parameters to estimate: only `jme`, `mee` and `pem` estimate them;
     /// - `ksp`, `mean-optimal`: one or two states, and a grid (the default grid needs every
     ///   state measured directly);
-    /// - `exp-closure`: one or two states (moments up to degree 6 in two); `ksp-closure`, `double-exp-closure`: one noisy state;
+    /// - `exp-closure`: one to three states (moments up to degree 6 in two, 4 in three);
+    ///   `ksp-closure`, `double-exp-closure`: one noisy state;
     ///   `gaussian-closure`, `gaussian-ksp-closure`: any number of states, clean states too;
     ///   `area-closure`: one noisy state and one scalar measured output;
     /// - `pem`: parameters to estimate;
@@ -92,12 +93,13 @@ impl Estimator {
                     }
                 }
             }
-            Estimator::ExpClosure(_) if n > 2 => {
-                return no(format!("the exponential closure takes one or two states, the model has {n}"))
+            Estimator::ExpClosure(_) if n > 3 => {
+                return no(format!("the exponential closure takes one to three states, the model has {n}"))
             }
-            Estimator::ExpClosure(c) if n == 2 && c.family.moments > 6 => {
+            Estimator::ExpClosure(c) if n > 1 && c.family.moments > [6, 4][n - 2] => {
                 return no(format!(
-                    "in two states the exponential closure takes moments up to degree 6, not {}",
+                    "in {n} states the exponential closure takes moments up to degree {}, not {}",
+                    [6, 4][n - 2],
                     c.family.moments
                 ))
             }

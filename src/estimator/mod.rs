@@ -184,7 +184,7 @@ estimators! {
     /// Exponential-family closure with the polynomial moments of total degree `moments`
     /// (`003 (II.36)–(II.53)`).
     ExpClosure, "exp-closure", Closure<ExponentialFamily>,
-        "exponential-family closure, polynomial moments up to degree `moments`, 1-D or 2-D (003 II.36-II.53)";
+        "exponential-family closure, polynomial moments up to degree `moments`, 1-D to 3-D (003 II.36-II.53)";
     /// Scalar area-rule closure: one state, one moment M = x, one measured output
     /// (`003 (II.17)–(II.35)`).
     AreaClosure, "area-closure", AreaClosure,

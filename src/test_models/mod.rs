@@ -15,6 +15,7 @@
 //! | [`TwoNoisyOneClean`] | two noisy states, a clean one, t-dependent, full G | one Itô–Taylor step = its formula from Jacobians |
 //! | [`DampedRotation`] | dX = AX dt + 0.5 dW, A = [[−1, 0.5], [−0.5, −1]] | Gaussian smoothing laws; stationary Σ = 0.125 I |
 //! | [`RotationWithPosition`] | [`DampedRotation`] and dZ = X₁ dt (three states, one clean) | exact Kalman/RTS |
+//! | [`RotationWithLag`] | [`DampedRotation`] and dX₃ = (X₁ − X₃) dt + 0.5 dW₃ (three noisy states) | exact Kalman/RTS |
 //!
 //! Data sets (each owning what an [`EstimationProblem`](crate::estimate::EstimationProblem)
 //! borrows, with a `problem()` method):
@@ -30,8 +31,9 @@
 //! | [`cosine_data`] | y(t) = a cos(1.3 t) + b, deterministic | identities that hold for any data |
 //!
 //! Model files ([`MODEL_FILES`]): the files of `examples/models/`, one twin per built-in model
-//! (the same model, priors, measurements and defaults, so the same numbers) and the pendulum
-//! of `docs/models.md`, each with the name it declares.
+//! (the same model, priors, measurements and defaults, so the same numbers), the pendulum of
+//! `docs/models.md` and the three-state double well of `docs/closures.md`, each with the name
+//! it declares.
 //!
 //! Every simulated record draws all its random numbers from one seeded `StdRng`, so its numbers
 //! are fixed for a given version of `rand`.
@@ -41,8 +43,8 @@ mod records;
 
 /// The model files of `examples/models/` as (declared name, text): a twin of every built-in model
 /// (same name, model and defaults as [`preset`](crate::model::library::preset) of that name), in
-/// the order of [`NAMES`](crate::model::library::NAMES), then `pendulum` (no built-in
-/// twin).
+/// the order of [`NAMES`](crate::model::library::NAMES), then `pendulum` and `double-well-3d`
+/// (no built-in twin).
 pub const MODEL_FILES: &[(&str, &str)] = &[
     ("ou", include_str!("../../examples/models/ou.toml")),
     ("tanh", include_str!("../../examples/models/tanh.toml")),
@@ -54,6 +56,7 @@ pub const MODEL_FILES: &[(&str, &str)] = &[
     ("lorenz63", include_str!("../../examples/models/lorenz63.toml")),
     ("lorenz96", include_str!("../../examples/models/lorenz96.toml")),
     ("pendulum", include_str!("../../examples/models/pendulum.toml")),
+    ("double-well-3d", include_str!("../../examples/models/double-well-3d.toml")),
 ];
 
 /// The preset of the model file called `name` in [`MODEL_FILES`]. Errors:
@@ -70,8 +73,8 @@ pub fn model_file(name: &str) -> crate::Result<crate::model::library::Preset> {
 }
 
 pub use models::{
-    CubicDampedDuffing, DampedRotation, LinearOscillator, RotationWithPosition, TwoNoisyOneClean,
-    UnforcedDuffing, UnscaledDoubleWell,
+    CubicDampedDuffing, DampedRotation, LinearOscillator, RotationWithLag, RotationWithPosition,
+    TwoNoisyOneClean, UnforcedDuffing, UnscaledDoubleWell,
 };
 pub use records::{
     cosine_data, gaussian_measurement, van_der_pol_student_t, DoubleWellRecord, OscillatorRecord, OuRecord,

@@ -349,3 +349,44 @@ impl Sde for RotationWithPosition {
         DampedRotation.diffusion(theta, out);
     }
 }
+
+/// The damped rotation of [`DampedRotation`] with a third noisy state that relaxes to the first,
+/// no parameters:
+///
+/// $$ dX_{1,2} = A X_{1,2}\,dt + 0.5\,dW_{1,2}, \qquad dX_3 = (X_1 - X_3)\,dt + 0.5\,dW_3, $$
+///
+/// noisy states `x1`, `x2`, `x3`: three states, all noisy (an invertible diffusion).
+///
+/// Known answers: linear with additive noise, so
+/// [`LinearGaussianModel::from_sde`](crate::kalman::linear::LinearGaussianModel::from_sde) gives
+/// its exact Kalman filter and RTS smoother; the Gaussian closure is exact for it, and so is every
+/// polynomial exponential family of even degree in three states (it holds the Gaussians).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct RotationWithLag;
+
+impl Sde for RotationWithLag {
+    fn dims(&self) -> Dims {
+        Dims { noisy: 3, clean: 0, params: 0 }
+    }
+
+    fn noisy_names(&self) -> Vec<String> {
+        names(&["x1", "x2", "x3"])
+    }
+
+    fn param_names(&self) -> Vec<String> {
+        Vec::new()
+    }
+
+    /// f = (A x₁₂, x₁ − x₃).
+    fn drift<D: Scalar>(&self, t: D, x: &[D], z: &[D], theta: &[D], out: &mut [D]) {
+        DampedRotation.drift(t, &x[..2], z, theta, &mut out[..2]);
+        out[2] = x[0] - x[2];
+    }
+
+    /// G = 0.5 I.
+    fn diffusion<D: Scalar>(&self, _theta: &[D], out: &mut [D]) {
+        for (k, g) in out.iter_mut().enumerate().take(9) {
+            *g = D::from(if k % 4 == 0 { 0.5 } else { 0.0 });
+        }
+    }
+}

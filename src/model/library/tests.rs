@@ -283,10 +283,12 @@ fn divergence_closed_form(p: &Preset, x: &[f64], z: &[f64], th: &[f64]) -> f64 {
         Model::Lorenz63(_) => -(th[Lorenz63::SIGMA] + 1.0 + th[Lorenz63::BETA]),
         // Lorenz-96: ∂f_i/∂x_i = −1.
         Model::Lorenz96(m) => -(m.states() as f64),
-        // A model file: the twin's closed form; the pendulum (no twin): −c.
+        // A model file: the twin's closed form; the pendulum and the 3-D double well (no twin).
         Model::Expression(_) => match preset(&p.name) {
             Ok(twin) => divergence_closed_form(&twin, x, z, th),
             Err(_) if p.name == "pendulum" => -th[1],
+            // f = (4x − 4x³, x − v, v − u): (4 − 12x²) − 1 − 1.
+            Err(_) if p.name == "double-well-3d" => 2.0 - 12.0 * x[0] * x[0],
             Err(_) => panic!("{}: no closed-form divergence in this test", p.name),
         },
     }

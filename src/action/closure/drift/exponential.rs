@@ -21,7 +21,7 @@ use crate::model::prior::Prior;
 use crate::model::Sde;
 use crate::{Error, Result};
 
-/// An exponential-family closure on the fixed nodes of an [`Exponential`] family (1-D or 2-D,
+/// An exponential-family closure on the fixed nodes of an [`Exponential`] family (1-D to 3-D,
 /// the family's state = the model's full state). The generator averages
 /// g_k = f(x_k)·∇M(x_k) + D:∇∇M(x_k) (`003_d2fc48a470e528fc.txt (II.3)`) are formed at the
 /// nodes, with ∇M and ∇∇M computed once per node set; then V = Σπ_k g_k, W = C⁻¹V and
@@ -108,6 +108,16 @@ pub(crate) struct DensityNodes {
 const POINTS_PER_PANEL: usize = 8;
 /// The most panels per axis the refinement of nodes that follow the density may reach.
 const MAX_DENSITY_PANELS: usize = 32;
+/// The most nodes the refinement of nodes that follow the density may reach: in 3-D, 12 panels
+/// per axis (96³ = 884,736 nodes, about 0.5 GB of tables for the quartic family).
+const MAX_DENSITY_NODES: usize = 1 << 20;
+
+/// The most panels per axis of nodes that follow the density in `n` dimensions: within
+/// [`MAX_DENSITY_PANELS`] and [`MAX_DENSITY_NODES`].
+fn max_density_panels(n: usize) -> usize {
+    let per_axis = (MAX_DENSITY_NODES as f64).powf(1.0 / n as f64).floor() as usize;
+    MAX_DENSITY_PANELS.min(per_axis / POINTS_PER_PANEL)
+}
 /// The widest box, in standard deviations of the frame, the nodes may widen to.
 const MAX_DENSITY_WIDTH: f64 = 24.0;
 /// The frame is moved when the density's mean has moved this many frame standard deviations,
@@ -455,7 +465,8 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
             None => family(p)?.cumulants(lambda).map(|c| (c.mean, c.covariance)).map_err(unrealizable),
         };
         let (mut mu, mut cov) = cumulants(panels)?;
-        while 2 * panels <= MAX_DENSITY_PANELS {
+        let most = max_density_panels(mean.len());
+        while 2 * panels <= most {
             let (mu_fine, cov_fine) = cumulants(2 * panels)?;
             let r = mu.len();
             let err = (0..r)
@@ -468,8 +479,10 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
             (mu, cov) = (mu_fine, cov_fine);
         }
         Err(Unrealizable(format!(
-            "the nodes that follow the density do not reach the tolerance {} with {MAX_DENSITY_PANELS} panels per axis",
-            opts.tolerance
+            "the nodes that follow the density do not reach the tolerance {} with {most} panels per axis \
+             ({} nodes; a larger `density_tolerance`, or `nodes = box`)",
+            opts.tolerance,
+            (most * POINTS_PER_PANEL).pow(mean.len() as u32)
         )))
     }
 }
@@ -498,11 +511,14 @@ fn frame_cumulants(
     if s.iter().any(|v| v.is_nan()) {
         return Some(Err(Unrealizable("the density's exponent is not a number on the frame's nodes".into())));
     }
-    // log w_k = log w_p + log w_q (the factor det L is common to all nodes).
+    // log w_k = Σ_i log w_{k_i}, k_i the digits of k in base P (the factor det L is common to
+    // all nodes).
     let log_w: Vec<f64> = axis.weights().iter().map(|w| w.ln()).collect();
     let per_axis = log_w.len();
+    let n = mean.len();
     for (k, sk) in s.iter_mut().enumerate() {
-        *sk += log_w[k / per_axis] + log_w[k % per_axis];
+        // The outer axis first.
+        *sk += (0..n).rev().map(|i| log_w[k / per_axis.pow(i as u32) % per_axis]).sum::<f64>();
     }
     let mut p = vec![0.0; s.len()];
     if onsager_closures::normalize_log_weights(&s, &mut p).is_none() {
@@ -525,8 +541,9 @@ fn unbounded(family: &Exponential, lambda: &[f64], why: String) -> Unrealizable 
 }
 
 /// The largest value on the unit sphere of the highest-degree terms of λ·M, for the polynomial
-/// family with `exponents` in one or two states (the terms of the highest degree with a
-/// non-zero coefficient; 720 directions in 2-D; NaN in more states). exp(λ·M) is normalizable
+/// family with `exponents` in one to three states (the terms of the highest degree with a
+/// non-zero coefficient; 720 directions in 2-D, a Fibonacci lattice of 2000 in 3-D; NaN in
+/// more states). exp(λ·M) is normalizable
 /// on Rⁿ when this is negative (an even degree with a negative definite form).
 fn top_form_max(exponents: &[Vec<u32>], lambda: &[f64]) -> f64 {
     let degree = |e: &Vec<u32>| e.iter().sum::<u32>();
@@ -548,6 +565,15 @@ fn top_form_max(exponents: &[Vec<u32>], lambda: &[f64]) -> f64 {
             .map(|k| {
                 let a = std::f64::consts::PI * k as f64 / 360.0;
                 vec![a.cos(), a.sin()]
+            })
+            .collect(),
+        3 => (0..2000)
+            .map(|k| {
+                // Points at equal areas: heights evenly spaced, longitudes by the golden angle.
+                let z = 1.0 - (2 * k + 1) as f64 / 2000.0;
+                let rho = (1.0 - z * z).sqrt();
+                let a = k as f64 * std::f64::consts::PI * (3.0 - 5f64.sqrt());
+                vec![rho * a.cos(), rho * a.sin(), z]
             })
             .collect(),
         _ => return f64::NAN,
@@ -1077,7 +1103,8 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
 #[serde(default)]
 #[non_exhaustive]
 pub struct ExponentialFamily {
-    /// The highest total degree: 2 to 12 in 1-D, 2 to 6 in 2-D. Default 4 (the quartic family).
+    /// The highest total degree: 2 to 12 in 1-D, 2 to 6 in 2-D, 2 to 4 in 3-D. Default 4 (the
+    /// quartic family).
     pub moments: usize,
     /// Support of the family (its quadrature grid): one interval [a, b] per state, or empty for
     /// the default: per state, the range of its data and of its initial prior (mean ± 5 sd),
@@ -1233,7 +1260,7 @@ impl ClosureFamily for ExponentialFamily {
         if !(2..=12).contains(&self.moments) {
             return Err(Error::invalid(
                 "moments",
-                format!("must be 2 to 12 (2 to 6 in 2-D), got {}", self.moments),
+                format!("must be 2 to 12 (2 to 6 in 2-D, 2 to 4 in 3-D), got {}", self.moments),
             ));
         }
         if self.panels == 0 {
@@ -1330,15 +1357,15 @@ fn exponential_setup<'a, S: Sde + ?Sized>(
 ) -> Result<(ExponentialDrift<'a, S>, Vec<f64>)> {
     let degree = options.moments;
     let n = problem.sde.dims().states();
-    if !(1..=2).contains(&n) {
+    if !(1..=3).contains(&n) {
         return Err(Error::invalid(
             "method",
             format!(
-                "the exponential closure handles models with one or two states (this model has {n}); use gaussian-closure"
+                "the exponential closure handles models with one to three states (this model has {n}); use gaussian-closure"
             ),
         ));
     }
-    let max_degree = if n == 1 { 12 } else { 6 };
+    let max_degree = [12, 6, 4][n - 1];
     if !(2..=max_degree).contains(&degree) {
         return Err(Error::invalid(
             "moments",
@@ -1632,6 +1659,34 @@ mod tests {
             close(&mu, &c.mean, 1e-10, "mean of M");
             close(&cov, &c.covariance, 1e-10, "covariance of M");
         }
+        // Three states: a bimodal correlated density in a correlated frame.
+        let (mean, chol) = ([0.1, 0.05, 0.0], [0.9, 0.0, 0.0, 0.4, 0.6, 0.0, 0.2, 0.5, 0.7]);
+        for panels in [2, 3] {
+            let family = density_family(&mean, &chol, 5.0, panels, 4).unwrap();
+            let lambda = three_state_bimodal(family.exponents().unwrap());
+            let axis =
+                onsager_closures::quadrature::composite_gauss_legendre(-5.0, 5.0, panels, POINTS_PER_PANEL)
+                    .unwrap();
+            let plan =
+                TensorPlan::in_frame(family.exponents().unwrap(), axis.points(), &mean, &chol).unwrap();
+            let (mut s, mut p) = (Vec::new(), Vec::new());
+            family.node_probabilities_into(&lambda, &mut s, &mut p).unwrap();
+            let (m1, c1) = plan.state_moments(&p);
+            let (m2, c2) = state_moments(family.grid().points(), &p, 3);
+            let (mu, cov) = frame_cumulants(&lambda, &mean, &chol, 5.0, panels, 4).unwrap().unwrap();
+            let c = family.cumulants(&lambda).unwrap();
+            for (what, a, b, tol) in [
+                ("state mean", &m1, &m2, 1e-13),
+                ("state covariance", &c1, &c2, 1e-13),
+                ("mean of M", &mu, &c.mean, 1e-10),
+                ("covariance of M", &cov, &c.covariance, 1e-10),
+            ] {
+                let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                for (x, y) in a.iter().zip(b) {
+                    assert!((x - y).abs() <= tol * scale, "3-D {what} on {panels} panels: {x} vs {y}");
+                }
+            }
+        }
     }
 
     /// The raw-moment sums of a fixed tensor box ([`TensorPlan`]) equal the node sums of
@@ -1685,6 +1740,71 @@ mod tests {
         sextic.extend((14..27).map(|a| if a == 21 || a == 27 - 1 || a == 14 { -0.004 } else { 0.0 }));
         let kappa6: Vec<f64> = (0..27).map(|a| ((a * 7 % 5) as f64 - 2.0) * 0.3).collect();
         compare(&DoubleWell2d, box2(6), &sextic, &kappa6, 1e-11);
+    }
+
+    /// λ of the quartic family in three states (its exponents `exponents`) for the density
+    /// exp(0.3x + 2x² − x⁴ − (y − 0.5x)²/0.5 − (z − y)²/0.8 − 0.1y⁴ − 0.1z⁴ + 0.05xyz): two
+    /// wells in x, y and z following it, correlated.
+    fn three_state_bimodal(exponents: &[Vec<u32>]) -> Vec<f64> {
+        exponents
+            .iter()
+            .map(|e| match (e[0], e[1], e[2]) {
+                (1, 0, 0) => 0.3,
+                (2, 0, 0) => 2.0 - 0.25 / 0.5,
+                (1, 1, 0) => 1.0 / 0.5,
+                (0, 2, 0) => -1.0 / 0.5 - 1.0 / 0.8,
+                (0, 1, 1) => 2.0 / 0.8,
+                (0, 0, 2) => -1.0 / 0.8,
+                (4, 0, 0) => -1.0,
+                (0, 4, 0) | (0, 0, 4) => -0.1,
+                (1, 1, 1) => 0.05,
+                _ => 0.0,
+            })
+            .collect()
+    }
+
+    /// In three states (the quartic family, 34 moments, on Lorenz-63's drift), the raw-moment
+    /// sums of a fixed tensor box and of a frame x = m + Lξ with L not diagonal equal the node
+    /// sums on the same nodes: W, ∂W/∂λ, ∇²(κᵀW) and the moments, on a bimodal correlated
+    /// density (measured: within 1e-11 of each output's largest entry, ∇²(κᵀW) the farthest).
+    #[test]
+    fn raw_moment_sums_in_three_states_equal_the_node_sums() {
+        use crate::model::library::Lorenz63;
+        let theta = [10.0, 28.0, 8.0 / 3.0, 1.0];
+        let grid = onsager_closures::panel_grid(&[(-2.5, 2.5), (-2.5, 2.5), (-2.5, 2.5)], 2, 8).unwrap();
+        let family = Exponential::polynomial(grid, onsager_closures::Reference::Lebesgue, 4).unwrap();
+        let lambda = three_state_bimodal(family.exponents().unwrap());
+        assert_eq!(lambda.len(), 34);
+        let kappa: Vec<f64> = (0..34).map(|a| ((a * 7 % 5) as f64 - 2.0) * 0.3).collect();
+        let fast = ExponentialDrift::try_new(&Lorenz63, &theta, family.clone()).unwrap();
+        let nodes = ExponentialDrift::try_new(&Lorenz63, &theta, family).unwrap();
+        assert!(fast.nodes.borrow().tensor.is_some(), "a 3-D box of monomials is a tensor plan");
+        nodes.nodes.borrow_mut().tensor = None;
+        assert_same_sums(&fast, &nodes, &lambda, &kappa, 1e-10);
+        // The frame of the density's own mean and covariance (on a wider box), L not diagonal.
+        let wide = onsager_closures::panel_grid(&[(-4.0, 4.0), (-4.0, 4.0), (-4.0, 4.0)], 4, 8).unwrap();
+        let wide = Exponential::polynomial(wide, onsager_closures::Reference::Lebesgue, 4).unwrap();
+        let (mut s, mut p) = (Vec::new(), Vec::new());
+        wide.node_probabilities_into(&lambda, &mut s, &mut p).unwrap();
+        let (mean, cov) = state_moments(wide.grid().points(), &p, 3);
+        let chol = onsager_closures::cholesky(&cov, 3).unwrap();
+        assert!(
+            chol[3].abs() > 0.1 * chol[4] && chol[7].abs() > 0.1 * chol[8],
+            "L is not diagonal: {chol:?}"
+        );
+        let follow = DensityNodes { degree: 4, panels: 2, width: 5.0, tolerance: 1e-4 };
+        let drift = || {
+            let family = density_family(&mean, &chol, follow.width, follow.panels, 4).unwrap();
+            ExponentialDrift::following(&Lorenz63, &theta, family, (mean.clone(), chol.clone()), follow)
+                .unwrap()
+        };
+        let (fast, nodes) = (drift(), drift());
+        assert!(fast.nodes.borrow().tensor.is_some(), "a 3-D frame of monomials is a tensor plan");
+        nodes.nodes.borrow_mut().tensor = None;
+        assert_same_sums(&fast, &nodes, &lambda, &kappa, 1e-10);
+        assert!(nodes.nodes.borrow().tensor.is_none(), "the nodes stayed on their frame");
+        // Their refinement stops at about 10⁶ nodes: 96³ in 3-D.
+        assert_eq!([1, 2, 3].map(max_density_panels), [32, 32, 12]);
     }
 
     /// Nodes that follow the density: after an evaluation at a density far from the prior's

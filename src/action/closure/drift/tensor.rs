@@ -5,9 +5,10 @@
 //! With M the monomials x^α of total degree 1 to d and constant diffusion D, every node sum
 //! of W, ∂W/∂λ and ∇²(κᵀW) (`003_d2fc48a470e528fc.txt (II.3)`, `(II.43)`) is a linear
 //! combination of the moments Σπ_k ξ_k^α and the drift-weighted moments Σπ_k f_i(x_k) ξ_k^α of
-//! a centred and scaled coordinate ξ = (x − c)/s. On a tensor grid each of those tables is two
-//! small matrix products (Σ_p ξ_p^α Σ_q π_pq ξ_q^β), so one evaluation costs a few times
-//! K·(4d + 1) multiply-adds for K nodes instead of K·R² for the R moments.
+//! a centred and scaled coordinate ξ = (x − c)/s. On a tensor grid each of those tables is one
+//! contraction per axis, the last first: in 2-D two small matrix products
+//! (Σ_p ξ_p^α Σ_q π_pq ξ_q^β), so one evaluation costs a few times K·(4d + 1) multiply-adds for
+//! K nodes instead of K·R² for the R moments (2-D and 3-D).
 //!
 //! The sums are formed in the basis Ξ = (ξ^β) of the same exponents, M(x) = AΞ(ξ) + b with A
 //! lower triangular (binomial expansion of (c + sξ)^α), and carried back exactly:
@@ -20,7 +21,10 @@ use super::Unrealizable;
 use nalgebra::{DMatrixView, DMatrixViewMut};
 use onsager_closures::{dot, Exponential, TrialFamily};
 
-/// A tensor grid in two dimensions (the last axis runs fastest: node k is
+/// The dimensions a [`TensorPlan`] handles.
+const DIMENSIONS: std::ops::RangeInclusive<usize> = 2..=3;
+
+/// A tensor grid in two or three dimensions (the last axis runs fastest: in 2-D node k is
 /// (axes₀[k / K₁], axes₁[k mod K₁])) carrying the complete polynomial family of degree d, its
 /// exponents sorted by total degree.
 #[derive(Debug, Clone)]
@@ -36,8 +40,10 @@ pub(super) struct TensorPlan {
 
 /// The frame x = m + Lξ (L lower triangular, row-major) of a [`TensorPlan`] on the axes of ξ,
 /// with the expansion of the family's monomials in those of ξ: M(x) = BΞ(ξ) + M(m), B lower
-/// triangular for exponents sorted by degree, the first descending within a degree (a power
-/// ξ₁^p ξ₂^q of x₁^a x₂^b has q ≤ b, so within the degree a + b, p ≥ a: it comes no later).
+/// triangular for exponents sorted by degree, then lexicographically descending (x_i holds
+/// ξ_1, …, ξ_i only, so a power ξ^β of x^α of the same degree moves exponent to earlier axes:
+/// β is lexicographically no smaller than α, and comes no later; in 2-D, ξ₁^p ξ₂^q of x₁^a x₂^b
+/// has p ≥ a).
 #[derive(Debug, Clone)]
 struct Affine {
     mean: Vec<f64>,
@@ -101,14 +107,14 @@ struct Term {
 }
 
 impl TensorPlan {
-    /// The plan of `family`, if its nodes are a tensor grid in two dimensions and its moments
-    /// are all monomials of total degree 1 to d, sorted by degree. (In one dimension the node
-    /// sums cost R²K with K ≈ 100 nodes, no more than the tables would.)
+    /// The plan of `family`, if its nodes are a tensor grid in two or three dimensions and its
+    /// moments are all monomials of total degree 1 to d, sorted by degree. (In one dimension the
+    /// node sums cost R²K with K ≈ 100 nodes, no more than the tables would.)
     pub(super) fn of(family: &Exponential) -> Option<TensorPlan> {
-        if family.dim() != 2 {
+        if !DIMENSIONS.contains(&family.dim()) {
             return None;
         }
-        let axes = tensor_axes(family.grid().points())?;
+        let axes = tensor_axes(family.grid().points(), family.dim())?;
         if axes.iter().map(Vec::len).product::<usize>() != family.grid().len() {
             return None;
         }
@@ -118,8 +124,9 @@ impl TensorPlan {
     /// The plan of the polynomial family of `exponents` on nodes x = m + Lξ that follow the
     /// density, ξ on the tensor grid of `axis` in each dimension
     /// ([`onsager_closures::frame_grid`]: `mean` = m, `chol` = L row-major lower triangular),
-    /// if they are all the exponents of total degree 1 to d in two states, sorted by degree and
-    /// the first descending within a degree (B is then lower triangular; checked).
+    /// if they are all the exponents of total degree 1 to d in two or three states, sorted by
+    /// degree and lexicographically descending within a degree (B is then lower triangular;
+    /// checked).
     pub(super) fn in_frame(
         exponents: &[Vec<u32>],
         axis: &[f64],
@@ -148,13 +155,14 @@ impl TensorPlan {
 
     fn on_axes(exponents: &[Vec<u32>], axes: Vec<Vec<f64>>) -> Option<TensorPlan> {
         let n = axes.len();
-        if n != 2 {
+        if !DIMENSIONS.contains(&n) {
             return None;
         }
         let exponents: Vec<Vec<usize>> =
             exponents.iter().map(|e| e.iter().map(|&x| x as usize).collect()).collect();
         let degree = exponents.iter().map(|e| e.iter().sum::<usize>()).max()?;
-        let complete = (degree + 1) * (degree + 2) / 2 - 1;
+        // C(d + n, n) − 1 monomials of total degree 1 to d in n variables.
+        let complete = (1..=n).fold(1, |c, i| c * (degree + i) / i) - 1;
         let sorted = exponents.windows(2).all(|w| w[0].iter().sum::<usize>() <= w[1].iter().sum::<usize>());
         let mut distinct = exponents.clone();
         distinct.sort();
@@ -174,15 +182,15 @@ impl TensorPlan {
     }
 
     /// λᵀM(x_k) at every node into `s` (resized to K), by the axis tables: with X_i the powers
-    /// x^0, …, x^d of axis i's points and Λ the (d + 1) × (d + 1) matrix of λ by exponent
-    /// (Λ_00 = 0; in a frame, Λ of Bᵀλ on the axes of ξ and Λ_00 = λᵀM(m)), s = X₀ΛX₁ᵀ, d + 1
-    /// multiply-adds per node instead of R. The exponents of the
+    /// x^0, …, x^d of axis i's points and Λ the (d + 1)ⁿ tensor of λ by exponent (Λ_0 = 0; in
+    /// a frame, Λ of Bᵀλ on the axes of ξ and Λ_0 = λᵀM(m)), Λ contracted with X₀, then X₁, …:
+    /// in 2-D s = X₀ΛX₁ᵀ, d + 1 multiply-adds per node instead of R. The exponents of the
     /// family's density (`003_d2fc48a470e528fc.txt (II.36)`) without its base log-weights;
-    /// `row` is scratch.
+    /// `row` is scratch (the partly contracted tensors).
     pub(super) fn polynomial_into(&self, lambda: &[f64], row: &mut Vec<f64>, s: &mut Vec<f64>) {
         let d1 = self.degree + 1;
-        let (outer, inner) = (self.axes[0].len(), self.axes[1].len());
-        let mut by_exponent = vec![0.0; d1 * d1];
+        let n = self.n();
+        let mut by_exponent = vec![0.0; d1.pow(n as u32)];
         // In a frame, λᵀM(x) = (Bᵀλ)ᵀΞ(ξ) + λᵀM(m).
         let (lambda, constant) = match &self.frame {
             Some(f) => {
@@ -195,63 +203,110 @@ impl TensorPlan {
             None => (std::borrow::Cow::Borrowed(lambda), 0.0),
         };
         for (e, &l) in self.exponents.iter().zip(lambda.iter()) {
-            by_exponent[e[0] * d1 + e[1]] = l;
+            by_exponent[table_index(e, d1)] = l;
         }
         by_exponent[0] = constant;
-        let (x0, x1) = (&self.powers[0], &self.powers[1]);
         s.clear();
-        s.resize(outer * inner, 0.0);
-        for (k0, out) in s.chunks_exact_mut(inner).enumerate() {
-            // Row k0 of X₀Λ.
-            row.clear();
-            row.extend(
-                (0..d1).map(|j| (0..d1).map(|i| x0[i * outer + k0] * by_exponent[i * d1 + j]).sum::<f64>()),
-            );
-            for (j, &c) in row.iter().enumerate() {
-                for (v, &x) in out.iter_mut().zip(&x1[j * inner..(j + 1) * inner]) {
+        s.resize(self.len(), 0.0);
+        // The tensors left after axes 0, 0 and 1, …: (d + 1)ⁿ⁻¹ + … + (d + 1) entries.
+        row.clear();
+        row.resize((1..n).map(|i| d1.pow((n - i) as u32)).sum(), 0.0);
+        self.contract_polynomial(0, &by_exponent, row, s);
+    }
+
+    /// Adds Σ_γ coef_γ Π_{i ≥ axis} x_i^γ_i into `out`, the nodes of the axes from `axis` on
+    /// (last fastest), for `coef` the (d + 1)^(n − axis) tensor of the exponents of those axes;
+    /// `levels` holds the tensors of the later axes.
+    fn contract_polynomial(&self, axis: usize, coef: &[f64], levels: &mut [f64], out: &mut [f64]) {
+        let d1 = self.degree + 1;
+        let (powers, len) = (&self.powers[axis], self.axes[axis].len());
+        if axis + 1 == self.n() {
+            for (j, &c) in coef.iter().enumerate() {
+                for (v, &x) in out.iter_mut().zip(&powers[j * len..(j + 1) * len]) {
                     *v += c * x;
                 }
             }
+            return;
+        }
+        let rest = coef.len() / d1;
+        let (next, deeper) = levels.split_at_mut(rest);
+        for (k, chunk) in out.chunks_exact_mut(out.len() / len).enumerate() {
+            // Λ's leading index contracted with the powers of this axis's point k.
+            for (col, v) in next.iter_mut().enumerate() {
+                *v = (0..d1).map(|a| powers[a * len + k] * coef[a * rest + col]).sum::<f64>();
+            }
+            let next: &[f64] = next;
+            self.contract_polynomial(axis + 1, next, deeper, chunk);
         }
     }
 
     /// The mean and covariance (row-major) of the state under the node probabilities `p`: those
-    /// of the axes' coordinates by sums over the grid's rows, centred (two passes), and in a
-    /// frame x = m + Lξ, m + Lμ_ξ and LΣ_ξLᵀ. About 4 multiply-adds per node.
+    /// of the axes' coordinates (the means by the axes' marginals, the covariance centred, by
+    /// rows along the last axis: about 4 multiply-adds per node), and in a frame x = m + Lξ,
+    /// m + Lμ_ξ and LΣ_ξLᵀ.
     pub(super) fn state_moments(&self, p: &[f64]) -> (Vec<f64>, Vec<f64>) {
-        let (ax0, ax1) = (&self.axes[0], &self.axes[1]);
-        let inner = ax1.len();
-        let mut columns = vec![0.0; inner];
-        let mut rows = Vec::with_capacity(ax0.len());
+        let n = self.n();
+        let mut marginal = Vec::new();
+        let mu: Vec<f64> = (0..n)
+            .map(|i| {
+                self.marginal(p, i, &mut marginal);
+                dot(&self.axes[i], &marginal)
+            })
+            .collect();
+        let centred: Vec<Vec<f64>> =
+            self.axes.iter().zip(&mu).map(|(axis, m)| axis.iter().map(|x| x - m).collect()).collect();
+        // By rows along the last axis: per row, Σπ, Σπd and Σπd² of the last coordinate.
+        let mut cov = vec![0.0; n * n];
+        let (last, inner) = (&centred[n - 1], self.axes[n - 1].len());
+        let mut index = vec![0; n - 1];
+        let mut d = vec![0.0; n - 1];
         for row in p.chunks_exact(inner) {
-            rows.push(row.iter().sum::<f64>());
-            columns.iter_mut().zip(row).for_each(|(c, &pk)| *c += pk);
-        }
-        let mu = [dot(ax0, &rows), dot(ax1, &columns)];
-        let centred: Vec<f64> = ax1.iter().map(|x| x - mu[1]).collect();
-        let (mut c00, mut c01, mut c11) = (0.0, 0.0, 0.0);
-        for ((row, &x0), &r0) in p.chunks_exact(inner).zip(ax0).zip(&rows) {
-            let (mut s1, mut s2) = (0.0, 0.0);
-            for (&pk, &y) in row.iter().zip(&centred) {
+            let (mut s0, mut s1, mut s2) = (0.0, 0.0, 0.0);
+            for (&pk, &y) in row.iter().zip(last) {
                 let py = pk * y;
+                s0 += pk;
                 s1 += py;
                 s2 += py * y;
             }
-            let d0 = x0 - mu[0];
-            c00 += r0 * d0 * d0;
-            c01 += d0 * s1;
-            c11 += s2;
+            (0..n - 1).for_each(|i| d[i] = centred[i][index[i]]);
+            for i in 0..n - 1 {
+                (0..=i).for_each(|j| cov[i * n + j] += s0 * d[i] * d[j]);
+                cov[(n - 1) * n + i] += d[i] * s1;
+            }
+            cov[n * n - 1] += s2;
+            next_index(&mut index, &self.axes[..n - 1]);
         }
-        let cov = [c00, c01, c01, c11];
-        let Some(f) = &self.frame else { return (mu.to_vec(), cov.to_vec()) };
+        mirror_lower(&mut cov, n);
+        let Some(f) = &self.frame else { return (mu, cov) };
         // L lower triangular: (LΣLᵀ)_ij = Σ_{k ≤ i, l ≤ j} L_ik Σ_kl L_jl.
         let l = &f.chol;
-        let mean = (0..2).map(|i| f.mean[i] + (0..=i).map(|j| l[i * 2 + j] * mu[j]).sum::<f64>()).collect();
+        let mean = (0..n).map(|i| f.mean[i] + (0..=i).map(|j| l[i * n + j] * mu[j]).sum::<f64>()).collect();
         let entry = |i: usize, j: usize| -> f64 {
-            (0..=i).map(|k| l[i * 2 + k] * (0..=j).map(|m| cov[k * 2 + m] * l[j * 2 + m]).sum::<f64>()).sum()
+            (0..=i).map(|k| l[i * n + k] * (0..=j).map(|m| cov[k * n + m] * l[j * n + m]).sum::<f64>()).sum()
         };
-        let (c00, c01, c11) = (entry(0, 0), entry(1, 0), entry(1, 1));
-        (mean, vec![c00, c01, c01, c11])
+        let mut out = vec![0.0; n * n];
+        (0..n).for_each(|i| (0..=i).for_each(|j| out[i * n + j] = entry(i, j)));
+        mirror_lower(&mut out, n);
+        (mean, out)
+    }
+
+    /// The marginal of `p` on axis `i`'s points into `out`: K additions.
+    fn marginal(&self, p: &[f64], i: usize, out: &mut Vec<f64>) {
+        let len = self.axes[i].len();
+        let stride: usize = self.axes[i + 1..].iter().map(Vec::len).product();
+        out.clear();
+        out.resize(len, 0.0);
+        if stride == 1 {
+            for row in p.chunks_exact(len) {
+                out.iter_mut().zip(row).for_each(|(m, &pk)| *m += pk);
+            }
+            return;
+        }
+        for block in p.chunks_exact(len * stride) {
+            for (m, run) in out.iter_mut().zip(block.chunks_exact(stride)) {
+                *m += run.iter().sum::<f64>();
+            }
+        }
     }
 
     /// The family's moment count R.
@@ -404,11 +459,7 @@ impl TensorPlan {
             (0..r).map(|a| frame.at_mean[a] + (0..=a).map(|k| b[a * r + k] * mean[k]).sum::<f64>()).collect();
         let mut out = vec![0.0; r * r];
         lower_congruence(b, r, |k, j| cov[k * r + j], &mut out);
-        for i in 0..r {
-            for j in 0..i {
-                out[j * r + i] = out[i * r + j];
-            }
-        }
+        mirror_lower(&mut out, r);
         (mean, out)
     }
 
@@ -430,34 +481,20 @@ impl TensorPlan {
             .collect();
         let mut cov = vec![0.0; r * r];
         lower_congruence(a, r, |k, j| sums[at[k] + at[j]] - mu_t[k] * mu_t[j], &mut cov);
-        // Symmetric: the lower triangle mirrored.
-        for i in 0..r {
-            for j in 0..i {
-                cov[j * r + i] = cov[i * r + j];
-            }
-        }
+        mirror_lower(&mut cov, r);
         (mean, cov)
     }
 
     /// The centre c (the density's mean) and scale s (its standard deviation, per axis), from
     /// the marginals of `p`.
     fn centre_and_scale(&self, p: &[f64], work: &mut TensorWork) {
-        let inner = self.axes.last().map_or(1, Vec::len);
-        let TensorWork { centre, scale, scratch: [outer_marginal, inner_marginal], .. } = work;
-        outer_marginal.clear();
-        outer_marginal.extend(p.chunks_exact(inner).map(|row| row.iter().sum::<f64>()));
-        inner_marginal.clear();
-        inner_marginal.resize(inner, 0.0);
-        for row in p.chunks_exact(inner) {
-            for (m, &pk) in inner_marginal.iter_mut().zip(row) {
-                *m += pk;
-            }
-        }
+        let TensorWork { centre, scale, scratch: [marginal, _], .. } = work;
         centre.clear();
         scale.clear();
-        for (axis, marginal) in self.axes.iter().zip([&outer_marginal[..], &inner_marginal[..]]) {
-            let m: f64 = axis.iter().zip(marginal).map(|(x, q)| q * x).sum();
-            let var: f64 = axis.iter().zip(marginal).map(|(x, q)| q * (x - m).powi(2)).sum();
+        for (i, axis) in self.axes.iter().enumerate() {
+            self.marginal(p, i, marginal);
+            let m: f64 = axis.iter().zip(&*marginal).map(|(x, q)| q * x).sum();
+            let var: f64 = axis.iter().zip(&*marginal).map(|(x, q)| q * (x - m).powi(2)).sum();
             let s = var.sqrt();
             centre.push(m);
             scale.push(if s.is_finite() && s > 0.0 { s } else { 1.0 });
@@ -466,12 +503,13 @@ impl TensorPlan {
 
     /// The table Σπ_k ξ_k^α (exponents < `b` per axis) and, with `drift` = (π_k f_i(x_k)
     /// state-major, bf), the tables Σπ_k f_i(x_k) ξ_k^α (exponents < bf), each laid out with
-    /// stride `b`, into `work.sums`.
+    /// stride `b`, into `work.sums`. Each table contracts the nodes' axes one at a time, the last
+    /// first: one matrix product per axis (in 3-D, per point of the outer axes for the middle one).
     fn tables(&self, p: &[f64], b: usize, drift: Option<(&[f64], usize)>, work: &mut TensorWork) {
         let n = self.n();
         let size = b.pow(n as u32);
         let nodes = self.len();
-        let TensorWork { centre, scale, powers, rows, sums, .. } = work;
+        let TensorWork { centre, scale, powers, rows, sums, scratch: [_, contracted], .. } = work;
         powers.resize_with(n, Vec::new);
         for (i, axis) in self.axes.iter().enumerate() {
             let table = &mut powers[i];
@@ -493,23 +531,59 @@ impl TensorPlan {
                 Some((pf, bf)) if block > 0 => (&pf[(block - 1) * nodes..block * nodes], bf),
                 _ => (p, b),
             };
+            self.contract_nodes(weights, count, b, powers, [rows, &mut *contracted]);
+            // `rows` holds the table with stride `count` per axis: spread to stride `b`.
             let out = &mut sums[block * size..(block + 1) * size];
-            // rows[p][β] = Σ_q π_pq ξ_q^β, then out[α][β] = Σ_p ξ_p^α rows[p][β]: two matrix
-            // products, as column-major views (a row-major matrix is its transpose).
-            let (outer, inner) = (self.axes[0].len(), self.axes[1].len());
-            rows.clear();
-            rows.resize(outer * count, 0.0);
-            let powers_inner = DMatrixView::from_slice_with_strides(&powers[1], count, inner, 1, b);
-            let weights = DMatrixView::from_slice(weights, inner, outer);
-            DMatrixViewMut::from_slice(rows, count, outer).gemm(1.0, &powers_inner, &weights, 0.0);
-            let rows = DMatrixView::from_slice(rows, count, outer);
-            let powers_outer = DMatrixView::from_slice_with_strides(&powers[0], outer, count, b, 1);
-            DMatrixViewMut::from_slice_with_strides_mut(out, count, count, 1, b).gemm(
-                1.0,
-                &rows,
-                &powers_outer,
-                0.0,
-            );
+            for (k, &v) in rows.iter().enumerate() {
+                let (mut at, mut rest, mut scale_b) = (0, k, 1);
+                for _ in 0..n {
+                    at += (rest % count) * scale_b;
+                    rest /= count;
+                    scale_b *= b;
+                }
+                out[at] = v;
+            }
+        }
+    }
+
+    /// Σ_k w_k Π_i ξ_{k,i}^γ_i for γ_i < `count` into `buffers[0]` (row-major, stride `count`),
+    /// from the node weights `weights` and the axes' `powers` (stride `b`): the last axis by one
+    /// product (K_last × count per row of the outer axes), then each axis before it.
+    fn contract_nodes(
+        &self,
+        weights: &[f64],
+        count: usize,
+        b: usize,
+        powers: &[Vec<f64>],
+        buffers: [&mut Vec<f64>; 2],
+    ) {
+        let n = self.n();
+        let [current, next] = buffers;
+        // The last axis: current[q][γ] = Σ_k w_qk ξ_k^γ over the rows q of the outer axes, as
+        // column-major views (a row-major matrix is its transpose).
+        let inner = self.axes[n - 1].len();
+        let outer = weights.len() / inner;
+        current.clear();
+        current.resize(outer * count, 0.0);
+        let powers_inner = DMatrixView::from_slice_with_strides(&powers[n - 1], count, inner, 1, b);
+        let w = DMatrixView::from_slice(weights, inner, outer);
+        DMatrixViewMut::from_slice(current, count, outer).gemm(1.0, &powers_inner, &w, 0.0);
+        // Axis i, with the axes after it done: for each row q of the axes before it,
+        // next[q][γ_i][s] = Σ_k ξ_k^γ_i current[q][k][s], s the done axes' exponents.
+        let mut done = count;
+        for i in (0..n - 1).rev() {
+            let len = self.axes[i].len();
+            let prefixes = current.len() / (len * done);
+            next.clear();
+            next.resize(prefixes * count * done, 0.0);
+            let powers_i = DMatrixView::from_slice_with_strides(&powers[i], len, count, b, 1);
+            for (src, dst) in current.chunks_exact(len * done).zip(next.chunks_exact_mut(count * done)) {
+                let src = DMatrixView::from_slice(src, done, len);
+                DMatrixViewMut::from_slice(dst, done, count).gemm(1.0, &src, &powers_i, 0.0);
+            }
+            // The contents, so that `buffers[0]` ends holding the table.
+            std::mem::swap(current, next);
+            done *= count;
         }
     }
 
@@ -715,21 +789,56 @@ fn lower_congruence(a: &[f64], r: usize, x: impl Fn(usize, usize) -> f64, out: &
     }
 }
 
-/// The two axes of a tensor grid of `points` (row-major, 2 per node) whose last axis runs
+/// The axes of a tensor grid of `points` (row-major, `n` per node) whose last axis runs
 /// fastest, if it is one.
-fn tensor_axes(points: &[f64]) -> Option<Vec<Vec<f64>>> {
-    let nodes = points.len() / 2;
-    let inner = points.chunks_exact(2).take_while(|x| x[0] == points[0]).count();
-    if inner == 0 || !nodes.is_multiple_of(inner) {
+fn tensor_axes(points: &[f64], n: usize) -> Option<Vec<Vec<f64>>> {
+    let nodes = points.len() / n;
+    let at = |k: usize, i: usize| points[k * n + i];
+    // Axis i runs over nodes 0, s, 2s, … (s the product of the later axes' lengths) while the
+    // coordinates before it stay those of node 0.
+    let mut axes = vec![Vec::new(); n];
+    let mut stride = 1;
+    for i in (0..n).rev() {
+        let same_prefix = |k: usize| (0..i).all(|c| at(k, c) == at(0, c));
+        axes[i] = (0..)
+            .map(|j| j * stride)
+            .take_while(|&k| k < nodes && same_prefix(k))
+            .map(|k| at(k, i))
+            .collect();
+        stride *= axes[i].len();
+    }
+    if nodes == 0 || stride != nodes {
         return None;
     }
-    let outer: Vec<f64> = (0..nodes / inner).map(|p| points[p * inner * 2]).collect();
-    let inner_axis: Vec<f64> = (0..inner).map(|q| points[q * 2 + 1]).collect();
-    let matches = points
-        .chunks_exact(2)
-        .enumerate()
-        .all(|(k, x)| x[0] == outer[k / inner] && x[1] == inner_axis[k % inner]);
-    matches.then(|| vec![outer, inner_axis])
+    let mut index = vec![0; n];
+    for x in points.chunks_exact(n) {
+        if (0..n).any(|i| x[i] != axes[i][index[i]]) {
+            return None;
+        }
+        next_index(&mut index, &axes);
+    }
+    Some(axes)
+}
+
+/// The index on `axes` of the node after that of `index` in a tensor grid (the last axis
+/// fastest; after the last node, the first).
+fn next_index(index: &mut [usize], axes: &[Vec<f64>]) {
+    for i in (0..index.len()).rev() {
+        index[i] += 1;
+        if index[i] < axes[i].len() {
+            return;
+        }
+        index[i] = 0;
+    }
+}
+
+/// The lower triangle of the row-major r × r matrix `m` mirrored into its upper triangle.
+fn mirror_lower(m: &mut [f64], r: usize) {
+    for i in 0..r {
+        for j in 0..i {
+            m[j * r + i] = m[i * r + j];
+        }
+    }
 }
 
 /// E[q ξ^γ] for the terms `q` and the table index `shift` of γ.
