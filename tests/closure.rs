@@ -486,14 +486,16 @@ fn unsupported_combinations_are_clear_errors() {
     assert!(err.to_string().contains("degree 2 to 6"), "{err}");
 }
 
-/// The problem of `DampedRotation` with measurements `obs` of `data` and initial prior `x0`.
-fn damped_rotation_problem<'a>(
+/// The problem of a model without parameters, `sde`, with measurements `obs` of `data` and
+/// initial prior `x0`.
+fn parameterless_problem<'a, S: Sde>(
+    sde: &'a S,
     obs: &'a StateMeasurement,
     x0: &'a [Prior],
     data: &'a Dataset,
-) -> EstimationProblem<'a, DampedRotation, StateMeasurement> {
+) -> EstimationProblem<'a, S, StateMeasurement> {
     EstimationProblem {
-        sde: &DampedRotation,
+        sde,
         observation: obs,
         theta: &[],
         theta_prior: &[],
@@ -521,7 +523,7 @@ fn quadratic_exponential_closure_in_2d_is_the_gaussian_closure_on_a_linear_model
     let times = [0.5, 1.0, 1.5, 2.0, 2.5, 3.0];
     let data = sample_measurements_at(&obs, &[], &path, 1, &times, &mut rng).unwrap();
     let x0 = [Prior::gaussian(0.5, 0.3), Prior::gaussian(-0.3, 0.3)];
-    let problem = damped_rotation_problem(&obs, &x0, &data);
+    let problem = parameterless_problem(&DampedRotation, &obs, &x0, &data);
     let options = ClosureOptions::new().with_tolerances(1e-9, 1e-11).with_dispersion(false);
     let g = closure_estimate(&problem, &ClosureKind::Gaussian, &options).unwrap();
     let on_box = ExponentialFamily::of_degree(2).with_domain(&[(-3.5, 3.5), (-3.5, 3.5)]);
@@ -571,19 +573,7 @@ fn quartic_exponential_closure_in_3d_is_the_rts_smoother_on_a_linear_model() {
     let times: Vec<f64> = (1..=6).map(|k| 0.5 * k as f64).collect();
     let data = sample_measurements_at(&obs, &[], &path, 1, &times, &mut rng).unwrap();
     let x0 = [Prior::gaussian(0.5, 0.3), Prior::gaussian(-0.3, 0.3), Prior::gaussian(0.0, 0.3)];
-    let problem = EstimationProblem {
-        sde: &RotationWithLag,
-        observation: &obs,
-        theta: &[],
-        theta_prior: &[],
-        estimate: &[],
-        x0_prior: &x0,
-        z0_prior: &[],
-        data: &data,
-        t0: 0.0,
-        seed: 0,
-        max_memory: Default::default(),
-    };
+    let problem = parameterless_problem(&RotationWithLag, &obs, &x0, &data);
     let m0 = DVector::from_vec(vec![0.5, -0.3, 0.0]);
     let p0 = DMatrix::from_diagonal(&DVector::from_element(3, 0.09));
     let model = LinearGaussianModel::from_sde(&RotationWithLag, &[], &obs, 0.0, m0, p0).unwrap();
@@ -614,7 +604,7 @@ fn the_dual_tolerance_on_nodes_that_follow_the_density_allows_for_their_moves() 
     let obs = gaussian_measurement(0, 0.2);
     let data = Dataset::try_new(vec!["y".into()], vec![0.5, 1.0], vec![vec![0.4], vec![0.2]]).unwrap();
     let x0 = [Prior::gaussian(0.5, 0.3), Prior::gaussian(-0.3, 0.3)];
-    let problem = damped_rotation_problem(&obs, &x0, &data);
+    let problem = parameterless_problem(&DampedRotation, &obs, &x0, &data);
     let options = ClosureOptions::new().with_dispersion(false);
     let (rtol, atol) = (options.rtol, options.atol);
     let tolerance =
@@ -655,7 +645,7 @@ fn a_failed_sweep_is_reported_with_where_and_why() {
     let obs = gaussian_measurement(0, 0.2);
     let data = Dataset::try_new(vec!["y".into()], vec![0.5, 1.0], vec![vec![0.4], vec![0.2]]).unwrap();
     let x0 = [Prior::gaussian(0.5, 0.3), Prior::gaussian(-0.3, 0.3)];
-    let problem = damped_rotation_problem(&obs, &x0, &data);
+    let problem = parameterless_problem(&DampedRotation, &obs, &x0, &data);
     let coarse = ExponentialFamily::of_degree(4).with_domain(&[(-30.0, 30.0), (-30.0, 30.0)]).with_panels(2);
     let e =
         Estimator::ExpClosure(Closure::new(coarse, ClosureOptions::new())).run(&problem).unwrap().estimate;

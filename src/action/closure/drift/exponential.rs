@@ -10,7 +10,7 @@ use onsager_closures::LegendreOptions;
 use serde::{Deserialize, Serialize};
 
 use super::gaussian_prior;
-use super::tensor::{solve_lower, NodeValues, Order, TensorPlan, TensorWork};
+use super::tensor::{mirror_lower, solve_lower, NodeValues, Order, TensorPlan, TensorWork};
 use crate::action::closure::{
     check_box_covers_data, default_domain, ClosureFamily, FamilySetup, Refinement, Widening,
 };
@@ -293,11 +293,7 @@ fn state_moments(points: &[f64], p: &[f64], n: usize) -> (Vec<f64>, Vec<f64>) {
             }
         }
     }
-    for i in 0..n {
-        for j in 0..i {
-            cov[j * n + i] = cov[i * n + j];
-        }
-    }
+    mirror_lower(&mut cov, n);
     (mean, cov)
 }
 
@@ -445,7 +441,8 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
     }
 
     /// The family on the frame (m, L, width) with the fewest panels P (from `opts.panels`,
-    /// scaled with the width, doubling) whose moments agree with those on 2P panels to
+    /// scaled with the width, doubling up to [`max_density_panels`]) whose moments agree with
+    /// those on 2P panels (or the most allowed, if fewer) to
     /// `opts.tolerance` times their standard deviations: max_a |μ_a(P) − μ_a(2P)|/√C_aa. The
     /// moments on each candidate come from its tensor plan ([`frame_cumulants`]) where there is
     /// one, and only the family of the P chosen is built.
@@ -458,16 +455,17 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
         opts: DensityNodes,
     ) -> std::result::Result<(Exponential, usize), Unrealizable> {
         let degree = opts.degree;
-        let mut panels = ((opts.panels as f64) * width / opts.width).ceil() as usize;
+        let most = max_density_panels(mean.len());
+        let mut panels = (((opts.panels as f64) * width / opts.width).ceil() as usize).min(most);
         let family = |p: usize| density_family(mean, chol, width, p, degree).map_err(unrealizable);
         let cumulants = |p: usize| match frame_cumulants(lambda, mean, chol, width, p, degree) {
             Some(done) => done,
             None => family(p)?.cumulants(lambda).map(|c| (c.mean, c.covariance)).map_err(unrealizable),
         };
         let (mut mu, mut cov) = cumulants(panels)?;
-        let most = max_density_panels(mean.len());
-        while 2 * panels <= most {
-            let (mu_fine, cov_fine) = cumulants(2 * panels)?;
+        while panels < most {
+            let finer = (2 * panels).min(most);
+            let (mu_fine, cov_fine) = cumulants(finer)?;
             let r = mu.len();
             let err = (0..r)
                 .map(|a| (mu[a] - mu_fine[a]).abs() / cov[a * r + a].max(f64::MIN_POSITIVE).sqrt())
@@ -475,14 +473,14 @@ impl<S: Sde + ?Sized> ExponentialDrift<'_, S> {
             if err <= opts.tolerance {
                 return Ok((family(panels)?, panels));
             }
-            panels *= 2;
+            panels = finer;
             (mu, cov) = (mu_fine, cov_fine);
         }
         Err(Unrealizable(format!(
-            "the nodes that follow the density do not reach the tolerance {} with {most} panels per axis \
-             ({} nodes; a larger `density_tolerance`, or `nodes = box`)",
+            "the nodes that follow the density do not reach the tolerance {} with {panels} panels per axis \
+             ({} nodes, the most allowed; a larger `density_tolerance`, or `nodes = box`)",
             opts.tolerance,
-            (most * POINTS_PER_PANEL).pow(mean.len() as u32)
+            (panels * POINTS_PER_PANEL).pow(mean.len() as u32)
         )))
     }
 }
@@ -533,7 +531,7 @@ fn unbounded(family: &Exponential, lambda: &[f64], why: String) -> Unrealizable 
     match family.exponents().map(|e| top_form_max(e, lambda)) {
         Some(top) if top >= 0.0 => Unrealizable(format!(
             "{why}: the density is not normalizable (the highest-degree terms of λ·M reach {top:.3e} \
-             ≥ 0 on the unit circle, so it grows without bound there); nodes that follow the density \
+             ≥ 0 on the unit circle or sphere, so it grows without bound there); nodes that follow the density \
              need a normalizable one, the fixed box (`nodes = box`) truncates it to its domain"
         )),
         _ => Unrealizable(why),
@@ -1103,8 +1101,8 @@ impl<S: Sde + ?Sized> ClosureDrift for ExponentialDrift<'_, S> {
 #[serde(default)]
 #[non_exhaustive]
 pub struct ExponentialFamily {
-    /// The highest total degree: 2 to 12 in 1-D, 2 to 6 in 2-D, 2 to 4 in 3-D. Default 4 (the
-    /// quartic family).
+    /// The highest total degree: 2 to 12 in 1-D, 2 to 6 in 2-D, 2 to 4 in 3-D (34 moments).
+    /// Default 4 (the quartic family).
     pub moments: usize,
     /// Support of the family (its quadrature grid): one interval [a, b] per state, or empty for
     /// the default: per state, the range of its data and of its initial prior (mean ± 5 sd),
@@ -1116,7 +1114,8 @@ pub struct ExponentialFamily {
     pub domain: Vec<(f64, f64)>,
     /// Panels × 8 Gauss–Legendre points per dimension of the fixed box (`nodes = box`). Default
     /// 12 (96 nodes in 1-D; the double-well estimates of `benches/closure.rs` agree with 24
-    /// panels to 1e-5); in 2-D half as many per dimension (6 × 8 = 48, 2304 nodes).
+    /// panels to 1e-5); in 2-D and 3-D half as many per dimension (6 × 8 = 48: 2304 nodes in
+    /// 2-D, 110,592 in 3-D). The nodes are checked against the problem's memory limit.
     pub panels: usize,
     /// Where the nodes are: on a fixed box (`box`, the default, with `domain` and `panels`), or
     /// on a grid that follows the density (`density`, with `density_panels`, `density_width`
@@ -1145,7 +1144,8 @@ pub struct ExponentialFamily {
     /// square over the output times of the closure's history). Default 0.01.
     pub refine_tolerance: f64,
     /// Nodes that follow the density: the panels × 8 Gauss–Legendre points per axis the
-    /// refinement starts from. Default 3 (24 per axis, 576 nodes in 2-D).
+    /// refinement starts from. Default 3 (24 per axis, 576 nodes in 2-D, 13,824 in 3-D). The
+    /// refinement stops at 32 panels per axis and about 10⁶ nodes (12 panels in 3-D).
     pub density_panels: usize,
     /// Nodes that follow the density: the half-width of their box in standard deviations of the
     /// density. Default 6; the box widens by half wherever the density at its boundary is above
@@ -1351,6 +1351,28 @@ impl ClosureFamily for ExponentialFamily {
     }
 }
 
+/// Bytes per node and moment of a family: its moment table, twice (by node and by moment).
+const BYTES_PER_NODE_MOMENT: f64 = 16.0;
+/// Bytes per node besides the moment tables: the points, weights, exponents, probabilities and
+/// the drift at the nodes, and their scratch.
+const BYTES_PER_NODE: f64 = 120.0;
+
+/// Checks the family's nodes, `panels` × 8 points per axis, against the problem's memory limit
+/// (the nodes that follow the density may refine up to [`MAX_DENSITY_NODES`]).
+fn check_node_memory<S: Sde + ?Sized>(
+    problem: &EstimationProblem<'_, S, StateMeasurement>,
+    panels: usize,
+    degree: usize,
+) -> Result<()> {
+    let n = problem.sde.dims().states();
+    let nodes = ((panels * POINTS_PER_PANEL) as f64).powi(n as i32);
+    // C(d + n, n) − 1 monomials of degree 1 to d.
+    let moments = (1..=n).fold(1, |c, i| c * (degree + i) / i) - 1;
+    let bytes = nodes * (moments as f64 * BYTES_PER_NODE_MOMENT + BYTES_PER_NODE);
+    let size = format!("{nodes:.0} nodes ({} per axis) × {moments} moments", panels * POINTS_PER_PANEL);
+    problem.max_memory.check("the exponential closure's nodes", size, bytes)
+}
+
 fn exponential_setup<'a, S: Sde + ?Sized>(
     problem: &EstimationProblem<'a, S, StateMeasurement>,
     options: &ExponentialFamily,
@@ -1398,6 +1420,20 @@ fn exponential_setup<'a, S: Sde + ?Sized>(
     if !options.follows_density() {
         check_box_covers_data(problem, &domain)?;
     }
+    let panels = if options.follows_density() {
+        options.density_panels
+    } else if n == 1 {
+        options.panels
+    } else {
+        options.panels.div_ceil(2)
+    };
+    if options.follows_density() && panels > max_density_panels(n) {
+        return Err(Error::invalid(
+            "density_panels",
+            format!("in {n}-D must be 1 to {}, got {panels}", max_density_panels(n)),
+        ));
+    }
+    check_node_memory(problem, panels, degree)?;
     let follow = options.follows_density().then_some(DensityNodes {
         degree: degree as u32,
         panels: options.density_panels,
@@ -1412,7 +1448,6 @@ fn exponential_setup<'a, S: Sde + ?Sized>(
         Some(f) => density_family(&frame_mean, &frame_chol, f.width, f.panels, f.degree)
             .map_err(|e| Error::invalid("density_width", e.to_string()))?,
         None => {
-            let panels = if n == 1 { options.panels } else { options.panels.div_ceil(2) };
             let grid = onsager_closures::panel_grid(&domain, panels, POINTS_PER_PANEL)
                 .map_err(|e| Error::invalid("domain", e.to_string()))?;
             Exponential::polynomial(grid, onsager_closures::Reference::Lebesgue, degree as u32).map_err(|e| {

@@ -155,7 +155,7 @@ impl TensorPlan {
 
     fn on_axes(exponents: &[Vec<u32>], axes: Vec<Vec<f64>>) -> Option<TensorPlan> {
         let n = axes.len();
-        if !DIMENSIONS.contains(&n) {
+        if !DIMENSIONS.contains(&n) || axes.iter().any(Vec::is_empty) {
             return None;
         }
         let exponents: Vec<Vec<usize>> =
@@ -245,6 +245,7 @@ impl TensorPlan {
     /// rows along the last axis: about 4 multiply-adds per node), and in a frame x = m + Lξ,
     /// m + Lμ_ξ and LΣ_ξLᵀ.
     pub(super) fn state_moments(&self, p: &[f64]) -> (Vec<f64>, Vec<f64>) {
+        debug_assert_eq!(p.len(), self.len(), "one probability per node");
         let n = self.n();
         let mut marginal = Vec::new();
         let mu: Vec<f64> = (0..n)
@@ -506,6 +507,7 @@ impl TensorPlan {
     /// stride `b`, into `work.sums`. Each table contracts the nodes' axes one at a time, the last
     /// first: one matrix product per axis (in 3-D, per point of the outer axes for the middle one).
     fn tables(&self, p: &[f64], b: usize, drift: Option<(&[f64], usize)>, work: &mut TensorWork) {
+        debug_assert_eq!(p.len(), self.len(), "one probability per node");
         let n = self.n();
         let size = b.pow(n as u32);
         let nodes = self.len();
@@ -709,8 +711,8 @@ impl TensorPlan {
     }
 }
 
-/// The expansion of the monomials x^α of `exponents` (sorted by degree, the first exponent
-/// descending within a degree) at x = m + Lξ in the monomials ξ^β of the same exponents:
+/// The expansion of the monomials x^α of `exponents` (sorted by degree, then lexicographically
+/// descending) at x = m + Lξ in the monomials ξ^β of the same exponents:
 /// (B row-major R × R, lower triangular, and the constants M(m)). With x_i = m_i + Σ_j L_ij ξ_j
 /// as polynomials in ξ (coefficients by exponent, stride d + 1 per axis), each x^α is a product
 /// of them.
@@ -833,7 +835,7 @@ fn next_index(index: &mut [usize], axes: &[Vec<f64>]) {
 }
 
 /// The lower triangle of the row-major r × r matrix `m` mirrored into its upper triangle.
-fn mirror_lower(m: &mut [f64], r: usize) {
+pub(super) fn mirror_lower(m: &mut [f64], r: usize) {
     for i in 0..r {
         for j in 0..i {
             m[j * r + i] = m[i * r + j];
