@@ -4,6 +4,7 @@
 use std::fmt;
 
 use super::{Estimator, Method};
+use crate::action::closure::ExponentialFamily;
 use crate::action::exact::{default_grid, MeanOptimalOptions};
 use crate::estimate::EstimationProblem;
 use crate::model::observation::{Noise, StateMeasurement};
@@ -93,16 +94,16 @@ impl Estimator {
                     }
                 }
             }
-            Estimator::ExpClosure(_) if n > 3 => {
-                return no(format!("the exponential closure takes one to three states, the model has {n}"))
-            }
-            Estimator::ExpClosure(c) if n > 1 && c.family.moments > [6, 4][n - 2] => {
-                return no(format!(
-                    "in {n} states the exponential closure takes moments up to degree {}, not {}",
-                    [6, 4][n - 2],
-                    c.family.moments
-                ))
-            }
+            Estimator::ExpClosure(c) => match ExponentialFamily::max_degree(n) {
+                None => return no(format!("the exponential closure takes one to three states, the model has {n}")),
+                Some(most) if n > 1 && c.family.moments > most => {
+                    return no(format!(
+                        "in {n} states the exponential closure takes moments up to degree {most}, not {}",
+                        c.family.moments
+                    ))
+                }
+                Some(_) => {}
+            },
             Estimator::AreaClosure(_) if n != 1 || dims.noisy != 1 => {
                 return no(format!("it takes one-state noisy models (one moment variable), the model has {n} states"))
             }

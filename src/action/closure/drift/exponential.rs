@@ -10,7 +10,7 @@ use onsager_closures::LegendreOptions;
 use serde::{Deserialize, Serialize};
 
 use super::gaussian_prior;
-use super::tensor::{mirror_lower, solve_lower, NodeValues, Order, TensorPlan, TensorWork};
+use super::tensor::{mirror_lower, monomial_count, solve_lower, NodeValues, Order, TensorPlan, TensorWork};
 use crate::action::closure::{
     check_box_covers_data, default_domain, ClosureFamily, FamilySetup, Refinement, Widening,
 };
@@ -541,8 +541,8 @@ fn unbounded(family: &Exponential, lambda: &[f64], why: String) -> Unrealizable 
 /// The largest value on the unit sphere of the highest-degree terms of λ·M, for the polynomial
 /// family with `exponents` in one to three states (the terms of the highest degree with a
 /// non-zero coefficient; 720 directions in 2-D, a Fibonacci lattice of 2000 in 3-D; NaN in
-/// more states). exp(λ·M) is normalizable
-/// on Rⁿ when this is negative (an even degree with a negative definite form).
+/// more states). exp(λ·M) is normalizable on Rⁿ when this is negative (an even degree with a
+/// negative definite form).
 fn top_form_max(exponents: &[Vec<u32>], lambda: &[f64]) -> f64 {
     let degree = |e: &Vec<u32>| e.iter().sum::<u32>();
     let Some(top) = exponents.iter().zip(lambda).filter(|(_, &l)| l != 0.0).map(|(e, _)| degree(e)).max()
@@ -1201,6 +1201,12 @@ impl Default for ExponentialFamily {
 }
 
 impl ExponentialFamily {
+    /// The highest total degree of the family in `states` dimensions: 12, 6 and 4 (the quartic
+    /// family's 34 moments) in 1-D to 3-D; `None` beyond three states.
+    pub fn max_degree(states: usize) -> Option<usize> {
+        [12, 6, 4].get(states.checked_sub(1)?).copied()
+    }
+
     /// The family of the monomials up to `degree`, on the default support.
     pub fn of_degree(degree: usize) -> Self {
         ExponentialFamily { moments: degree, ..Default::default() }
@@ -1366,8 +1372,7 @@ fn check_node_memory<S: Sde + ?Sized>(
 ) -> Result<()> {
     let n = problem.sde.dims().states();
     let nodes = ((panels * POINTS_PER_PANEL) as f64).powi(n as i32);
-    // C(d + n, n) − 1 monomials of degree 1 to d.
-    let moments = (1..=n).fold(1, |c, i| c * (degree + i) / i) - 1;
+    let moments = monomial_count(n, degree);
     let bytes = nodes * (moments as f64 * BYTES_PER_NODE_MOMENT + BYTES_PER_NODE);
     let size = format!("{nodes:.0} nodes ({} per axis) × {moments} moments", panels * POINTS_PER_PANEL);
     problem.max_memory.check("the exponential closure's nodes", size, bytes)
@@ -1379,15 +1384,14 @@ fn exponential_setup<'a, S: Sde + ?Sized>(
 ) -> Result<(ExponentialDrift<'a, S>, Vec<f64>)> {
     let degree = options.moments;
     let n = problem.sde.dims().states();
-    if !(1..=3).contains(&n) {
+    let Some(max_degree) = ExponentialFamily::max_degree(n) else {
         return Err(Error::invalid(
             "method",
             format!(
                 "the exponential closure handles models with one to three states (this model has {n}); use gaussian-closure"
             ),
         ));
-    }
-    let max_degree = [12, 6, 4][n - 1];
+    };
     if !(2..=max_degree).contains(&degree) {
         return Err(Error::invalid(
             "moments",
@@ -1840,6 +1844,10 @@ mod tests {
         assert!(nodes.nodes.borrow().tensor.is_none(), "the nodes stayed on their frame");
         // Their refinement stops at about 10⁶ nodes: 96³ in 3-D.
         assert_eq!([1, 2, 3].map(max_density_panels), [32, 32, 12]);
+        assert_eq!(
+            [0, 1, 2, 3, 4].map(ExponentialFamily::max_degree),
+            [None, Some(12), Some(6), Some(4), None]
+        );
     }
 
     /// Nodes that follow the density: after an evaluation at a density far from the prior's

@@ -161,8 +161,7 @@ impl TensorPlan {
         let exponents: Vec<Vec<usize>> =
             exponents.iter().map(|e| e.iter().map(|&x| x as usize).collect()).collect();
         let degree = exponents.iter().map(|e| e.iter().sum::<usize>()).max()?;
-        // C(d + n, n) − 1 monomials of total degree 1 to d in n variables.
-        let complete = (1..=n).fold(1, |c, i| c * (degree + i) / i) - 1;
+        let complete = monomial_count(n, degree);
         let sorted = exponents.windows(2).all(|w| w[0].iter().sum::<usize>() <= w[1].iter().sum::<usize>());
         let mut distinct = exponents.clone();
         distinct.sort();
@@ -820,6 +819,11 @@ fn tensor_axes(points: &[f64], n: usize) -> Option<Vec<Vec<f64>>> {
         next_index(&mut index, &axes);
     }
     Some(axes)
+}
+
+/// The number of monomials of total degree 1 to `degree` in `n` variables: C(d + n, n) − 1.
+pub(super) fn monomial_count(n: usize, degree: usize) -> usize {
+    (1..=n).fold(1, |c, i| c * (degree + i) / i) - 1
 }
 
 /// The index on `axes` of the node after that of `index` in a tensor grid (the last axis
