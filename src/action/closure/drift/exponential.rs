@@ -1671,49 +1671,32 @@ mod tests {
     /// density in a correlated frame.
     #[test]
     fn the_frame_moments_by_the_plan_equal_the_node_sums() {
-        let (mean, chol) = ([0.1, 0.05], [0.8, 0.0, 0.6, 0.4]);
-        let bimodal =
-            [0.5, 0.0, 4.0 - 1.0 / 0.6, 2.0 / 0.6, -1.0 / 0.6, 0.0, 0.0, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0, 0.0];
-        for panels in [3, 6] {
-            let family = density_family(&mean, &chol, 6.0, panels, 4).unwrap();
-            let axis =
-                onsager_closures::quadrature::composite_gauss_legendre(-6.0, 6.0, panels, POINTS_PER_PANEL)
-                    .unwrap();
-            let plan =
-                TensorPlan::in_frame(family.exponents().unwrap(), axis.points(), &mean, &chol).unwrap();
-            let (mut s, mut p) = (Vec::new(), Vec::new());
-            family.node_probabilities_into(&bimodal, &mut s, &mut p).unwrap();
-            let close = |a: &[f64], b: &[f64], tol: f64, what: &str| {
-                let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-                for (x, y) in a.iter().zip(b) {
-                    assert!((x - y).abs() <= tol * scale, "{what} on {panels} panels: {x} vs {y}");
-                }
-            };
-            let (m1, c1) = plan.state_moments(&p);
-            let (m2, c2) = state_moments(family.grid().points(), &p, 2);
-            close(&m1, &m2, 1e-13, "state mean");
-            close(&c1, &c2, 1e-13, "state covariance");
-            let (mu, cov) = frame_cumulants(&bimodal, &mean, &chol, 6.0, panels, 4).unwrap().unwrap();
-            let c = family.cumulants(&bimodal).unwrap();
-            close(&mu, &c.mean, 1e-10, "mean of M");
-            close(&cov, &c.covariance, 1e-10, "covariance of M");
-        }
-        // Three states: a bimodal correlated density in a correlated frame.
-        let (mean, chol) = ([0.1, 0.05, 0.0], [0.9, 0.0, 0.0, 0.4, 0.6, 0.0, 0.2, 0.5, 0.7]);
-        for panels in [2, 3] {
-            let family = density_family(&mean, &chol, 5.0, panels, 4).unwrap();
-            let lambda = three_state_bimodal(family.exponents().unwrap());
-            let axis =
-                onsager_closures::quadrature::composite_gauss_legendre(-5.0, 5.0, panels, POINTS_PER_PANEL)
-                    .unwrap();
-            let plan =
-                TensorPlan::in_frame(family.exponents().unwrap(), axis.points(), &mean, &chol).unwrap();
+        // On the frame (m, L) of half-width `width` with `panels` panels, at the λ that
+        // `lambda` gives for the family's exponents.
+        fn check(
+            mean: &[f64],
+            chol: &[f64],
+            width: f64,
+            panels: usize,
+            lambda: impl Fn(&[Vec<u32>]) -> Vec<f64>,
+        ) {
+            let family = density_family(mean, chol, width, panels, 4).unwrap();
+            let lambda = lambda(family.exponents().unwrap());
+            let axis = onsager_closures::quadrature::composite_gauss_legendre(
+                -width,
+                width,
+                panels,
+                POINTS_PER_PANEL,
+            )
+            .unwrap();
+            let plan = TensorPlan::in_frame(family.exponents().unwrap(), axis.points(), mean, chol).unwrap();
             let (mut s, mut p) = (Vec::new(), Vec::new());
             family.node_probabilities_into(&lambda, &mut s, &mut p).unwrap();
             let (m1, c1) = plan.state_moments(&p);
-            let (m2, c2) = state_moments(family.grid().points(), &p, 3);
-            let (mu, cov) = frame_cumulants(&lambda, &mean, &chol, 5.0, panels, 4).unwrap().unwrap();
+            let (m2, c2) = state_moments(family.grid().points(), &p, mean.len());
+            let (mu, cov) = frame_cumulants(&lambda, mean, chol, width, panels, 4).unwrap().unwrap();
             let c = family.cumulants(&lambda).unwrap();
+            let n = mean.len();
             for (what, a, b, tol) in [
                 ("state mean", &m1, &m2, 1e-13),
                 ("state covariance", &c1, &c2, 1e-13),
@@ -1722,9 +1705,19 @@ mod tests {
             ] {
                 let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
                 for (x, y) in a.iter().zip(b) {
-                    assert!((x - y).abs() <= tol * scale, "3-D {what} on {panels} panels: {x} vs {y}");
+                    assert!((x - y).abs() <= tol * scale, "{n}-D {what} on {panels} panels: {x} vs {y}");
                 }
             }
+        }
+        let bimodal =
+            [0.5, 0.0, 4.0 - 1.0 / 0.6, 2.0 / 0.6, -1.0 / 0.6, 0.0, 0.0, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0, 0.0];
+        for panels in [3, 6] {
+            check(&[0.1, 0.05], &[0.8, 0.0, 0.6, 0.4], 6.0, panels, |_| bimodal.to_vec());
+        }
+        // Three states: a bimodal correlated density in a correlated frame.
+        let chol3 = [0.9, 0.0, 0.0, 0.4, 0.6, 0.0, 0.2, 0.5, 0.7];
+        for panels in [2, 3] {
+            check(&[0.1, 0.05, 0.0], &chol3, 5.0, panels, three_state_bimodal);
         }
     }
 
