@@ -84,9 +84,9 @@ pub const DEFAULT_METHODS: [Method; 10] = [
 /// The estimators compared by default, with their default options: those of
 /// [`DEFAULT_METHODS`] (the exact grid methods, the five closures, JME, MEE and the UKS) that
 /// apply to the problem ([`Estimator::applies_to`]), and the others with the reason they do not.
-/// The exponential closure in three states applies but is left out with its reason: it takes
-/// minutes per record there (docs/closures.md, "The quartic closure in three states"); name it
-/// to run it.
+/// The exponential closure and the exact grid methods in three states apply but are left out
+/// with their reason: they take minutes per record there (docs/closures.md, "The quartic closure
+/// in three states"; docs/effective-action.md, "Three states"); name them to run them.
 pub fn default_estimators<S: Sde + ?Sized>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
 ) -> (Vec<Labelled>, Vec<NotApplicable>) {
@@ -95,12 +95,16 @@ pub fn default_estimators<S: Sde + ?Sized>(
     for m in DEFAULT_METHODS {
         let e = Estimator::new(m);
         match e.applies_to(problem) {
-            Ok(()) if m == Method::ExpClosure && n == 3 => skipped.push(NotApplicable {
-                method: m,
-                reason: "in 3 states the exponential closure takes minutes per record; not run by default \
-                         (name it: `exp-closure`)"
-                    .into(),
-            }),
+            Ok(()) if n == 3 && (m == Method::ExpClosure || m.uses_grid()) => {
+                let what =
+                    if m.uses_grid() { "the grid methods take" } else { "the exponential closure takes" };
+                skipped.push(NotApplicable {
+                    method: m,
+                    reason: format!(
+                        "in 3 states {what} minutes per record; not run by default (name it: `{m}`)"
+                    ),
+                })
+            }
             Ok(()) => chosen.push(Labelled::new(e)),
             Err(why) => skipped.push(why),
         }
@@ -407,6 +411,23 @@ mod tests {
             ]
         );
         assert!(skipped.iter().all(|s| s.reason.contains('3')), "{skipped:?}");
+        // With data for a default grid the grid methods apply in three states, and are left out
+        // with their cost as the reason.
+        let one = crate::data::Dataset {
+            names: vec!["y1".into(), "y2".into(), "y3".into()],
+            times: vec![0.0],
+            values: vec![vec![1.0, 2.0, 20.0]],
+        };
+        let problem = p.problem(&one, &[]);
+        assert!(Estimator::new(Method::MeanOptimal).applies_to(&problem).is_ok());
+        let (_, skipped) = default_estimators(&problem);
+        for m in [Method::Ksp, Method::MeanOptimal] {
+            let why = skipped.iter().find(|s| s.method == m).unwrap();
+            assert!(
+                why.reason.contains("minutes per record") && why.reason.contains(&m.to_string()),
+                "{why}"
+            );
+        }
         // A Student-t likelihood: the Gaussian KSP closure needs Gaussian errors.
         let mut p = preset("double-well").unwrap();
         p.observation.noise = crate::model::Noise::StudentT {

@@ -20,7 +20,7 @@ use onsager::model::prior::Prior;
 use onsager::model::Sde;
 use onsager::simulate::{sample_measurements_at, simulate, SimulateOptions};
 use onsager::test_models::{
-    gaussian_measurement, DampedRotation, DoubleWellRecord, OuRecord, RotationWithLag, Start,
+    gaussian_measurement, DampedRotation, DoubleWellRecord, LagRecord, OuRecord, Start,
 };
 use onsager::{Error, Estimator};
 
@@ -551,39 +551,15 @@ fn quadratic_exponential_closure_in_2d_is_the_gaussian_closure_on_a_linear_model
 /// on the frame, 7·10⁻⁷ on the box (48³ nodes).
 #[test]
 fn quartic_exponential_closure_in_3d_is_the_rts_smoother_on_a_linear_model() {
-    use nalgebra::DVector;
-    use onsager::kalman::linear::{kalman_rts, LinearGaussianModel};
-    use onsager::model::observation::Noise;
-    use onsager::model::Param;
-    let obs = StateMeasurement::new(
-        vec![0, 2],
-        vec!["y1".into(), "y3".into()],
-        Noise::Gaussian { sigma: Param::Fixed(0.2) },
-    );
-    let mut rng = StdRng::seed_from_u64(2);
-    let path = simulate(
-        &RotationWithLag,
-        &[],
-        &[0.5, -0.3, 0.0],
-        &[],
-        &SimulateOptions::new(0.0, 3.0, 0.01),
-        &mut rng,
-    )
-    .unwrap();
-    let times: Vec<f64> = (1..=6).map(|k| 0.5 * k as f64).collect();
-    let data = sample_measurements_at(&obs, &[], &path, 1, &times, &mut rng).unwrap();
-    let x0 = [Prior::gaussian(0.5, 0.3), Prior::gaussian(-0.3, 0.3), Prior::gaussian(0.0, 0.3)];
-    let problem = parameterless_problem(&RotationWithLag, &obs, &x0, &data);
-    let m0 = DVector::from_vec(vec![0.5, -0.3, 0.0]);
-    let p0 = DMatrix::from_diagonal(&DVector::from_element(3, 0.09));
-    let model = LinearGaussianModel::from_sde(&RotationWithLag, &[], &obs, 0.0, m0, p0).unwrap();
+    let record = LagRecord::new(6).unwrap();
+    let problem = record.problem();
     let options = ClosureOptions::new().with_dispersion(false);
     let following = ExponentialFamily::of_degree(4).with_nodes(NodeRule::Density);
     let on_box = ExponentialFamily::of_degree(4);
     for (what, family) in [("frame", following), ("box", on_box)] {
         let e = exp_closure(&problem, family, &options);
         assert_eq!(e.status, Status::Converged, "{what}");
-        let kf = kalman_rts(&model, &data, &e.path.times).unwrap();
+        let kf = record.rts(&e.path.times).unwrap();
         let mut worst: f64 = 0.0;
         for (t, values) in e.path.times.iter().zip(&e.path.values) {
             let j = kf.index_of(*t).unwrap();

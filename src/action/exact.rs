@@ -172,21 +172,22 @@ impl EstimatorOptions for MeanOptimalOptions {
 /// sd on each side (and by at least 0.5), and the initial-state prior's mean ± 6 sd (a
 /// Gaussian prior, within its bounds; the bounds of another prior when both are finite). One
 /// dimension has 400 cells, or more (up to 4000) so that the cells are no wider than 400 cells
-/// on the data range alone would be; two dimensions 120 per axis (up to 360).
+/// on the data range alone would be; two dimensions 120 per axis (up to 360); three dimensions
+/// 40 per axis (up to 80: a 3-D grid stores cells × times, docs/effective-action.md).
 ///
 /// Errors: [`Error::InvalidOption`] (name `grid`) when a state is not measured or the model has
-/// more than two states.
+/// more than three states.
 pub fn default_grid<S: Sde + ?Sized, O: Observation + ?Sized>(
     problem: &EstimationProblem<'_, S, O>,
 ) -> Result<GridSpec> {
     let n = problem.sde.dims().states();
     let need = |why: String| invalid("grid", format!("{why}; give one, e.g. `lo=-2.5,hi=2.5,cells=500`"));
-    if n > 2 {
-        return Err(need(format!("the grid methods take one or two states, the model has {n}")));
+    if n > 3 {
+        return Err(need(format!("the grid methods take one to three states, the model has {n}")));
     }
     let sd = problem.observation.gaussian_error_sd(problem.theta).unwrap_or(0.0);
     let (mut lo, mut hi) = (vec![0.0; n], vec![0.0; n]);
-    let base = if n == 1 { 400 } else { 120 };
+    let base = [400, 120, 40][n - 1];
     let mut cells = vec![base; n];
     let outputs = problem.observation.output_dim();
     let priors: Vec<&Prior> = problem.x0_prior.iter().chain(problem.z0_prior).collect();
@@ -209,7 +210,7 @@ pub fn default_grid<S: Sde + ?Sized, O: Observation + ?Sized>(
             hi[a] = hi[a].max(h);
         }
         let wider = ((hi[a] - lo[a]) / data_width * base as f64).ceil() as usize;
-        cells[a] = wider.clamp(base, if n == 1 { 10 * base } else { 3 * base });
+        cells[a] = wider.clamp(base, [10, 3, 2][n - 1] * base);
     }
     Ok(GridSpec { lo, hi, cells })
 }
@@ -247,7 +248,6 @@ pub const EDGE_MASS: f64 = 1e-3;
 /// `times`), when one exceeds [`EDGE_MASS`].
 pub fn grid_edge(grid: &Grid, times: &[f64], densities: &[Vec<f64>]) -> Option<GridEdge> {
     let cells = grid.cells();
-    let n0 = cells[0];
     let mut worst: Option<GridEdge> = None;
     for (&time, q) in times.iter().zip(densities) {
         for (axis, &n) in cells.iter().enumerate() {
@@ -256,7 +256,7 @@ pub fn grid_edge(grid: &Grid, times: &[f64], densities: &[Vec<f64>]) -> Option<G
                 .iter()
                 .enumerate()
                 .filter(|&(c, _)| {
-                    let i = if axis == 0 { c % n0 } else { c / n0 };
+                    let i = grid.index_on(axis, c);
                     i < band || i >= n - band
                 })
                 .map(|(_, m)| m)
@@ -437,7 +437,7 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
     /// (the product of the x0 and z0 priors at the cell centres, normalised on the grid), the
     /// event times (`t0`, the output grid, the measurement times) and the substeps.
     ///
-    /// Errors ([`Error::InvalidOption`] unless noted): more than two noisy states or a grid
+    /// Errors ([`Error::InvalidOption`] unless noted): more than three noisy states or a grid
     /// whose axes are not the states; parameters to estimate (the grid methods take θ as
     /// given); data before `t0`; non-positive `dt` or output step; a prior with no mass on the
     /// grid; [`Error::SingularDiffusion`] for a bad G(θ).
@@ -448,11 +448,11 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
         problem.validate()?;
         let (spec, _) = grid_of(problem, options)?;
         let d = problem.sde.dims();
-        if d.noisy > 2 {
+        if d.noisy > 3 {
             return Err(invalid(
                 "model",
                 format!(
-                    "the grid methods handle models with one or two noisy states; this model has {}",
+                    "the grid methods handle models with one to three noisy states; this model has {}",
                     d.noisy
                 ),
             ));

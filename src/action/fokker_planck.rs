@@ -15,8 +15,10 @@
 //!
 //! A time step is of second order: per axis the two-stage (TR-BDF2) rational function
 //! S_a(τ) = (a M_a⁻¹ − (a − 1)) M_a⁻¹, M_a = I − g τ L_a, g = 1 − 1/√2, a = 1 + √2, so that
-//! S_a = I + τL + τ²L²/2 + O(τ³), with |S_a| → 0 for stiff modes (L-stable). In two dimensions the
-//! axes are Strang-split, S = S₀(Δt/2) S₁(Δt) S₀(Δt/2). Because 1ᵀM_a = 1ᵀ, every step keeps the
+//! S_a = I + τL + τ²L²/2 + O(τ³), with |S_a| → 0 for stiff modes (L-stable). In two and three
+//! dimensions the axes are Strang-split, S = S₀(Δt/2) S₁(Δt) S₀(Δt/2) and
+//! S = S₀(Δt/2) S₁(Δt/2) S₂(Δt) S₁(Δt/2) S₀(Δt/2) (Strang, SIAM J. Numer. Anal. 5 (1968)
+//! 506–517: a symmetric product of second-order factors is of second order). Because 1ᵀM_a = 1ᵀ, every step keeps the
 //! total mass exactly. The damped step ([`StepKind::Damped`], used after a jump) is eight
 //! implicit Euler steps (I − Δt/8 L_a)⁻¹ per axis: every M_a is a column-diagonally-dominant
 //! M-matrix, so it keeps positivity, and it removes the stiff modes a jump excites, which the
@@ -26,7 +28,7 @@
 //! ⟨a, m⟩ is conserved by the discrete scheme to rounding.
 //!
 //! The first-order alternative [`TimeScheme::ImplicitEuler`] makes every step one implicit Euler
-//! step (I − Δt L_a)⁻¹ per axis (Lie splitting in two dimensions, m⁺ = M₁⁻¹ M₀⁻¹ m), the damped
+//! step (I − Δt L_a)⁻¹ per axis (Lie splitting in two and three dimensions, m⁺ = M₁⁻¹ M₀⁻¹ m in two), the damped
 //! step with a single sub-step: positive at every step size, first order in Δt.
 
 use serde::{Deserialize, Serialize};
@@ -45,24 +47,33 @@ fn bernoulli(w: f64) -> f64 {
     }
 }
 
-/// How the cells of one axis are laid out: `len` cells per line, `lines` lines, cell p of
-/// line q at `q · line_step + p · stride`.
+/// How the cells of one axis are laid out: `len` cells per line, `lines` lines; cell p of a line
+/// is `stride` cells after cell p − 1 (the product of the lower axes' cell counts). The lines
+/// come in blocks of `stride` neighbouring lines ([`Axis::line_start`]): in one block their cells
+/// p lie side by side, so a strided axis is solved on all lines of a block in lockstep.
 #[derive(Debug, Clone, Copy)]
 struct Axis {
     len: usize,
     stride: usize,
     lines: usize,
-    line_step: usize,
 }
 
 impl Axis {
     fn of(grid: &Grid, a: usize) -> Axis {
         let c = grid.cells();
-        match (grid.dim(), a) {
-            (1, _) => Axis { len: c[0], stride: 1, lines: 1, line_step: c[0] },
-            (_, 0) => Axis { len: c[0], stride: 1, lines: c[1], line_step: c[0] },
-            _ => Axis { len: c[1], stride: c[0], lines: c[0], line_step: 1 },
-        }
+        Axis { len: c[a], stride: c[..a].iter().product(), lines: grid.len() / c[a] }
+    }
+
+    /// The first cell of line q: line q mod stride of block ⌊q / stride⌋ (blocks of
+    /// stride · len cells).
+    fn line_start(&self, q: usize) -> usize {
+        q % self.stride + (q / self.stride) * self.stride * self.len
+    }
+
+    /// The blocks of lines, as ranges of cells (one line per block on a contiguous axis).
+    fn blocks(&self) -> impl Iterator<Item = std::ops::Range<usize>> {
+        let size = self.stride * self.len;
+        (0..self.lines / self.stride).map(move |b| b * size..(b + 1) * size)
     }
 }
 
@@ -113,15 +124,15 @@ impl<S: Sde + ?Sized> std::fmt::Debug for FokkerPlanck<'_, S> {
     }
 }
 
-/// Checks that the grid methods can take `sde` on `grid`: at most two noisy states, and one
+/// Checks that the grid methods can take `sde` on `grid`: at most three noisy states, and one
 /// grid axis per state (noisy then clean). Errors: [`Error::InvalidOption`].
 pub fn check_model_fits_grid<S: Sde + ?Sized>(sde: &S, grid: &Grid) -> Result<()> {
     let d = sde.dims();
-    if d.noisy > 2 {
+    if d.noisy > 3 {
         return Err(Error::InvalidOption {
             name: "model".into(),
             reason: format!(
-                "the grid methods handle models with one or two noisy states; this model has {}",
+                "the grid methods handle models with one to three noisy states; this model has {}",
                 d.noisy
             ),
         });
@@ -159,8 +170,7 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
                 if i != j && dd[(i, j)].abs() > 1e-14 * (dd[(i, i)] + dd[(j, j)]) {
                     return Err(Error::InvalidOption {
                         name: "model".into(),
-                        reason: "the two-dimensional grid scheme needs a diagonal diffusion matrix ½GGᵀ"
-                            .into(),
+                        reason: "the split grid scheme needs a diagonal diffusion matrix ½GGᵀ".into(),
                     });
                 }
             }
@@ -274,7 +284,7 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
                 let mut out = vec![0.0; n];
                 for q in 0..ax.lines {
                     for p in 0..ax.len - 1 {
-                        let idx = q * ax.line_step + p * ax.stride;
+                        let idx = ax.line_start(q) + p * ax.stride;
                         self.grid.coords(idx, &mut s);
                         s[a] += 0.5 * self.grid.widths()[a];
                         let (x, z) = s.split_at(d.noisy);
@@ -327,7 +337,7 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
             let ax = self.axes[axis];
             for q in 0..ax.lines {
                 for p in 0..ax.len - 1 {
-                    let i = q * ax.line_step + p * ax.stride;
+                    let i = ax.line_start(q) + p * ax.stride;
                     let j = i + ax.stride;
                     let flux = ra[i] * m[i] - rb[i] * m[j];
                     out[i] -= flux;
@@ -368,7 +378,7 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
             let mut u_prev = 0.0;
             let mut sup_prev = 0.0;
             for p in 0..ax.len {
-                let i = q * ax.line_step + p * ax.stride;
+                let i = ax.line_start(q) + p * ax.stride;
                 let last = p + 1 == ax.len;
                 let (a_in, b_in) = if p > 0 { (ra[i - ax.stride], rb[i - ax.stride]) } else { (0.0, 0.0) };
                 let (a_out, b_out) = if last { (0.0, 0.0) } else { (ra[i], rb[i]) };
@@ -391,10 +401,11 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
         AxisFactor { l, uinv, c }
     }
 
-    /// The sub-step of axis `axis` within a step `dt`: dt in one dimension; in two, the Strang
-    /// sequence is axis 0 over dt/2, axis 1 over dt, axis 0 over dt/2.
+    /// The sub-step of axis `axis` within a step `dt`: dt for the last axis, dt/2 for the others
+    /// (the Strang sequence 0, 1, 0 in two dimensions, 0, 1, 2, 1, 0 in three, each of the outer
+    /// axes twice over dt/2).
     fn substep(&self, axis: usize, dt: f64) -> f64 {
-        if self.grid.dim() == 2 && axis == 0 {
+        if axis + 1 < self.grid.dim() {
             0.5 * dt
         } else {
             dt
@@ -451,11 +462,12 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
                 }
             }
             StepKind::Smooth => {
-                // Strang sequence 0, 1, 0 in two dimensions (a palindrome: the same for the adjoint).
-                let seq: &[usize] = if dim == 2 { &[0, 1, 0] } else { &[0] };
+                // Strang sequence 0, 1, 0 in two dimensions, 0, 1, 2, 1, 0 in three (a palindrome:
+                // the same for the adjoint).
+                let seq = (0..dim).chain((0..dim - 1).rev());
                 let mut x0 = self.scratch.take();
                 x0.resize(x.len(), 0.0);
-                for &a in seq {
+                for a in seq {
                     let af = &fac.axes[a];
                     solve(af, self.axes[a], x);
                     x0.copy_from_slice(x);
@@ -468,7 +480,8 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
     }
 
     /// One forward (Fokker–Planck) step of size `dt` ending at `t_new`: m ← S m with
-    /// S = S₀(dt/2) S₁(dt) S₀(dt/2) in two dimensions, S_a(τ) = R(τ L_a) (see the module doc);
+    /// S = S₀(dt/2) S₁(dt) S₀(dt/2) in two dimensions (likewise in three), S_a(τ) = R(τ L_a) (see
+    /// the module doc);
     /// a [`StepKind::Damped`] step is eight implicit Euler sub-steps of dt/8 instead.
     pub fn step(&self, t_new: f64, dt: f64, kind: StepKind, m: &mut [f64]) {
         self.apply(
@@ -548,11 +561,11 @@ const DAMPING_STEPS: usize = 8;
 #[serde(rename_all = "kebab-case")]
 #[non_exhaustive]
 pub enum TimeScheme {
-    /// Second order: the two-stage TR-BDF2 step per axis (Strang splitting in two dimensions),
+    /// Second order: the two-stage TR-BDF2 step per axis (Strang splitting in two and three dimensions),
     /// eight implicit Euler sub-steps after t0 and after every measurement (see the module doc).
     #[default]
     TrBdf2,
-    /// First order: one implicit Euler step per axis (Lie splitting in two dimensions); positive
+    /// First order: one implicit Euler step per axis (Lie splitting in two and three dimensions); positive
     /// at every step size, one tridiagonal solve per axis and step.
     ImplicitEuler,
 }
@@ -588,18 +601,20 @@ fn combine(x: &mut [f64], x0: &[f64], nv: usize, active: usize) {
 }
 
 /// Visits the cells of an axis at positions `ps` (in that order) on every line: one line at a
-/// time for contiguous lines, all lines in lockstep (contiguous memory) for strided ones.
+/// time for contiguous lines, for strided ones the lines of a block in lockstep (contiguous
+/// memory).
 fn for_cells(ax: Axis, ps: impl Iterator<Item = usize> + Clone, mut f: impl FnMut(usize)) {
     if ax.stride == 1 {
         for q in 0..ax.lines {
             for p in ps.clone() {
-                f(q * ax.line_step + p);
+                f(q * ax.len + p);
             }
         }
     } else {
-        for p in ps {
-            for q in 0..ax.lines {
-                f(q * ax.line_step + p * ax.stride);
+        for block in ax.blocks() {
+            for p in ps.clone() {
+                let first = block.start + p * ax.stride;
+                (first..first + ax.stride).for_each(&mut f);
             }
         }
     }
@@ -657,12 +672,10 @@ fn solve_transposed_batch(ax: Axis, f: &AxisFactor, x: &mut [f64], nv: usize, ac
 
 /// Solves M x = r in place for every line of an axis (Thomas algorithm on stored LU factors).
 fn solve(ax: Axis, f: &AxisFactor, x: &mut [f64]) {
-    let (s, len) = (ax.stride, ax.len);
-    if s == 1 {
-        // Contiguous lines: one line at a time.
-        for q in 0..ax.lines {
-            let r = q * ax.line_step..q * ax.line_step + len;
-            let (x, l, uinv, c) = (&mut x[r.clone()], &f.l[r.clone()], &f.uinv[r.clone()], &f.c[r]);
+    let len = ax.len;
+    for r in ax.blocks() {
+        let (x, l, uinv, c) = (&mut x[r.clone()], &f.l[r.clone()], &f.uinv[r.clone()], &f.c[r]);
+        if ax.stride == 1 {
             for i in 1..len {
                 x[i] -= l[i] * x[i - 1];
             }
@@ -670,26 +683,30 @@ fn solve(ax: Axis, f: &AxisFactor, x: &mut [f64]) {
             for i in (0..len - 1).rev() {
                 x[i] = (x[i] - c[i] * x[i + 1]) * uinv[i];
             }
+        } else {
+            solve_lockstep(ax.stride, len, x, (l, uinv, c));
         }
-        return;
     }
-    // Strided lines (line_step 1): all lines in lockstep, the inner loop contiguous.
-    let w = ax.lines;
+}
+
+/// [`solve`] on one block of `s` strided lines of `len` cells, in lockstep (the inner loop
+/// contiguous); x and the factors (l, uinv, c) are the block's.
+fn solve_lockstep(s: usize, len: usize, x: &mut [f64], (l, uinv, c): (&[f64], &[f64], &[f64])) {
     for p in 1..len {
         let (prev, cur) = x[(p - 1) * s..].split_at_mut(s);
-        let l = &f.l[p * s..p * s + w];
-        for q in 0..w {
+        let l = &l[p * s..(p + 1) * s];
+        for q in 0..s {
             cur[q] -= l[q] * prev[q];
         }
     }
     let last = (len - 1) * s;
-    for q in 0..w {
-        x[last + q] *= f.uinv[last + q];
+    for q in 0..s {
+        x[last + q] *= uinv[last + q];
     }
     for p in (0..len - 1).rev() {
         let (cur, next) = x[p * s..].split_at_mut(s);
-        let (c, uinv) = (&f.c[p * s..p * s + w], &f.uinv[p * s..p * s + w]);
-        for q in 0..w {
+        let (c, uinv) = (&c[p * s..(p + 1) * s], &uinv[p * s..(p + 1) * s]);
+        for q in 0..s {
             cur[q] = (cur[q] - c[q] * next[q]) * uinv[q];
         }
     }
@@ -697,11 +714,10 @@ fn solve(ax: Axis, f: &AxisFactor, x: &mut [f64]) {
 
 /// Solves Mᵀ x = r in place (Mᵀ = Uᵀ Lᵀ) for every line of an axis.
 fn solve_transposed(ax: Axis, f: &AxisFactor, x: &mut [f64]) {
-    let (s, len) = (ax.stride, ax.len);
-    if s == 1 {
-        for q in 0..ax.lines {
-            let r = q * ax.line_step..q * ax.line_step + len;
-            let (x, l, uinv, c) = (&mut x[r.clone()], &f.l[r.clone()], &f.uinv[r.clone()], &f.c[r]);
+    let len = ax.len;
+    for r in ax.blocks() {
+        let (x, l, uinv, c) = (&mut x[r.clone()], &f.l[r.clone()], &f.uinv[r.clone()], &f.c[r]);
+        if ax.stride == 1 {
             x[0] *= uinv[0];
             for i in 1..len {
                 x[i] = (x[i] - c[i - 1] * x[i - 1]) * uinv[i];
@@ -709,22 +725,26 @@ fn solve_transposed(ax: Axis, f: &AxisFactor, x: &mut [f64]) {
             for i in (0..len - 1).rev() {
                 x[i] -= l[i + 1] * x[i + 1];
             }
+        } else {
+            solve_transposed_lockstep(ax.stride, len, x, (l, uinv, c));
         }
-        return;
     }
-    let w = ax.lines;
-    x[..w].iter_mut().zip(&f.uinv[..w]).for_each(|(v, u)| *v *= u);
+}
+
+/// [`solve_transposed`] on one block of `s` strided lines, in lockstep.
+fn solve_transposed_lockstep(s: usize, len: usize, x: &mut [f64], (l, uinv, c): (&[f64], &[f64], &[f64])) {
+    x[..s].iter_mut().zip(&uinv[..s]).for_each(|(v, u)| *v *= u);
     for p in 1..len {
         let (prev, cur) = x[(p - 1) * s..].split_at_mut(s);
-        let (c, uinv) = (&f.c[(p - 1) * s..(p - 1) * s + w], &f.uinv[p * s..p * s + w]);
-        for q in 0..w {
+        let (c, uinv) = (&c[(p - 1) * s..p * s], &uinv[p * s..(p + 1) * s]);
+        for q in 0..s {
             cur[q] = (cur[q] - c[q] * prev[q]) * uinv[q];
         }
     }
     for p in (0..len - 1).rev() {
         let (cur, next) = x[p * s..].split_at_mut(s);
-        let l = &f.l[(p + 1) * s..(p + 1) * s + w];
-        for q in 0..w {
+        let l = &l[(p + 1) * s..(p + 2) * s];
+        for q in 0..s {
             cur[q] -= l[q] * next[q];
         }
     }
@@ -734,7 +754,8 @@ fn solve_transposed(ax: Axis, f: &AxisFactor, x: &mut [f64]) {
 mod tests {
     use super::*;
     use crate::action::grid::GridSpec;
-    use crate::model::library::{DoubleWell, Duffing, Ou, VanDerPol};
+    use crate::model::library::{DoubleWell, Duffing, Lorenz63, Lorenz96, Ou, VanDerPol};
+    use crate::model::{Dims, Scalar};
     use approx::assert_relative_eq;
     use onsager_closures::dot;
 
@@ -749,7 +770,8 @@ mod tests {
 
     #[test]
     fn steps_conserve_mass_positivity_and_pairing() {
-        // 1-D double well, 2-D Van der Pol and the (non-autonomous, partly clean) Duffing:
+        // 1-D double well, 2-D Van der Pol, the (non-autonomous, partly clean) Duffing and 3-D
+        // Lorenz-63:
         // 1ᵀ m and ⟨a, m⟩ are invariants of the discrete scheme (exact adjoint).
         let dw = Grid::try_new(GridSpec::new_1d(-2.5, 2.5, 37)).unwrap();
         let vdp = Grid::try_new(GridSpec::new_2d([-3.0, -4.0], [3.0, 4.0], [13, 11])).unwrap();
@@ -789,6 +811,12 @@ mod tests {
         check(&Ou, &[1.0, 0.5], &dw, true);
         check(&VanDerPol, &[2.0, 0.3], &vdp, true);
         check(&Duffing, &Duffing::NOMINAL, &duf, false);
+        check(&Lorenz63, &Lorenz63::NOMINAL, &lorenz_grid(), true);
+    }
+
+    /// A 3-D grid for Lorenz-63 with unequal axes (7, 6, 5 cells).
+    fn lorenz_grid() -> Grid {
+        Grid::try_new(GridSpec::parse("lo=-20;-25;0,hi=20;25;50,cells=7;6;5").unwrap()).unwrap()
     }
 
     #[test]
@@ -796,7 +824,7 @@ mod tests {
         // Identity: with TimeScheme::ImplicitEuler eight steps of dt/8 are the TR-BDF2 damped step
         // of dt (Lie splitting in 2-D); every step keeps positivity, mass and the pairing; the
         // solve counts are one per axis (implicit Euler), two per axis sub-step (two-stage step,
-        // Strang: three sub-steps in 2-D) and eight per axis (damped step).
+        // Strang: three sub-steps in 2-D, five in 3-D) and eight per axis (damped step).
         let dw = Grid::try_new(GridSpec::new_1d(-2.5, 2.5, 37)).unwrap();
         let vdp = Grid::try_new(GridSpec::new_2d([-3.0, -4.0], [3.0, 4.0], [13, 11])).unwrap();
         fn check<S: Sde>(sde: &S, theta: &[f64], grid: &Grid) {
@@ -835,23 +863,115 @@ mod tests {
         }
         check(&DoubleWell, &[0.5], &dw);
         check(&VanDerPol, &[2.0, 0.3], &vdp);
+        check(&Lorenz63, &Lorenz63::NOMINAL, &lorenz_grid());
+    }
+
+    /// Independent double wells, one per state: state k is well w = `self.0[k]`, with
+    /// dX = (X − X³ + 0.3 w) dt + (0.6 + 0.2 w) dW (a drift and diffusion separate per axis).
+    struct Wells(&'static [usize]);
+
+    const WELLS: [usize; 3] = [0, 1, 2];
+
+    impl Sde for Wells {
+        fn dims(&self) -> Dims {
+            Dims { noisy: self.0.len(), clean: 0, params: 0 }
+        }
+
+        fn noisy_names(&self) -> Vec<String> {
+            self.0.iter().map(|w| format!("x{w}")).collect()
+        }
+
+        fn param_names(&self) -> Vec<String> {
+            Vec::new()
+        }
+
+        fn drift<D: Scalar>(&self, _t: D, x: &[D], _z: &[D], _theta: &[D], out: &mut [D]) {
+            for (k, &w) in self.0.iter().enumerate() {
+                out[k] = x[k] - x[k] * x[k] * x[k] + D::from(0.3 * w as f64);
+            }
+        }
+
+        fn diffusion<D: Scalar>(&self, _theta: &[D], out: &mut [D]) {
+            let n = self.0.len();
+            for (i, o) in out.iter_mut().enumerate() {
+                *o = if i % (n + 1) == 0 { D::from(0.6 + 0.2 * self.0[i / n] as f64) } else { D::from(0.0) };
+            }
+        }
+    }
+
+    #[test]
+    fn a_separable_3d_step_is_the_product_of_its_axes_steps() {
+        // Identity: with a drift and diffusion separate per axis the axes' operators commute, so
+        // a 3-D step of a product density is the product of 1-D steps, Strang
+        // S₀(h/2) S₁(h/2) S₂(h) S₁(h/2) S₀(h/2) giving S₀(h/2)² ⊗ S₁(h/2)² ⊗ S₂(h), and the
+        // damped step each axis's eight implicit Euler sub-steps; likewise the adjoint steps.
+        // Unequal axes (5, 6, 7 cells) check the strides and blocks of the 3-D layout.
+        let (lo, hi, cells) = ([-2.0, -1.5, -2.5], [2.0, 2.5, 1.5], [5usize, 6, 7]);
+        let spec = GridSpec { lo: lo.to_vec(), hi: hi.to_vec(), cells: cells.to_vec() };
+        let grid = Grid::try_new(spec).unwrap();
+        let dt = 0.1;
+        let mut fp = FokkerPlanck::try_new(&Wells(&WELLS), &[], &grid, &[0.0]).unwrap();
+        fp.prepare(&[dt]);
+        let factors: Vec<Vec<f64>> =
+            (0..3).map(|a| (0..cells[a]).map(|i| 1.0 + ((i * (a + 2)) % 5) as f64).collect()).collect();
+        let product = |f: &[Vec<f64>]| -> Vec<f64> {
+            (0..grid.len()).map(|c| (0..3).map(|a| f[a][grid.index_on(a, c)]).product()).collect()
+        };
+        for kind in [StepKind::Smooth, StepKind::Damped] {
+            for adjoint in [false, true] {
+                let axes: Vec<Vec<f64>> = (0..3)
+                    .map(|a| {
+                        let line = Grid::try_new(GridSpec::new_1d(lo[a], hi[a], cells[a])).unwrap();
+                        let well = Wells(&WELLS[a..=a]);
+                        let mut fp1 = FokkerPlanck::try_new(&well, &[], &line, &[0.0]).unwrap();
+                        fp1.prepare(&[0.5 * dt, dt]);
+                        let halves = a < 2 && kind == StepKind::Smooth;
+                        let steps: &[f64] = if halves { &[0.5 * dt, 0.5 * dt] } else { &[dt] };
+                        let mut m = factors[a].clone();
+                        for &h in steps {
+                            if adjoint {
+                                fp1.step_adjoint(h, h, kind, &mut m);
+                            } else {
+                                fp1.step(h, h, kind, &mut m);
+                            }
+                        }
+                        m
+                    })
+                    .collect();
+                let mut m = product(&factors);
+                if adjoint {
+                    fp.step_adjoint(dt, dt, kind, &mut m);
+                } else {
+                    fp.step(dt, dt, kind, &mut m);
+                }
+                for (x, y) in m.iter().zip(product(&axes)) {
+                    assert_relative_eq!(*x, y, epsilon = 1e-13, max_relative = 1e-12);
+                }
+            }
+        }
     }
 
     #[test]
     fn batched_steps_equal_single_steps() {
         // The lockstep (interleaved) solves used by the tangent sweeps give the same result as
-        // one vector at a time, in 1-D and along both axes of a 2-D grid (identity, rounding only).
+        // one vector at a time, in 1-D and along every axis of a 2-D and a 3-D grid (identity,
+        // rounding only).
         for grid in [
             Grid::try_new(GridSpec::new_1d(-2.0, 2.0, 17)).unwrap(),
             Grid::try_new(GridSpec::new_2d([-3.0, -4.0], [3.0, 4.0], [7, 9])).unwrap(),
+            lorenz_grid(),
         ] {
-            let theta: &[f64] = if grid.dim() == 1 { &[0.5] } else { &[2.0, 0.4] };
+            let theta: &[f64] = [&[0.5][..], &[2.0, 0.4], &Lorenz63::NOMINAL][grid.dim() - 1];
             let run = |batch: bool| -> Vec<f64> {
                 let (nv, active) = (4, 3);
                 let n = grid.len();
                 let mut x: Vec<f64> = (0..n * nv).map(|i| ((i * 13) % 7) as f64 * 0.1).collect();
                 if grid.dim() == 1 {
                     let mut fp = FokkerPlanck::try_new(&DoubleWell, theta, &grid, &[0.0]).unwrap();
+                    fp.prepare(&[0.1]);
+                    step_all(&fp, &mut x, nv, active, batch);
+                } else if grid.dim() == 3 {
+                    let mut fp = FokkerPlanck::try_new(&Lorenz63, theta, &grid, &[0.0]).unwrap();
                     fp.prepare(&[0.1]);
                     step_all(&fp, &mut x, nv, active, batch);
                 } else {
@@ -913,10 +1033,10 @@ mod tests {
     }
 
     #[test]
-    fn rejects_more_than_two_noisy_states() {
-        use crate::model::library::Lorenz63;
+    fn rejects_more_than_three_noisy_states() {
         let grid = Grid::try_new(GridSpec::new_1d(-1.0, 1.0, 5)).unwrap();
-        let err = FokkerPlanck::try_new(&Lorenz63, &Lorenz63::NOMINAL, &grid, &[0.0]).unwrap_err();
-        assert!(err.to_string().contains("one or two noisy states"), "{err}");
+        let err =
+            FokkerPlanck::try_new(&Lorenz96::new(4).unwrap(), &Lorenz96::NOMINAL, &grid, &[0.0]).unwrap_err();
+        assert!(err.to_string().contains("one to three noisy states"), "{err}");
     }
 }

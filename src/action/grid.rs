@@ -1,17 +1,17 @@
-//! Tensor grids of one or two dimensions on which the exact densities live.
+//! Tensor grids of one to three dimensions on which the exact densities live.
 //!
 //! A grid covers the box ∏_a [lo_a, hi_a] with `cells_a` equal cells per axis; axis a is state a
 //! of s = [x; z] (noisy then clean states). Densities are stored as *cell masses* (probability
-//! of each cell, summing to 1), indexed `i0 + n0 · i1` (axis 0 fastest).
+//! of each cell, summing to 1), indexed `i0 + n0 · i1 + n0 · n1 · i2` (axis 0 fastest).
 
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use crate::{Error, Result};
 
-/// The box and resolution of a grid: one entry per axis (one or two axes).
+/// The box and resolution of a grid: one entry per axis (one to three axes).
 ///
 /// In options files and on the command line a grid is written `lo=L,hi=H,cells=N` (two axes:
-/// `lo=L1;L2,hi=H1;H2,cells=N1;N2`, [`GridSpec::parse`]) or as a table
+/// `lo=L1;L2,hi=H1;H2,cells=N1;N2`, three likewise, [`GridSpec::parse`]) or as a table
 /// `{ lo = [L1, L2], hi = [H1, H2], cells = [N1, N2] }` (one axis: plain numbers); it is
 /// written back in the first form.
 #[derive(Debug, Clone, PartialEq)]
@@ -110,7 +110,7 @@ impl GridSpec {
     }
 
     /// Parses the CLI syntax `lo=L,hi=H,cells=N` (one axis) or `lo=L1;L2,hi=H1;H2,cells=N1;N2`
-    /// (two axes). Errors: [`Error::InvalidOption`] (name `grid`) naming the problem.
+    /// (two axes; three likewise). Errors: [`Error::InvalidOption`] (name `grid`) naming the problem.
     pub fn parse(spec: &str) -> Result<GridSpec> {
         let (mut lo, mut hi, mut cells) = (None, None, None);
         for part in spec.split(',') {
@@ -152,12 +152,12 @@ impl GridSpec {
         Ok(g)
     }
 
-    /// Checks one or two axes, the same number of entries in `lo`, `hi`, `cells`, finite
+    /// Checks one to three axes, the same number of entries in `lo`, `hi`, `cells`, finite
     /// lo < hi and at least 3 cells per axis.
     pub fn validate(&self) -> Result<()> {
         let d = self.cells.len();
-        if !(1..=2).contains(&d) {
-            return Err(bad(format!("the grid methods support one or two axes, got {d}")));
+        if !(1..=3).contains(&d) {
+            return Err(bad(format!("the grid methods support one to three axes, got {d}")));
         }
         if self.lo.len() != d || self.hi.len() != d {
             return Err(bad(format!(
@@ -234,13 +234,20 @@ impl Grid {
         &self.centers[a]
     }
 
-    /// The coordinates of cell `cell` (index `i0 + n0 · i1`) into `out` (length [`Grid::dim`]).
+    /// The coordinates of cell `cell` (index `i0 + n0 · i1 + n0 · n1 · i2`) into `out` (length
+    /// [`Grid::dim`]).
     pub fn coords(&self, cell: usize, out: &mut [f64]) {
-        let n0 = self.spec.cells[0];
-        out[0] = self.centers[0][cell % n0];
-        if self.dim() == 2 {
-            out[1] = self.centers[1][cell / n0];
+        let mut rest = cell;
+        for ((o, centers), &n) in out.iter_mut().zip(&self.centers).zip(&self.spec.cells) {
+            *o = centers[rest % n];
+            rest /= n;
         }
+    }
+
+    /// The index along axis `a` of cell `cell`.
+    pub fn index_on(&self, a: usize, cell: usize) -> usize {
+        let below: usize = self.spec.cells[..a].iter().product();
+        (cell / below) % self.spec.cells[a]
     }
 
     /// The values of axis `a`'s coordinate at every cell.
@@ -280,11 +287,13 @@ mod tests {
     }
 
     #[test]
-    fn parse_one_and_two_axes() {
+    fn parse_one_two_and_three_axes() {
         let g = GridSpec::parse("lo=-2,hi=3,cells=50").unwrap();
         assert_eq!(g, GridSpec::new_1d(-2.0, 3.0, 50));
         let g = GridSpec::parse("lo=-2;-1, hi=2;1, cells=20;10").unwrap();
         assert_eq!(g, GridSpec::new_2d([-2.0, -1.0], [2.0, 1.0], [20, 10]));
+        let g = GridSpec::parse("lo=-2;-1;0,hi=2;1;4,cells=20;10;5").unwrap();
+        assert_eq!((g.lo, g.hi, g.cells), (vec![-2.0, -1.0, 0.0], vec![2.0, 1.0, 4.0], vec![20, 10, 5]));
         for badspec in ["lo=1,hi=0,cells=10", "lo=0,hi=1", "lo=0,hi=1,cells=2", "lo=0;1,hi=1,cells=4", "x=1"]
         {
             assert!(matches!(GridSpec::parse(badspec), Err(Error::InvalidOption { .. })), "{badspec}");
@@ -300,5 +309,15 @@ mod tests {
         g.coords(5, &mut c);
         assert_eq!(c, [0.375, 0.0]);
         assert_eq!(g.coordinate(1)[3], -1.0);
+        assert_eq!((g.index_on(0, 5), g.index_on(1, 5)), (1, 1));
+        // Three axes: h = (0.5, 1, 2), cell 1 + 4·1 + 4·3·2 = 29 = (1, 1, 2).
+        let g = Grid::try_new(GridSpec::parse("lo=0;0;-3,hi=2;3;3,cells=4;3;3").unwrap()).unwrap();
+        assert_eq!(g.len(), 36);
+        let mut c = [0.0; 3];
+        g.coords(29, &mut c);
+        assert_eq!(c, [0.75, 1.5, 2.0]);
+        assert_eq!((0..3).map(|a| g.index_on(a, 29)).collect::<Vec<_>>(), [1, 1, 2]);
+        let four = GridSpec::parse("lo=0;0;0;0,hi=1;1;1;1,cells=3;3;3;3").unwrap_err();
+        assert!(four.to_string().contains("one to three axes"), "{four}");
     }
 }

@@ -75,7 +75,7 @@ pub struct EstimateArgs {
     /// Parameters to estimate, comma-separated names (methods that estimate parameters).
     #[arg(long, value_delimiter = ',')]
     pub estimate: Vec<String>,
-    /// Grid of the exact methods: `lo=L,hi=H,cells=N` (two noisy states: `lo=L1;L2,hi=H1;H2,cells=N1;N2`).
+    /// Grid of the exact methods: `lo=L,hi=H,cells=N` (two states: `lo=L1;L2,hi=H1;H2,cells=N1;N2`; three likewise).
     #[arg(long, value_parser = parse_grid)]
     pub grid: Option<GridSpec>,
     /// Time step of the method's time integration (grid, Kalman and particle methods).

@@ -38,7 +38,7 @@ impl Estimator {
     /// dimensions, the likelihood, the parameters to estimate and the estimator's options:
     ///
     /// - parameters to estimate: only `jme`, `mee` and `pem` estimate them;
-    /// - `ksp`, `mean-optimal`: one or two states, and a grid (the default grid needs every
+    /// - `ksp`, `mean-optimal`: one to three states, and a grid (the default grid needs every
     ///   state measured directly);
     /// - `exp-closure`: one to three states (moments up to degree 6 in two, 4 in three);
     ///   `ksp-closure`, `double-exp-closure`: one noisy state;
@@ -77,8 +77,8 @@ impl Estimator {
         }
         match self {
             Estimator::Ksp(o) | Estimator::MeanOptimal(MeanOptimalOptions { exact: o, .. }) => {
-                if n > 2 {
-                    return no(format!("the grid methods take one or two states, the model has {n}"));
+                if n > 3 {
+                    return no(format!("the grid methods take one to three states, the model has {n}"));
                 }
                 if o.grid.is_none() {
                     if let Err(e) = default_grid(problem) {
@@ -88,8 +88,7 @@ impl Estimator {
                             }
                             other => other.to_string(),
                         };
-                        let example =
-                            if n == 2 { "lo=L1;L2,hi=H1;H2,cells=N1;N2" } else { "lo=L,hi=H,cells=N" };
+                        let example = ["lo=L,hi=H,cells=N", "lo=L1;L2,hi=H1;H2,cells=N1;N2", "lo=L1;L2;L3,hi=H1;H2;H3,cells=N1;N2;N3"][n - 1];
                         return no(format!("{why}; give a grid, `--grid {example}`"));
                     }
                 }

@@ -260,7 +260,7 @@ impl Method {
         )
     }
 
-    /// Whether the method is one of the exact grid methods (one or two states).
+    /// Whether the method is one of the exact grid methods (one to three states).
     pub fn uses_grid(self) -> bool {
         matches!(self, Method::Ksp | Method::MeanOptimal)
     }

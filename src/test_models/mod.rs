@@ -24,6 +24,7 @@
 //! |---|---|---|
 //! | [`OscillatorRecord`] | [`LinearOscillator`] on [0, 4], q measured every 0.2, one datum missing | exact Kalman/RTS |
 //! | [`RotationRecord`] | [`RotationWithPosition`] on [0, 4], x₂ and z measured every 0.25, one datum missing | [`RotationRecord::rts`] |
+//! | [`LagRecord`] | [`RotationWithLag`] on [0, 0.5 n], x₁ and x₃ measured every 0.5 | [`LagRecord::rts`] |
 //! | [`OuRecord`] | [`Ou`](crate::model::library::Ou) (θ = 1, σ = 0.5) on [0, 5], y ~ N(x, 0.2²) every 0.5 | [`OuRecord::rts`] |
 //! | [`DoubleWellRecord`] | [`DoubleWell`](crate::model::library::DoubleWell) (D = 0.5), y ~ N(x, 0.2²) at given times | the exact grid estimators |
 //! | [`PresetRecord`] | any preset simulated and measured with its own settings | per model |
@@ -77,6 +78,6 @@ pub use models::{
     TwoNoisyOneClean, UnforcedDuffing, UnscaledDoubleWell,
 };
 pub use records::{
-    cosine_data, gaussian_measurement, van_der_pol_student_t, DoubleWellRecord, OscillatorRecord, OuRecord,
-    PresetRecord, RotationRecord, Start,
+    cosine_data, gaussian_measurement, van_der_pol_student_t, DoubleWellRecord, LagRecord, OscillatorRecord,
+    OuRecord, PresetRecord, RotationRecord, Start,
 };

@@ -5,7 +5,7 @@ use nalgebra::{DMatrix, DVector};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 
-use super::models::{LinearOscillator, RotationWithPosition};
+use super::models::{LinearOscillator, RotationWithLag, RotationWithPosition};
 use crate::data::{Dataset, StatePath};
 use crate::estimate::EstimationProblem;
 use crate::kalman::linear::{kalman_rts, KalmanSmoothing, LinearGaussianModel};
@@ -407,6 +407,65 @@ impl RotationRecord {
         let p0 = DMatrix::from_diagonal(&DVector::from_vec(vec![0.25, 0.16, 0.36]));
         let model =
             LinearGaussianModel::from_sde(&RotationWithPosition, &[], &self.observation, 0.0, m0, p0)?;
+        kalman_rts(&model, &self.data, extra_times)
+    }
+}
+
+/// [`RotationWithLag`] (three noisy states) simulated from (0.5, −0.3, 0) with seed 2, x₁ and x₃
+/// measured with sd 0.2 at t = 0.5, 1, …, 0.5 n; initial priors N(0.5, 0.3²), N(−0.3, 0.3²),
+/// N(0, 0.3²).
+///
+/// Known answer: the exact Kalman filter and RTS smoother ([`LagRecord::rts`]).
+#[derive(Debug, Clone)]
+pub struct LagRecord {
+    /// The initial priors of x₁, x₂, x₃.
+    pub x0_prior: Vec<Prior>,
+    /// x₁ and x₃ measured with sd 0.2 (outputs `y1`, `y3`).
+    pub observation: StateMeasurement,
+    /// The measurements.
+    pub data: Dataset,
+}
+
+impl LagRecord {
+    /// Simulates the record with `measurements` measurement times (seed 2, path on
+    /// [0, 0.5 · measurements]).
+    pub fn new(measurements: usize) -> Result<LagRecord> {
+        let observation = StateMeasurement::new(
+            vec![0, 2],
+            vec!["y1".into(), "y3".into()],
+            Noise::Gaussian { sigma: Param::Fixed(0.2) },
+        );
+        let mut rng = StdRng::seed_from_u64(2);
+        let options = SimulateOptions::new(0.0, 0.5 * measurements as f64, 0.01);
+        let path = simulate(&RotationWithLag, &[], &[0.5, -0.3, 0.0], &[], &options, &mut rng)?;
+        let times: Vec<f64> = (1..=measurements).map(|k| 0.5 * k as f64).collect();
+        let data = sample_measurements_at(&observation, &[], &path, 3, &times, &mut rng)?;
+        let x0_prior = vec![Prior::gaussian(0.5, 0.3), Prior::gaussian(-0.3, 0.3), Prior::gaussian(0.0, 0.3)];
+        Ok(LagRecord { x0_prior, observation, data })
+    }
+
+    /// The estimation problem: t0 = 0, seed 0.
+    pub fn problem(&self) -> EstimationProblem<'_, RotationWithLag, StateMeasurement> {
+        EstimationProblem {
+            sde: &RotationWithLag,
+            observation: &self.observation,
+            theta: &[],
+            theta_prior: &[],
+            estimate: &[],
+            x0_prior: &self.x0_prior,
+            z0_prior: &[],
+            data: &self.data,
+            t0: 0.0,
+            seed: 0,
+            max_memory: Default::default(),
+        }
+    }
+
+    /// The exact Kalman filter and RTS smoother of the record, with `extra_times` in its grid.
+    pub fn rts(&self, extra_times: &[f64]) -> Result<KalmanSmoothing> {
+        let m0 = DVector::from_vec(vec![0.5, -0.3, 0.0]);
+        let p0 = DMatrix::from_diagonal(&DVector::from_element(3, 0.09));
+        let model = LinearGaussianModel::from_sde(&RotationWithLag, &[], &self.observation, 0.0, m0, p0)?;
         kalman_rts(&model, &self.data, extra_times)
     }
 }
