@@ -18,8 +18,8 @@
 //! S_a = I + τL + τ²L²/2 + O(τ³), with |S_a| → 0 for stiff modes (L-stable). In two and three
 //! dimensions the axes are Strang-split, S = S₀(Δt/2) S₁(Δt) S₀(Δt/2) and
 //! S = S₀(Δt/2) S₁(Δt/2) S₂(Δt) S₁(Δt/2) S₀(Δt/2) (Strang, SIAM J. Numer. Anal. 5 (1968)
-//! 506–517: a symmetric product of second-order factors is of second order). Because 1ᵀM_a = 1ᵀ, every step keeps the
-//! total mass exactly. The damped step ([`StepKind::Damped`], used after a jump) is eight
+//! 506–517: a symmetric product of second-order factors is of second order). Because
+//! 1ᵀM_a = 1ᵀ, every step keeps the total mass exactly. The damped step ([`StepKind::Damped`], used after a jump) is eight
 //! implicit Euler steps (I − Δt/8 L_a)⁻¹ per axis: every M_a is a column-diagonally-dominant
 //! M-matrix, so it keeps positivity, and it removes the stiff modes a jump excites, which the
 //! two-stage step would map to small negative multiples (R(z) = (1 + (√2 − 1)z)/(1 − gz)² is
@@ -28,8 +28,8 @@
 //! ⟨a, m⟩ is conserved by the discrete scheme to rounding.
 //!
 //! The first-order alternative [`TimeScheme::ImplicitEuler`] makes every step one implicit Euler
-//! step (I − Δt L_a)⁻¹ per axis (Lie splitting in two and three dimensions, m⁺ = M₁⁻¹ M₀⁻¹ m in two), the damped
-//! step with a single sub-step: positive at every step size, first order in Δt.
+//! step (I − Δt L_a)⁻¹ per axis (Lie splitting in two and three dimensions, m⁺ = M₁⁻¹ M₀⁻¹ m in
+//! two), the damped step with a single sub-step: positive at every step size, first order in Δt.
 
 use serde::{Deserialize, Serialize};
 
@@ -155,8 +155,8 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
     /// The operator of `sde` at `theta` on `grid`, whose axes are the states [x; z].
     /// `probe_times` are times at which the drift is compared to decide whether it is autonomous.
     ///
-    /// Errors: [`Error::InvalidOption`] when the model has more than two noisy states, when the
-    /// grid's axes are not the model's states, or when D = ½GGᵀ is not diagonal in two
+    /// Errors: [`Error::InvalidOption`] when the model has more than three noisy states, when the
+    /// grid's axes are not the model's states, or when D = ½GGᵀ is not diagonal in two or three
     /// dimensions (the split scheme needs it); [`Error::SingularDiffusion`] for a bad G(θ).
     pub fn try_new(sde: &'a S, theta: &[f64], grid: &Grid, probe_times: &[f64]) -> Result<Self> {
         check_model_fits_grid(sde, grid)?;
@@ -864,6 +864,67 @@ mod tests {
         check(&DoubleWell, &[0.5], &dw);
         check(&VanDerPol, &[2.0, 0.3], &vdp);
         check(&Lorenz63, &Lorenz63::NOMINAL, &lorenz_grid());
+    }
+
+    #[test]
+    fn a_3d_step_is_the_dense_strang_product_of_its_axes() {
+        // Independent reference: the generator of each axis assembled as a dense matrix from the
+        // cells' multi-indices and the drift at each face (Chang–Cooper rates, module doc), then
+        // the step as dense algebra: S₀(h/2) S₁(h/2) S₂(h) S₁(h/2) S₀(h/2) with
+        // S_a(τ) = (a M⁻¹ − (a − 1)) M⁻¹, M = I − gτL_a, and the damped step as eight rounds of
+        // (I − h/8 L_a)⁻¹ over the axes; the adjoint steps as the transposes. Lorenz-63's rates
+        // differ from line to line, so a solve that read another line's factors would show.
+        let grid = lorenz_grid();
+        let theta = Lorenz63::NOMINAL;
+        let (n, h, dt) = (grid.len(), grid.widths().to_vec(), 0.01);
+        let mut fp = FokkerPlanck::try_new(&Lorenz63, &theta, &grid, &[0.0]).unwrap();
+        fp.prepare(&[dt]);
+        let g = Lorenz63.diffusion_matrix(&theta).unwrap();
+        let generators: Vec<nalgebra::DMatrix<f64>> = (0..3)
+            .map(|a| {
+                let d = 0.5 * (g[(a, a)] * g[(a, a)]);
+                let stride: usize = grid.cells()[..a].iter().product();
+                let mut l = nalgebra::DMatrix::zeros(n, n);
+                let (mut s, mut f) = ([0.0; 3], [0.0; 3]);
+                for c in (0..n).filter(|&c| grid.index_on(a, c) + 1 < grid.cells()[a]) {
+                    grid.coords(c, &mut s);
+                    s[a] += 0.5 * h[a];
+                    Lorenz63.drift(0.0, &s, &[], &theta, &mut f);
+                    let w = f[a] * h[a] / d;
+                    let (ra, rb) = (d / (h[a] * h[a]) * bernoulli(-w), d / (h[a] * h[a]) * bernoulli(w));
+                    let j = c + stride;
+                    l[(c, c)] -= ra;
+                    l[(j, c)] += ra;
+                    l[(c, j)] += rb;
+                    l[(j, j)] -= rb;
+                }
+                l
+            })
+            .collect();
+        let eye = nalgebra::DMatrix::<f64>::identity(n, n);
+        let inverse = |m: nalgebra::DMatrix<f64>| m.try_inverse().unwrap();
+        let two_stage = |a: usize, tau: f64| {
+            let minv = inverse(&eye - &generators[a] * (STAGE * tau));
+            (&minv * OUTER - &eye * (OUTER - 1.0)) * &minv
+        };
+        let mut smooth = eye.clone();
+        for (a, tau) in [(0, 0.5 * dt), (1, 0.5 * dt), (2, dt), (1, 0.5 * dt), (0, 0.5 * dt)] {
+            smooth = two_stage(a, tau) * smooth;
+        }
+        let mut damped = eye.clone();
+        for a in (0..8).flat_map(|_| 0..3) {
+            damped = inverse(&eye - &generators[a] * (dt / 8.0)) * damped;
+        }
+        let m0 = nalgebra::DVector::from_fn(n, |i, _| 1.0 + ((i * 7) % 5) as f64);
+        for (kind, dense) in [(StepKind::Smooth, smooth), (StepKind::Damped, damped)] {
+            let (mut m, mut a) = (m0.as_slice().to_vec(), m0.as_slice().to_vec());
+            fp.step(dt, dt, kind, &mut m);
+            fp.step_adjoint(dt, dt, kind, &mut a);
+            let (want_m, want_a) = (&dense * &m0, dense.transpose() * &m0);
+            for (x, y) in m.iter().zip(want_m.iter()).chain(a.iter().zip(want_a.iter())) {
+                assert_relative_eq!(*x, *y, epsilon = 1e-11, max_relative = 1e-9);
+            }
+        }
     }
 
     /// Independent double wells, one per state: state k is well w = `self.0[k]`, with

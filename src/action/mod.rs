@@ -2,7 +2,7 @@
 //! the dual machinery shared with the Rayleigh–Ritz closures.
 //!
 //! - [`grid`] and [`fokker_planck`]: the forward (Fokker–Planck) and backward (Kolmogorov)
-//!   equations on a 1-D or 2-D grid, conservative and positivity preserving, the backward step
+//!   equations on a 1-D, 2-D or 3-D grid, conservative and positivity preserving, the backward step
 //!   being the exact transpose of the forward step (`(0.4)`, `(I.16)–(I.17)`).
 //! - [`exact`]: the sweeps with jump conditions; the KSP smoother ([`exact::ksp_smoother`],
 //!   `(0.3)–(0.7)`, `(I.80)–(I.84)`, Appendix 1) with any likelihood, and the exact effective

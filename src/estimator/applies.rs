@@ -77,7 +77,7 @@ impl Estimator {
         }
         match self {
             Estimator::Ksp(o) | Estimator::MeanOptimal(MeanOptimalOptions { exact: o, .. }) => {
-                if n > 3 {
+                if !(1..=3).contains(&n) {
                     return no(format!("the grid methods take one to three states, the model has {n}"));
                 }
                 if o.grid.is_none() {
