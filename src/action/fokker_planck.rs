@@ -19,8 +19,8 @@
 //! dimensions the axes are Strang-split, S = S₀(Δt/2) S₁(Δt) S₀(Δt/2) and
 //! S = S₀(Δt/2) S₁(Δt/2) S₂(Δt) S₁(Δt/2) S₀(Δt/2) (Strang, SIAM J. Numer. Anal. 5 (1968)
 //! 506–517: a symmetric product of second-order factors is of second order). Because
-//! 1ᵀM_a = 1ᵀ, every step keeps the total mass exactly. The damped step ([`StepKind::Damped`], used after a jump) is eight
-//! implicit Euler steps (I − Δt/8 L_a)⁻¹ per axis: every M_a is a column-diagonally-dominant
+//! 1ᵀM_a = 1ᵀ, every step keeps the total mass exactly. The damped step ([`StepKind::Damped`],
+//! used after a jump) is eight implicit Euler steps (I − Δt/8 L_a)⁻¹ per axis: every M_a is a column-diagonally-dominant
 //! M-matrix, so it keeps positivity, and it removes the stiff modes a jump excites, which the
 //! two-stage step would map to small negative multiples (R(z) = (1 + (√2 − 1)z)/(1 − gz)² is
 //! negative for z < −(1 + √2), down to −0.21). The backward Kolmogorov step
@@ -481,8 +481,8 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
 
     /// One forward (Fokker–Planck) step of size `dt` ending at `t_new`: m ← S m with
     /// S = S₀(dt/2) S₁(dt) S₀(dt/2) in two dimensions (likewise in three), S_a(τ) = R(τ L_a) (see
-    /// the module doc);
-    /// a [`StepKind::Damped`] step is eight implicit Euler sub-steps of dt/8 instead.
+    /// the module doc); a [`StepKind::Damped`] step is eight implicit Euler sub-steps of dt/8
+    /// instead.
     pub fn step(&self, t_new: f64, dt: f64, kind: StepKind, m: &mut [f64]) {
         self.apply(
             (t_new, dt),
@@ -561,12 +561,13 @@ const DAMPING_STEPS: usize = 8;
 #[serde(rename_all = "kebab-case")]
 #[non_exhaustive]
 pub enum TimeScheme {
-    /// Second order: the two-stage TR-BDF2 step per axis (Strang splitting in two and three dimensions),
-    /// eight implicit Euler sub-steps after t0 and after every measurement (see the module doc).
+    /// Second order: the two-stage TR-BDF2 step per axis (Strang splitting in two and three
+    /// dimensions), eight implicit Euler sub-steps after t0 and after every measurement (see the
+    /// module doc).
     #[default]
     TrBdf2,
-    /// First order: one implicit Euler step per axis (Lie splitting in two and three dimensions); positive
-    /// at every step size, one tridiagonal solve per axis and step.
+    /// First order: one implicit Euler step per axis (Lie splitting in two and three dimensions);
+    /// positive at every step size, one tridiagonal solve per axis and step.
     ImplicitEuler,
 }
 

@@ -110,7 +110,8 @@ impl GridSpec {
     }
 
     /// Parses the CLI syntax `lo=L,hi=H,cells=N` (one axis) or `lo=L1;L2,hi=H1;H2,cells=N1;N2`
-    /// (two axes; three likewise). Errors: [`Error::InvalidOption`] (name `grid`) naming the problem.
+    /// (two axes; three likewise). Errors: [`Error::InvalidOption`] (name `grid`) naming the
+    /// problem.
     pub fn parse(spec: &str) -> Result<GridSpec> {
         let (mut lo, mut hi, mut cells) = (None, None, None);
         for part in spec.split(',') {
