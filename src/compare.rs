@@ -84,27 +84,35 @@ pub const DEFAULT_METHODS: [Method; 10] = [
 /// The estimators compared by default, with their default options: those of
 /// [`DEFAULT_METHODS`] (the exact grid methods, the five closures, JME, MEE and the UKS) that
 /// apply to the problem ([`Estimator::applies_to`]), and the others with the reason they do not.
-/// The exponential closure and the exact grid methods in three states apply but are left out
-/// with their reason: they take a minute or more per record there (docs/closures.md, "The
-/// quartic closure in three states"; docs/effective-action.md, "Three states"); name them to run
-/// them.
+/// With a `grid`, the exact grid methods take it ([`Estimator::with_default_grid`]) before
+/// their applicability is checked, so they also apply where the default grid cannot be formed
+/// (a state that is not measured).
+/// The exponential closure, and the exact grid methods without a `grid`, apply in three states
+/// but are left out with their reason: they take a minute or more per record there
+/// (docs/closures.md, "The quartic closure in three states"; docs/effective-action.md, "Three
+/// states"); name them, or give a grid for the grid methods, to run them.
 pub fn default_estimators<S: Sde + ?Sized>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
+    grid: Option<&crate::action::grid::GridSpec>,
 ) -> (Vec<Labelled>, Vec<NotApplicable>) {
     let (mut chosen, mut skipped) = (Vec::new(), Vec::new());
     let n = problem.sde.dims().states();
     for m in DEFAULT_METHODS {
-        let e = Estimator::new(m);
+        let e = match grid {
+            Some(g) => Estimator::new(m).with_default_grid(g),
+            None => Estimator::new(m),
+        };
+        let costly = m == Method::ExpClosure || (m.uses_grid() && grid.is_none());
         match e.applies_to(problem) {
-            Ok(()) if n == 3 && (m == Method::ExpClosure || m.uses_grid()) => {
-                let what = if m.uses_grid() {
-                    "the grid methods take about a minute"
+            Ok(()) if n == 3 && costly => {
+                let (what, how) = if m.uses_grid() {
+                    ("the grid methods take about a minute", format!("name `{m}`, or give a grid"))
                 } else {
-                    "the exponential closure takes minutes"
+                    ("the exponential closure takes minutes", format!("name `{m}`"))
                 };
                 skipped.push(NotApplicable {
                     method: m,
-                    reason: format!("in 3 states {what} per record; not run by default (name it: `{m}`)"),
+                    reason: format!("in 3 states {what} per record; not run by default ({how})"),
                 })
             }
             Ok(()) => chosen.push(Labelled::new(e)),
@@ -395,7 +403,7 @@ mod tests {
         // closures are skipped with their reason; the Gaussian closures, JME, MEE and the UKS run.
         let p = preset("lorenz63").unwrap();
         let data = crate::data::Dataset { names: vec![], times: vec![], values: vec![] };
-        let (chosen, skipped) = default_estimators(&p.problem(&data, &[]));
+        let (chosen, skipped) = default_estimators(&p.problem(&data, &[]), None);
         let chosen: Vec<Method> = chosen.iter().map(|l| l.estimator.method()).collect();
         assert_eq!(
             chosen,
@@ -426,13 +434,30 @@ mod tests {
         };
         let problem = p.problem(&one, &[]);
         assert!(Estimator::new(Method::MeanOptimal).applies_to(&problem).is_ok());
-        let (_, skipped) = default_estimators(&problem);
+        let (_, skipped) = default_estimators(&problem, None);
         for m in [Method::Ksp, Method::MeanOptimal] {
             let why = skipped.iter().find(|s| s.method == m).unwrap();
             assert!(
-                why.reason.contains("a minute per record") && why.reason.contains(&m.to_string()),
+                why.reason.contains("a minute per record") && why.reason.contains(&format!("name `{m}`")),
                 "{why}"
             );
+        }
+        // Given a grid, they run, with that grid, even without data for a default grid; the
+        // exponential closure is still left out.
+        let grid = crate::action::grid::GridSpec::parse("lo=-20;-25;0,hi=20;25;50,cells=8;8;8").unwrap();
+        for data in [&data, &one] {
+            let (chosen, skipped) = default_estimators(&p.problem(data, &[]), Some(&grid));
+            let grids: Vec<_> = chosen
+                .iter()
+                .filter_map(|l| match &l.estimator {
+                    Estimator::Ksp(o) => o.grid.clone(),
+                    Estimator::MeanOptimal(o) => o.exact.grid.clone(),
+                    _ => None,
+                })
+                .collect();
+            assert_eq!(grids, [grid.clone(), grid.clone()]);
+            assert!(skipped.iter().all(|s| !s.method.uses_grid()));
+            assert!(skipped.iter().any(|s| s.method == Method::ExpClosure));
         }
         // A Student-t likelihood: the Gaussian KSP closure needs Gaussian errors.
         let mut p = preset("double-well").unwrap();
@@ -440,7 +465,7 @@ mod tests {
             nu: crate::model::Param::Fixed(4.0),
             scale: crate::model::Param::Fixed(0.2),
         };
-        let (chosen, skipped) = default_estimators(&p.problem(&data, &[]));
+        let (chosen, skipped) = default_estimators(&p.problem(&data, &[]), None);
         assert!(chosen.iter().all(|l| l.estimator.method() != Method::GaussianKspClosure));
         let why = skipped.iter().find(|s| s.method == Method::GaussianKspClosure).unwrap();
         assert!(why.reason.contains("Gaussian measurement errors"), "{why}");

@@ -183,7 +183,7 @@ pub fn compare(
     let list = {
         let problem = EstimationProblem { seed, ..preset.problem(&data, &[]) };
         problem.validate().map_err(value_error)?;
-        estimators(methods, || default_estimators(&problem).0)?
+        estimators(methods, || default_estimators(&problem, None).0)?
     };
     let comparison = interruptible(
         py,

@@ -8,7 +8,7 @@ use onsager::action::GridSpec;
 use onsager::compare::{compare, default_estimators, CompareOptions, Comparison};
 use onsager::data::StatePath;
 use onsager::estimate::{EstimationProblem, RowStatus};
-use onsager::estimator::{parse_list, read_list, Estimator, Labelled, NotApplicable};
+use onsager::estimator::{parse_list, read_list, Labelled, NotApplicable};
 use onsager::model::Sde;
 use onsager::{Error, Result};
 
@@ -21,11 +21,6 @@ pub struct EstimatorList(pub Vec<Labelled>);
 /// Parses `--methods` ([`parse_list`]).
 fn parse_methods(s: &str) -> std::result::Result<EstimatorList, String> {
     parse_list(s).map(EstimatorList).map_err(|e| e.to_string())
-}
-
-/// Parses `--grid`.
-fn parse_grid(s: &str) -> std::result::Result<GridSpec, String> {
-    GridSpec::parse(s).map_err(|e| e.to_string())
 }
 
 /// Flags of `onsager compare`.
@@ -58,8 +53,9 @@ pub struct CompareArgs {
     #[arg(long, value_delimiter = ',')]
     pub estimate: Vec<String>,
     /// Grid of the exact methods that do not set their own (default: the data range with
-    /// margins).
-    #[arg(long, value_parser = parse_grid)]
+    /// margins). With it, the default estimators include the grid methods on three-state models
+    /// and on models with a state that is not measured.
+    #[arg(long, value_parser = super::estimate::parse_grid)]
     pub grid: Option<GridSpec>,
     #[command(flatten)]
     pub limits: LimitArgs,
@@ -85,17 +81,13 @@ impl CompareArgs {
             (Some(list), _) => (list.0.clone(), Vec::new(), "--methods"),
             (None, Some(file)) => (read_list(file)?, Vec::new(), "--estimators"),
             (None, None) => {
-                let (chosen, skipped) = default_estimators(problem);
+                let (chosen, skipped) = default_estimators(problem, self.grid.as_ref());
                 (chosen, skipped, "")
             }
         };
         if let Some(grid) = &self.grid {
             for e in &mut list {
-                match &mut e.estimator {
-                    Estimator::Ksp(o) if o.grid.is_none() => o.grid = Some(grid.clone()),
-                    Estimator::MeanOptimal(o) if o.exact.grid.is_none() => o.exact.grid = Some(grid.clone()),
-                    _ => {}
-                }
+                e.estimator = e.estimator.clone().with_default_grid(grid);
             }
         }
         for e in &mut list {

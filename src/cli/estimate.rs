@@ -23,8 +23,8 @@ pub fn parse_method(s: &str) -> std::result::Result<Method, String> {
     s.parse::<Method>().map_err(|e| e.to_string())
 }
 
-/// Parses `--grid`.
-fn parse_grid(s: &str) -> std::result::Result<GridSpec, String> {
+/// Parses `--grid` (of `estimate` and `compare`).
+pub(super) fn parse_grid(s: &str) -> std::result::Result<GridSpec, String> {
     GridSpec::parse(s).map_err(|e| e.to_string())
 }
 

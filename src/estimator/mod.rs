@@ -398,6 +398,17 @@ impl Estimator {
         Ok(self)
     }
 
+    /// The estimator with `grid` as the grid of an exact grid method ([`Method::uses_grid`]) that
+    /// has none of its own; any other estimator, or one with its own grid, is returned unchanged.
+    pub fn with_default_grid(mut self, grid: &crate::action::grid::GridSpec) -> Estimator {
+        match &mut self {
+            Estimator::Ksp(o) if o.grid.is_none() => o.grid = Some(grid.clone()),
+            Estimator::MeanOptimal(o) if o.exact.grid.is_none() => o.exact.grid = Some(grid.clone()),
+            _ => {}
+        }
+        self
+    }
+
     /// Runs the estimator as [`Estimator::run`], with `observer` receiving its progress
     /// ([`crate::estimate::progress`]).
     pub fn run_observed<S: Sde + ?Sized>(
