@@ -30,7 +30,7 @@ use crate::{Error, Result};
 
 use super::dual::{ActionValue, DualData, DualOptions, DualSolution, EffectiveAction, History, Swept};
 use super::fokker_planck::{check_model_fits_grid, FokkerPlanck, StepKind, TimeScheme};
-use super::grid::{Grid, GridSpec};
+use super::grid::{Grid, GridSpec, MAX_AXES};
 use super::mean_optimal::{DualDetails, DualStart, Plan, SdKind};
 
 /// Options of the exact grid methods: the discretisation (the options of `ksp`; `mean-optimal`
@@ -182,12 +182,15 @@ pub fn default_grid<S: Sde + ?Sized, O: Observation + ?Sized>(
 ) -> Result<GridSpec> {
     let n = problem.sde.dims().states();
     let need = |why: String| invalid("grid", format!("{why}; give one, e.g. `lo=-2.5,hi=2.5,cells=500`"));
-    if !(1..=3).contains(&n) {
-        return Err(need(format!("the grid methods take one to three states, the model has {n}")));
+    if !(1..=MAX_AXES).contains(&n) {
+        return Err(need(format!("the grid methods take one to {MAX_AXES} states, the model has {n}")));
     }
     let sd = problem.observation.gaussian_error_sd(problem.theta).unwrap_or(0.0);
     let (mut lo, mut hi) = (vec![0.0; n], vec![0.0; n]);
-    let base = [400, 120, 40][n - 1];
+    // Cells per axis, and the most a prior wider than the data may ask for, by dimension.
+    const BASE: [usize; MAX_AXES] = [400, 120, 40];
+    const MOST: [usize; MAX_AXES] = [4000, 360, 80];
+    let base = BASE[n - 1];
     let mut cells = vec![base; n];
     let outputs = problem.observation.output_dim();
     let priors: Vec<&Prior> = problem.x0_prior.iter().chain(problem.z0_prior).collect();
@@ -210,7 +213,7 @@ pub fn default_grid<S: Sde + ?Sized, O: Observation + ?Sized>(
             hi[a] = hi[a].max(h);
         }
         let wider = ((hi[a] - lo[a]) / data_width * base as f64).ceil() as usize;
-        cells[a] = wider.clamp(base, [10, 3, 2][n - 1] * base);
+        cells[a] = wider.clamp(base, MOST[n - 1]);
     }
     Ok(GridSpec { lo, hi, cells })
 }
@@ -437,8 +440,8 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
     /// (the product of the x0 and z0 priors at the cell centres, normalised on the grid), the
     /// event times (`t0`, the output grid, the measurement times) and the substeps.
     ///
-    /// Errors ([`Error::InvalidOption`] unless noted): more than three noisy states or a grid
-    /// whose axes are not the states; parameters to estimate (the grid methods take θ as
+    /// Errors ([`Error::InvalidOption`] unless noted): more than [`MAX_AXES`] noisy states or a
+    /// grid whose axes are not the states; parameters to estimate (the grid methods take θ as
     /// given); data before `t0`; non-positive `dt` or output step; a prior with no mass on the
     /// grid; [`Error::SingularDiffusion`] for a bad G(θ).
     pub fn try_new<O: Observation + ?Sized>(
@@ -447,23 +450,14 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
     ) -> Result<Self> {
         problem.validate()?;
         let (spec, _) = grid_of(problem, options)?;
-        let d = problem.sde.dims();
-        if d.noisy > 3 {
-            return Err(invalid(
-                "model",
-                format!(
-                    "the grid methods handle models with one to three noisy states; this model has {}",
-                    d.noisy
-                ),
-            ));
-        }
+        let grid = Grid::try_new(spec)?;
+        check_model_fits_grid(problem.sde, &grid)?;
         if !problem.estimate.is_empty() {
             return Err(invalid(
                 "estimate",
                 "the grid methods do not estimate parameters; θ is taken as given",
             ));
         }
-        let grid = Grid::try_new(spec)?;
         let data = problem.data;
         let TimeSteps { t_end, span, output_step, dt, extra } = TimeSteps::of(problem, options)?;
         let t0 = problem.t0;

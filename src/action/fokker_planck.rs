@@ -36,7 +36,7 @@ use serde::{Deserialize, Serialize};
 use crate::model::Sde;
 use crate::{Error, Result};
 
-use super::grid::Grid;
+use super::grid::{Grid, MAX_AXES};
 
 /// B(w) = w/(eʷ − 1), the Bernoulli function of the Chang–Cooper flux, stable for all w.
 fn bernoulli(w: f64) -> f64 {
@@ -124,15 +124,15 @@ impl<S: Sde + ?Sized> std::fmt::Debug for FokkerPlanck<'_, S> {
     }
 }
 
-/// Checks that the grid methods can take `sde` on `grid`: at most three noisy states, and one
+/// Checks that the grid methods can take `sde` on `grid`: at most [`MAX_AXES`] noisy states, and one
 /// grid axis per state (noisy then clean). Errors: [`Error::InvalidOption`].
 pub fn check_model_fits_grid<S: Sde + ?Sized>(sde: &S, grid: &Grid) -> Result<()> {
     let d = sde.dims();
-    if d.noisy > 3 {
+    if d.noisy > MAX_AXES {
         return Err(Error::InvalidOption {
             name: "model".into(),
             reason: format!(
-                "the grid methods handle models with one to three noisy states; this model has {}",
+                "the grid methods handle models with one to {MAX_AXES} noisy states; this model has {}",
                 d.noisy
             ),
         });
@@ -1099,6 +1099,6 @@ mod tests {
         let grid = Grid::try_new(GridSpec::new_1d(-1.0, 1.0, 5)).unwrap();
         let err =
             FokkerPlanck::try_new(&Lorenz96::new(4).unwrap(), &Lorenz96::NOMINAL, &grid, &[0.0]).unwrap_err();
-        assert!(err.to_string().contains("one to three noisy states"), "{err}");
+        assert!(err.to_string().contains("one to 3 noisy states"), "{err}");
     }
 }

@@ -8,6 +8,10 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use crate::{Error, Result};
 
+/// The most axes a grid has ([`GridSpec::validate`]), and so the most states of a model that the
+/// exact grid methods take (docs/effective-action.md, "Three states").
+pub const MAX_AXES: usize = 3;
+
 /// The box and resolution of a grid: one entry per axis (one to three axes).
 ///
 /// In options files and on the command line a grid is written `lo=L,hi=H,cells=N` (two axes:
@@ -157,8 +161,8 @@ impl GridSpec {
     /// lo < hi and at least 3 cells per axis.
     pub fn validate(&self) -> Result<()> {
         let d = self.cells.len();
-        if !(1..=3).contains(&d) {
-            return Err(bad(format!("the grid methods support one to three axes, got {d}")));
+        if !(1..=MAX_AXES).contains(&d) {
+            return Err(bad(format!("the grid methods support one to {MAX_AXES} axes, got {d}")));
         }
         if self.lo.len() != d || self.hi.len() != d {
             return Err(bad(format!(
@@ -319,6 +323,6 @@ mod tests {
         assert_eq!(c, [0.75, 1.5, 2.0]);
         assert_eq!((0..3).map(|a| g.index_on(a, 29)).collect::<Vec<_>>(), [1, 1, 2]);
         let four = GridSpec::parse("lo=0;0;0;0,hi=1;1;1;1,cells=3;3;3;3").unwrap_err();
-        assert!(four.to_string().contains("one to three axes"), "{four}");
+        assert!(four.to_string().contains("one to 3 axes"), "{four}");
     }
 }

@@ -6,6 +6,7 @@ use std::fmt;
 use super::{Estimator, Method};
 use crate::action::closure::ExponentialFamily;
 use crate::action::exact::{default_grid, MeanOptimalOptions};
+use crate::action::grid::MAX_AXES;
 use crate::estimate::EstimationProblem;
 use crate::model::observation::{Noise, StateMeasurement};
 use crate::model::Sde;
@@ -38,7 +39,7 @@ impl Estimator {
     /// dimensions, the likelihood, the parameters to estimate and the estimator's options:
     ///
     /// - parameters to estimate: only `jme`, `mee` and `pem` estimate them;
-    /// - `ksp`, `mean-optimal`: one to three states, and a grid (the default grid needs every
+    /// - `ksp`, `mean-optimal`: one to [`MAX_AXES`] (three) states, and a grid (the default grid needs every
     ///   state measured directly);
     /// - `exp-closure`: one to three states (moments up to degree 6 in two, 4 in three);
     ///   `ksp-closure`, `double-exp-closure`: one noisy state;
@@ -77,8 +78,8 @@ impl Estimator {
         }
         match self {
             Estimator::Ksp(o) | Estimator::MeanOptimal(MeanOptimalOptions { exact: o, .. }) => {
-                if !(1..=3).contains(&n) {
-                    return no(format!("the grid methods take one to three states, the model has {n}"));
+                if !(1..=MAX_AXES).contains(&n) {
+                    return no(format!("the grid methods take one to {MAX_AXES} states, the model has {n}"));
                 }
                 if o.grid.is_none() {
                     if let Err(e) = default_grid(problem) {
@@ -88,7 +89,9 @@ impl Estimator {
                             }
                             other => other.to_string(),
                         };
-                        let example = ["lo=L,hi=H,cells=N", "lo=L1;L2,hi=H1;H2,cells=N1;N2", "lo=L1;L2;L3,hi=H1;H2;H3,cells=N1;N2;N3"][n - 1];
+                        const EXAMPLE: [&str; MAX_AXES] =
+                            ["lo=L,hi=H,cells=N", "lo=L1;L2,hi=H1;H2,cells=N1;N2", "lo=L1;L2;L3,hi=H1;H2;H3,cells=N1;N2;N3"];
+                        let example = EXAMPLE[n - 1];
                         return no(format!("{why}; give a grid, `--grid {example}`"));
                     }
                 }
