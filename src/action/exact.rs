@@ -287,6 +287,28 @@ fn flag_edge(estimate: &mut PathEstimate, edge: Option<GridEdge>, grid: &GridSpe
     }
 }
 
+/// How far apart (relative) two step sizes may be and still share one factorisation.
+const STEP_SNAP: f64 = 1e-10;
+
+/// Gives the step sizes of `substeps` (count, size) that agree to [`STEP_SNAP`] relative one
+/// value, the smallest of them, and returns the distinct sizes, increasing. Intervals of equal
+/// length between event times (an output grid, measurements on it) give sizes that differ only
+/// by the rounding of t_{k+1} − t_k; each distinct size is factored and kept for the whole
+/// estimate (144 bytes per cell in three dimensions), so without this an output step of 0.1
+/// on [0, 10] keeps eight. The interval then ends within 10⁻¹⁰ of its length of the event
+/// time, far below the time scheme's error.
+fn snap_step_sizes(substeps: &mut [(usize, f64)]) -> Vec<f64> {
+    let mut dts: Vec<f64> = substeps.iter().map(|s| s.1).collect();
+    dts.sort_by(f64::total_cmp);
+    dts.dedup_by(|h, kept| *h - *kept <= STEP_SNAP * *kept);
+    for s in substeps.iter_mut() {
+        // The largest kept size at or below s.1 is within STEP_SNAP of it.
+        let k = dts.partition_point(|&h| h <= s.1);
+        s.1 = dts[k - 1];
+    }
+    dts
+}
+
 /// The grid of `options`, or the default one with a note saying so.
 fn grid_of<S: Sde + ?Sized, O: Observation + ?Sized>(
     problem: &EstimationProblem<'_, S, O>,
@@ -475,7 +497,7 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
         let others: Vec<f64> = grid_times.iter().chain(&extra).copied().chain([t_end]).collect();
         let EventTimes { times, measurement: meas_of_event, index_of_measurement: event_of_meas } =
             EventTimes::merge(&data.times, &others);
-        let substeps: Vec<(usize, f64)> = times
+        let mut substeps: Vec<(usize, f64)> = times
             .windows(2)
             .map(|w| {
                 let delta = w[1] - w[0];
@@ -483,12 +505,10 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
                 (n, delta / n as f64)
             })
             .collect();
+        let dts = snap_step_sizes(&mut substeps);
         let probes = [t0, t0 + 0.37 * span + 0.1, t_end + 0.71];
         let mut fp =
             FokkerPlanck::try_new(problem.sde, problem.theta, &grid, &probes)?.with_scheme(options.scheme);
-        let mut dts: Vec<f64> = substeps.iter().map(|s| s.1).collect();
-        dts.sort_by(f64::total_cmp);
-        dts.dedup();
         fp.prepare(&dts);
         let priors: Vec<Prior> = problem.x0_prior.iter().chain(problem.z0_prior).copied().collect();
         let p0 = initial_density(&grid, &priors)?;
@@ -1279,4 +1299,35 @@ pub fn mean_optimal_estimate<S: Sde + ?Sized>(
     let mut estimate = mean_optimal_path_estimate(problem, &mo);
     flag_edge(&mut estimate, mo.edge, &grid, &mut notes);
     Ok(MethodRun { estimate, notes })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn step_sizes_that_differ_by_rounding_share_one_value() {
+        // An output grid of 0.1 on [0, 10] with Δt = 0.05: two substeps per interval, whose sizes
+        // differ only by the rounding of t_{k+1} − t_k.
+        let times: Vec<f64> = (0..=100).map(|k| k as f64 * 0.1).collect();
+        let mut substeps: Vec<(usize, f64)> = times.windows(2).map(|w| (2, (w[1] - w[0]) / 2.0)).collect();
+        let mut raw: Vec<f64> = substeps.iter().map(|s| s.1).collect();
+        raw.sort_by(f64::total_cmp);
+        raw.dedup();
+        assert!(raw.len() > 1, "{raw:?}");
+        let before = substeps.clone();
+        let dts = snap_step_sizes(&mut substeps);
+        assert_eq!(dts.len(), 1, "{dts:?}");
+        for ((n, h), (n0, h0)) in substeps.iter().zip(&before) {
+            assert_eq!((n, *h), (n0, dts[0]));
+            assert!((h - h0).abs() <= STEP_SNAP * h0);
+        }
+        // Sizes further apart stay apart, each step taking its own; a chain of near sizes keeps
+        // every step within the tolerance of its own size.
+        let h = 0.05;
+        let mut steps = [(1, h), (3, 2.0 * h), (1, h * (1.0 + 0.6e-10)), (1, h * (1.0 + 1.2e-10))];
+        let dts = snap_step_sizes(&mut steps);
+        assert_eq!(dts, [h, h * (1.0 + 1.2e-10), 2.0 * h]);
+        assert_eq!(steps.map(|s| s.1), [h, 2.0 * h, h, h * (1.0 + 1.2e-10)]);
+    }
 }
