@@ -459,6 +459,14 @@ mod tests {
             assert!(skipped.iter().all(|s| !s.method.uses_grid()));
             assert!(skipped.iter().any(|s| s.method == Method::ExpClosure));
         }
+        // A grid of two axes on three states: the grid methods are left out, with the reason.
+        let flat = crate::action::grid::GridSpec::parse("lo=-20;-25,hi=20;25,cells=8;8").unwrap();
+        let (chosen, skipped) = default_estimators(&problem, Some(&flat));
+        assert!(chosen.iter().all(|l| !l.estimator.method().uses_grid()));
+        for m in [Method::Ksp, Method::MeanOptimal] {
+            let why = skipped.iter().find(|s| s.method == m).unwrap();
+            assert!(why.reason.contains("has 2 axes, the model 3 states"), "{why}");
+        }
         // A Student-t likelihood: the Gaussian KSP closure needs Gaussian errors.
         let mut p = preset("double-well").unwrap();
         p.observation.noise = crate::model::Noise::StudentT {

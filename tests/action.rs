@@ -355,7 +355,7 @@ fn bad_inputs_are_clear_errors() {
         max_memory: Default::default(),
     };
     let err = ksp_smoother(&problem, &ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 50))).unwrap_err();
-    assert!(err.to_string().contains("one to 3 noisy states"), "{err}");
+    assert!(err.to_string().contains("1 to 3 noisy states"), "{err}");
     // A grid with the wrong number of axes.
     let err = ksp_smoother(
         &EstimationProblem { data: &data2, ..ou.problem() },

@@ -176,14 +176,14 @@ impl EstimatorOptions for MeanOptimalOptions {
 /// 40 per axis (up to 80: a 3-D grid stores cells × times, docs/effective-action.md).
 ///
 /// Errors: [`Error::InvalidOption`] (name `grid`) when a state is not measured or the model has
-/// more than three states.
+/// more than [`MAX_AXES`] states.
 pub fn default_grid<S: Sde + ?Sized, O: Observation + ?Sized>(
     problem: &EstimationProblem<'_, S, O>,
 ) -> Result<GridSpec> {
     let n = problem.sde.dims().states();
     let need = |why: String| invalid("grid", format!("{why}; give one, e.g. `lo=-2.5,hi=2.5,cells=500`"));
     if !(1..=MAX_AXES).contains(&n) {
-        return Err(need(format!("the grid methods take one to {MAX_AXES} states, the model has {n}")));
+        return Err(need(format!("the grid methods take 1 to {MAX_AXES} states, the model has {n}")));
     }
     let sd = problem.observation.gaussian_error_sd(problem.theta).unwrap_or(0.0);
     let (mut lo, mut hi) = (vec![0.0; n], vec![0.0; n]);
@@ -295,7 +295,7 @@ const STEP_SNAP: f64 = 1e-10;
 /// length between event times (an output grid, measurements on it) give sizes that differ only
 /// by the rounding of t_{k+1} − t_k; each distinct size is factored and kept for the whole
 /// estimate (144 bytes per cell in three dimensions), so without this an output step of 0.1
-/// on [0, 10] keeps eight. The interval then ends within 10⁻¹⁰ of its length of the event
+/// on [0, 10] keeps eight. The interval then ends within 10⁻¹⁰ × its length of the event
 /// time, far below the time scheme's error.
 fn snap_step_sizes(substeps: &mut [(usize, f64)]) -> Vec<f64> {
     let mut dts: Vec<f64> = substeps.iter().map(|s| s.1).collect();
@@ -376,8 +376,16 @@ impl TimeSteps {
 /// products at every output time, the log-likelihoods at the measurements): six `f64`.
 const GRID_BYTES_PER_CELL_TIME: f64 = 48.0;
 
-/// Bytes per cell independent of the times (coordinates, the operator and its factorisations).
+/// Bytes per cell independent of the times (coordinates, the operator and the factorisations of
+/// [`STEP_SIZES_BUDGETED`] step sizes).
 const GRID_BYTES_PER_CELL: f64 = 512.0;
+
+/// Bytes per cell and axis of the factors of one step size, kept for the whole estimate when the
+/// drift is autonomous (three `f64` for the two-stage step, three for the damped step).
+const GRID_BYTES_PER_CELL_AXIS_STEP: f64 = 48.0;
+
+/// The step sizes whose factors [`GRID_BYTES_PER_CELL`] covers; each further one is counted.
+const STEP_SIZES_BUDGETED: usize = 2;
 
 /// Checks the memory of the exact methods on `spec` against the problem's
 /// [`MemoryLimit`](crate::estimate::MemoryLimit), before anything of the grid is allocated:
@@ -387,14 +395,43 @@ pub fn check_grid_memory<S: Sde + ?Sized, O: Observation + ?Sized>(
     spec: &GridSpec,
     options: &ExactOptions,
 ) -> Result<()> {
+    check_grid_memory_with_steps(problem, spec, options, STEP_SIZES_BUDGETED)
+}
+
+/// [`check_grid_memory`] with the factors of `step_sizes` distinct step sizes kept.
+fn check_grid_memory_with_steps<S: Sde + ?Sized, O: Observation + ?Sized>(
+    problem: &EstimationProblem<'_, S, O>,
+    spec: &GridSpec,
+    options: &ExactOptions,
+    step_sizes: usize,
+) -> Result<()> {
+    match grid_memory(problem, spec, options, step_sizes) {
+        Some((bytes, size)) => problem.max_memory.check("the grid", size, bytes),
+        None => Ok(()), // reported with its own message by the discretisation
+    }
+}
+
+/// The memory estimate of [`check_grid_memory`] in bytes, and the sizes it counts: the step
+/// sizes beyond [`STEP_SIZES_BUDGETED`] add cells × axes × 48 B each (measurement times off the
+/// output grid make two sizes each). `None` when the time steps are not valid.
+fn grid_memory<S: Sde + ?Sized, O: Observation + ?Sized>(
+    problem: &EstimationProblem<'_, S, O>,
+    spec: &GridSpec,
+    options: &ExactOptions,
+    step_sizes: usize,
+) -> Option<(f64, String)> {
     let cells: f64 = spec.cells.iter().map(|&c| c as f64).product();
-    let times = match TimeSteps::of(problem, options) {
-        Ok(ts) => ts.span / ts.output_step + (ts.extra.len() + problem.data.len() + 2) as f64,
-        Err(_) => return Ok(()), // reported with its own message by the discretisation
-    };
-    let bytes = cells * (times * GRID_BYTES_PER_CELL_TIME + GRID_BYTES_PER_CELL);
-    let size = format!("{cells:.0} grid cells × {:.0} stored times", times.ceil());
-    problem.max_memory.check("the grid", size, bytes)
+    let ts = TimeSteps::of(problem, options).ok()?;
+    let times = ts.span / ts.output_step + (ts.extra.len() + problem.data.len() + 2) as f64;
+    let extra_steps = step_sizes.saturating_sub(STEP_SIZES_BUDGETED) as f64;
+    let per_cell = times * GRID_BYTES_PER_CELL_TIME
+        + GRID_BYTES_PER_CELL
+        + extra_steps * spec.cells.len() as f64 * GRID_BYTES_PER_CELL_AXIS_STEP;
+    let mut size = format!("{cells:.0} grid cells × {:.0} stored times", times.ceil());
+    if step_sizes > STEP_SIZES_BUDGETED {
+        size.push_str(&format!(", the factors of {step_sizes} time-step sizes"));
+    }
+    Some((cells * per_cell, size))
 }
 
 fn invalid(name: &str, reason: impl Into<String>) -> Error {
@@ -472,7 +509,7 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
     ) -> Result<Self> {
         problem.validate()?;
         let (spec, _) = grid_of(problem, options)?;
-        let grid = Grid::try_new(spec)?;
+        let grid = Grid::try_new(spec.clone())?;
         check_model_fits_grid(problem.sde, &grid)?;
         if !problem.estimate.is_empty() {
             return Err(invalid(
@@ -509,6 +546,9 @@ impl<'a, S: Sde + ?Sized> ExactGrid<'a, S> {
         let probes = [t0, t0 + 0.37 * span + 0.1, t_end + 0.71];
         let mut fp =
             FokkerPlanck::try_new(problem.sde, problem.theta, &grid, &probes)?.with_scheme(options.scheme);
+        if fp.is_autonomous() {
+            check_grid_memory_with_steps(problem, &spec, options, dts.len())?;
+        }
         fp.prepare(&dts);
         let priors: Vec<Prior> = problem.x0_prior.iter().chain(problem.z0_prior).copied().collect();
         let p0 = initial_density(&grid, &priors)?;
@@ -1329,5 +1369,39 @@ mod tests {
         let dts = snap_step_sizes(&mut steps);
         assert_eq!(dts, [h, h * (1.0 + 1.2e-10), 2.0 * h]);
         assert_eq!(steps.map(|s| s.1), [h, 2.0 * h, h, h * (1.0 + 1.2e-10)]);
+    }
+
+    #[test]
+    fn the_grid_keeps_one_factorisation_per_step_size_and_counts_them_in_its_memory() {
+        use crate::test_models::OuRecord;
+        let record = OuRecord::new().unwrap();
+        let options =
+            ExactOptions { output_step: Some(0.1), ..ExactOptions::new(GridSpec::new_1d(-3.0, 3.0, 60)) }
+                .with_dt(0.05);
+        // Measurements on the output grid (every 0.5): one size, Δt = 0.05.
+        let grid = ExactGrid::try_new(&record.problem(), &options).unwrap();
+        assert_eq!(grid.fp.factored_step_sizes(), 1);
+        // Off the grid, each at its own offset: each measurement splits an output interval in two
+        // sizes of its own.
+        let mut data = record.data.clone();
+        for (i, t) in data.times.iter_mut().enumerate() {
+            *t += 0.007 * (i + 1) as f64;
+        }
+        let problem = EstimationProblem { data: &data, ..record.problem() };
+        let sizes = ExactGrid::try_new(&problem, &options).unwrap().fp.factored_step_sizes();
+        assert!(sizes > 10, "{sizes}");
+        // A limit that the stored densities fit but the factors of every size do not.
+        let spec = options.grid.as_ref().unwrap();
+        let (budgeted, _) = grid_memory(&problem, spec, &options, STEP_SIZES_BUDGETED).unwrap();
+        let (all, size) = grid_memory(&problem, spec, &options, sizes).unwrap();
+        assert!(size.contains(&format!("{sizes} time-step sizes")), "{size}");
+        let limit = crate::estimate::MemoryLimit::new((0.5 * (budgeted + all)) as u64);
+        let limited = EstimationProblem { max_memory: limit, ..problem };
+        check_grid_memory(&limited, spec, &options).unwrap();
+        let err = ExactGrid::try_new(&limited, &options).err().unwrap();
+        assert!(
+            matches!(err, Error::MemoryLimit { .. }) && err.to_string().contains("time-step sizes"),
+            "{err}"
+        );
     }
 }

@@ -132,7 +132,7 @@ pub fn check_model_fits_grid<S: Sde + ?Sized>(sde: &S, grid: &Grid) -> Result<()
         return Err(Error::InvalidOption {
             name: "model".into(),
             reason: format!(
-                "the grid methods handle models with one to {MAX_AXES} noisy states; this model has {}",
+                "the grid methods handle models with 1 to {MAX_AXES} noisy states; this model has {}",
                 d.noisy
             ),
         });
@@ -155,7 +155,7 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
     /// The operator of `sde` at `theta` on `grid`, whose axes are the states [x; z].
     /// `probe_times` are times at which the drift is compared to decide whether it is autonomous.
     ///
-    /// Errors: [`Error::InvalidOption`] when the model has more than three noisy states, when the
+    /// Errors: [`Error::InvalidOption`] when the model has more than [`MAX_AXES`] noisy states, when the
     /// grid's axes are not the model's states, or when D = ½GGᵀ is not diagonal in two or three
     /// dimensions (the split scheme needs it); [`Error::SingularDiffusion`] for a bad G(θ).
     pub fn try_new(sde: &'a S, theta: &[f64], grid: &Grid, probe_times: &[f64]) -> Result<Self> {
@@ -264,6 +264,11 @@ impl<'a, S: Sde + ?Sized> FokkerPlanck<'a, S> {
                 self.cache.push(f);
             }
         }
+    }
+
+    /// The number of step sizes whose factors are kept ([`FokkerPlanck::prepare`]).
+    pub fn factored_step_sizes(&self) -> usize {
+        self.cache.len()
     }
 
     fn cached(&self, dt: f64) -> Option<&StepFactors> {
@@ -1099,6 +1104,6 @@ mod tests {
         let grid = Grid::try_new(GridSpec::new_1d(-1.0, 1.0, 5)).unwrap();
         let err =
             FokkerPlanck::try_new(&Lorenz96::new(4).unwrap(), &Lorenz96::NOMINAL, &grid, &[0.0]).unwrap_err();
-        assert!(err.to_string().contains("one to 3 noisy states"), "{err}");
+        assert!(err.to_string().contains("1 to 3 noisy states"), "{err}");
     }
 }

@@ -162,7 +162,7 @@ impl GridSpec {
     pub fn validate(&self) -> Result<()> {
         let d = self.cells.len();
         if !(1..=MAX_AXES).contains(&d) {
-            return Err(bad(format!("the grid methods support one to {MAX_AXES} axes, got {d}")));
+            return Err(bad(format!("the grid methods support 1 to {MAX_AXES} axes, got {d}")));
         }
         if self.lo.len() != d || self.hi.len() != d {
             return Err(bad(format!(
@@ -323,6 +323,6 @@ mod tests {
         assert_eq!(c, [0.75, 1.5, 2.0]);
         assert_eq!((0..3).map(|a| g.index_on(a, 29)).collect::<Vec<_>>(), [1, 1, 2]);
         let four = GridSpec::parse("lo=0;0;0;0,hi=1;1;1;1,cells=3;3;3;3").unwrap_err();
-        assert!(four.to_string().contains("one to 3 axes"), "{four}");
+        assert!(four.to_string().contains("1 to 3 axes"), "{four}");
     }
 }

@@ -79,9 +79,13 @@ impl Estimator {
         match self {
             Estimator::Ksp(o) | Estimator::MeanOptimal(MeanOptimalOptions { exact: o, .. }) => {
                 if !(1..=MAX_AXES).contains(&n) {
-                    return no(format!("the grid methods take one to {MAX_AXES} states, the model has {n}"));
+                    return no(format!("the grid methods take 1 to {MAX_AXES} states, the model has {n}"));
                 }
-                if o.grid.is_none() {
+                if let Some(g) = &o.grid {
+                    if g.cells.len() != n {
+                        return no(format!("the grid {g} has {} axes, the model {n} states", g.cells.len()));
+                    }
+                } else {
                     if let Err(e) = default_grid(problem) {
                         let why = match &e {
                             crate::Error::InvalidOption { reason, .. } => {
