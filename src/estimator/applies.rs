@@ -93,8 +93,11 @@ impl Estimator {
                             }
                             other => other.to_string(),
                         };
-                        const EXAMPLE: [&str; MAX_AXES] =
-                            ["lo=L,hi=H,cells=N", "lo=L1;L2,hi=H1;H2,cells=N1;N2", "lo=L1;L2;L3,hi=H1;H2;H3,cells=N1;N2;N3"];
+                        const EXAMPLE: [&str; MAX_AXES] = [
+                            "lo=L,hi=H,cells=N",
+                            "lo=L1;L2,hi=H1;H2,cells=N1;N2",
+                            "lo=L1;L2;L3,hi=H1;H2;H3,cells=N1;N2;N3",
+                        ];
                         let example = EXAMPLE[n - 1];
                         return no(format!("{why}; give a grid, `--grid {example}`"));
                     }
