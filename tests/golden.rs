@@ -1,7 +1,8 @@
 //! Every estimator gives the numbers it gave before the typed-estimator interface: each line of
 //! `tests/golden/cases.txt` is run through `onsager estimate` again and its path CSV, status,
 //! iterations and θ̂ are compared with the goldens written at commit 32300c1 (regenerated only
-//! by `tests/golden/regenerate.sh`, when a change of numbers is meant).
+//! by `tests/golden/regenerate.sh`, when a change of numbers is meant; `cases.txt` names the
+//! cases written again since).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
