@@ -89,9 +89,10 @@ fn gaussian_closure_of_ou_is_the_rts_smoother() {
     assert_eq!(est.status, Status::Converged);
     assert_eq!(est.method, onsager::Method::GaussianClosure);
     // The cost counters: every counted sweep takes at least one Runge–Kutta step per interval
-    // between measurements; a converged dual has no stop reason.
+    // between measurements, and far fewer are rejected; a converged dual has no stop reason.
     let count = |key: &str| est.details[key].as_u64().unwrap();
     assert!(count("sweeps") >= 1 && count("rk_steps") >= count("sweeps") * (data.len() as u64 - 1));
+    assert!(count("rk_rejected") < count("rk_steps") / 4, "{:?}", est.details);
     assert!(!est.details.contains_key("dual_reason"));
     let kf = ou.rts(&est.path.times).unwrap();
     let sd = est.path.sd.as_ref().unwrap();

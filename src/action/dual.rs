@@ -146,10 +146,31 @@ pub trait EffectiveAction {
         Ok(())
     }
 
-    /// The sweeps run so far and their accepted integration steps, for an action that counts
-    /// them; `None` by default.
-    fn work(&self) -> Option<(usize, usize)> {
+    /// The sweeps run so far and their integration steps, for an action that counts them;
+    /// `None` by default.
+    fn work(&self) -> Option<Work> {
         None
+    }
+}
+
+/// The work of an action's sweeps ([`EffectiveAction::work`]), a machine-independent measure of
+/// its cost.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Work {
+    /// Forward sweeps.
+    pub sweeps: usize,
+    /// Accepted integration steps.
+    pub steps: usize,
+    /// Integration steps attempted and rejected, by the error control or because a stage could
+    /// not be evaluated (0 with fixed steps).
+    pub rejected: usize,
+}
+
+impl std::ops::AddAssign for Work {
+    fn add_assign(&mut self, other: Work) {
+        self.sweeps += other.sweeps;
+        self.steps += other.steps;
+        self.rejected += other.rejected;
     }
 }
 

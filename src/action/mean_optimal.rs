@@ -12,7 +12,7 @@ use super::continuation::{follow_branch, BranchEnd};
 use super::dispersion::posterior_variance;
 use super::dual::{
     maximize_dual, maximize_dual_chord, DualData, DualOptions, DualSolution, DualStop, EffectiveAction,
-    History, SweepFailure, Swept,
+    History, SweepFailure, Swept, Work,
 };
 use crate::estimate::Status;
 use crate::Result;
@@ -367,6 +367,10 @@ pub struct DualDetails {
     /// Accepted integration steps of those sweeps, when counted.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub rk_steps: Option<usize>,
+    /// Integration steps of those sweeps that were rejected (by the error control, or because a
+    /// stage could not be evaluated), when counted.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rk_rejected: Option<usize>,
     /// Tridiagonal solves of the exact grid's sweeps (the KSP start, the dual and the dispersion;
     /// one per vector and axis sub-step), a machine-independent measure of its work.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -414,7 +418,7 @@ fn is_zero(n: &usize) -> bool {
 impl Solution {
     /// The report's details; `closure` names the closure's family, `work` is the action's
     /// [`EffectiveAction::work`].
-    pub fn details(&self, closure: Option<String>, work: Option<(usize, usize)>, plan: &Plan) -> DualDetails {
+    pub fn details(&self, closure: Option<String>, work: Option<Work>, plan: &Plan) -> DualDetails {
         let d = &self.dual;
         DualDetails {
             closure,
@@ -426,8 +430,9 @@ impl Solution {
             dual_reason: d.reason,
             dual_tolerance: plan.dual.tolerance,
             dual_start: self.start,
-            sweeps: work.map_or(d.evaluations, |w| w.0),
-            rk_steps: work.map(|w| w.1),
+            sweeps: work.map_or(d.evaluations, |w| w.sweeps),
+            rk_steps: work.map(|w| w.steps),
+            rk_rejected: work.map(|w| w.rejected),
             tridiagonal_solves: None,
             coarse_stage: self.coarse_stage,
             sd: self.sd_kind,

@@ -41,7 +41,7 @@ pub use closure::{
 pub use continuation::{Branch, BranchEnd, BranchRule};
 pub use dual::{
     maximize_dual, maximize_dual_chord, DualData, DualOptions, DualSolution, DualStop, EffectiveAction,
-    History, SweepFailure, Swept,
+    History, SweepFailure, Swept, Work,
 };
 pub use exact::{
     default_grid, ksp_estimate, ksp_path_estimate, ksp_smoother, mean_optimal, mean_optimal_estimate,

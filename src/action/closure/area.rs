@@ -48,7 +48,7 @@ use super::drift::{gaussian_prior, ClosureDrift, ExponentialDrift};
 use super::{check_box_covers_data, default_domain, invalid, output_times, ClosureOptions, FailureAt};
 use crate::action::continuation::BranchRule;
 use crate::action::dual::{
-    ActionValue, DualData, DualOptions, EffectiveAction, History, SweepFailure, Swept,
+    ActionValue, DualData, DualOptions, EffectiveAction, History, SweepFailure, Swept, Work,
 };
 use crate::action::exact::gaussian_dual_data;
 use crate::action::mean_optimal::{self, DualStart, Plan};
@@ -761,8 +761,9 @@ impl<S: Sde + ?Sized> EffectiveAction for AreaAction<'_, S> {
         Ok(Ok((history, (&hess + hess.transpose()) * 0.5)))
     }
 
-    fn work(&self) -> Option<(usize, usize)> {
-        Some((self.sweeps, self.steps))
+    fn work(&self) -> Option<Work> {
+        // Fixed steps: none is rejected.
+        Some(Work { sweeps: self.sweeps, steps: self.steps, rejected: 0 })
     }
 
     fn last_failure(&self) -> Option<&str> {

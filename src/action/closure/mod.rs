@@ -45,7 +45,7 @@ use crate::{Error, Result};
 
 use super::continuation::BranchRule;
 use super::dual::DualSolution;
-use super::dual::{DualData, DualOptions, EffectiveAction, History};
+use super::dual::{DualData, DualOptions, EffectiveAction, History, Work};
 use super::exact::{gaussian_dual_data, GridEdge};
 use super::mean_optimal::{self, CoarseStage, DualStart, Plan, QuadratureCheck};
 use crate::Status;
@@ -549,7 +549,7 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
     // The refinements and widenings below keep the family's node rule, and with it its noise.
     let plan = dual_plan(&data, options, closure.family.quadrature_noise());
     let (mut family, mut warm, mut widenings) = (closure.family.clone(), None, 0);
-    let (mut iterations, mut evaluations, mut work) = (0, 0, (0, 0));
+    let (mut iterations, mut evaluations, mut work) = (0, 0, Work::default());
     // The last estimate whose box cut its density off, with the shift of its means on a wider
     // box (beyond the tolerance).
     let mut cut: Option<(Checked<'_, S, F>, Option<f64>)> = None;
@@ -558,7 +558,7 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
         let mut checked = solve_checked(problem, family.clone(), &data, &plan, options, warm)?;
         checked.sol.dual.iterations += iterations;
         checked.sol.dual.evaluations += evaluations;
-        add_work(&mut work, Some(checked.work));
+        work += checked.work;
         // A wider box that fails falls back on the estimate whose box cut the density off.
         if !checked.sol.status.is_success() {
             let Some((mut last, shift)) = cut else { break (checked, None, false) };
@@ -578,7 +578,7 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
         let mut wide = action_of(problem, &check, options)?;
         let shift =
             mean_shift(&checked.sol.history, &mut wide, &checked.sol.dual.lambda, tolerance, options)?;
-        add_work(&mut work, wide.work());
+        work += wide.work().unwrap_or_default();
         let kept = shift.is_some_and(|s| s <= tolerance);
         if kept || !may_solve {
             break (checked, shift, kept);
@@ -614,7 +614,7 @@ struct Checked<'a, S: Sde + ?Sized + 'a, F: ClosureFamily> {
     sol: mean_optimal::Solution,
     check: Option<QuadratureCheck>,
     edge: Option<GridEdge>,
-    work: (usize, usize),
+    work: Work,
 }
 
 /// The estimate on `family`'s nodes, from `warm` (a solution on a narrower box) when given, else
@@ -634,7 +634,7 @@ fn solve_checked<'a, S: Sde + ?Sized, F: ClosureFamily>(
     let mut action = action_of(problem, &family, options)?;
     let (dual, from) = solve_dual(&mut action, data, plan, options.branch, warm)?;
     let mut sol = mean_optimal::finish(&mut action, data, dual, from, options.dispersion)?;
-    let (mut check, mut refinements, mut work) = (None, 0, (0, 0));
+    let (mut check, mut refinements, mut work) = (None, 0, Work::default());
     while let Some(refinement) = family.refined() {
         let converged = sol.status.is_success();
         let retry = sol.status == Status::NumericalFailure
@@ -659,7 +659,7 @@ fn solve_checked<'a, S: Sde + ?Sized, F: ClosureFamily>(
             accepted,
         });
         if accepted {
-            add_work(&mut work, finer.work());
+            work += finer.work().unwrap_or_default();
             break;
         }
         // The coarser solution is the start on the finer nodes when there is one.
@@ -668,10 +668,10 @@ fn solve_checked<'a, S: Sde + ?Sized, F: ClosureFamily>(
         dual.iterations += sol.dual.iterations;
         dual.evaluations += sol.dual.evaluations;
         sol = mean_optimal::finish(&mut finer, data, dual, from, options.dispersion)?;
-        add_work(&mut work, action.work());
+        work += action.work().unwrap_or_default();
         (family, action) = (refinement.finer, finer);
     }
-    add_work(&mut work, action.work());
+    work += action.work().unwrap_or_default();
     let edge = action.box_edge();
     Ok(Checked { family, action, sol, check, edge, work })
 }
@@ -752,13 +752,6 @@ fn mean_shift<D: ClosureDrift>(
         })
         .fold(0.0, f64::max);
     Ok(Some(shift))
-}
-
-fn add_work(total: &mut (usize, usize), work: Option<(usize, usize)>) {
-    if let Some((sweeps, steps)) = work {
-        total.0 += sweeps;
-        total.1 += steps;
-    }
 }
 
 /// The [`PathEstimate`] of a dual closure from its solution: the history as the path with the

@@ -32,7 +32,9 @@ use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
 use nalgebra::DMatrix;
 
 use super::FailureAt;
-use crate::action::dual::{ActionValue, DualData, EffectiveAction, History, SweepFailure as Failure, Swept};
+use crate::action::dual::{
+    ActionValue, DualData, EffectiveAction, History, SweepFailure as Failure, Swept, Work,
+};
 use crate::action::exact::{GridEdge, EDGE_MASS};
 use crate::{Error, Result};
 
@@ -531,11 +533,6 @@ impl<D: ClosureDrift> ClosureAction<D> {
     /// Runge–Kutta steps taken by all sweeps so far.
     pub fn steps(&self) -> usize {
         self.steps
-    }
-
-    /// Runge–Kutta steps attempted and rejected by all sweeps so far.
-    pub fn rejected_steps(&self) -> usize {
-        self.rejected
     }
 
     /// The output (event) times of [`EffectiveAction::history`].
@@ -1496,8 +1493,8 @@ impl<D: ClosureDrift> EffectiveAction for ClosureAction<D> {
         ClosureAction::set_tolerances(self, rtol, atol)
     }
 
-    fn work(&self) -> Option<(usize, usize)> {
-        Some((self.sweeps(), self.steps()))
+    fn work(&self) -> Option<Work> {
+        Some(Work { sweeps: self.sweeps, steps: self.steps, rejected: self.rejected })
     }
 }
 
@@ -1598,7 +1595,8 @@ mod tests {
             action.fresh_start_cap = cap;
             let value = action.evaluate(&lambda).unwrap();
             let history = action.history(&lambda, false).unwrap().unwrap();
-            (value, history.mean, action.rejected_steps(), action.steps())
+            let work = action.work().unwrap();
+            (value, history.mean, work.rejected, work.steps)
         };
         let (capped, capped_mean, capped_rejected, capped_steps) = run(true);
         let (free, free_mean, free_rejected, free_steps) = run(false);
