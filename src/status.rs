@@ -43,7 +43,8 @@ pub enum Status {
     /// The estimate's density reaches the edge of the grid of an exact grid method (more than
     /// 10⁻³ of its mass in the outer cells at some time), or of the box of a closure on a box
     /// (more than 10⁻³ of its mass near an end of an axis, and a wider box moves the means
-    /// beyond the check's tolerance after the widenings allowed): the grid cuts the density off
+    /// beyond the check's tolerance, or the sweeps failed with the density there, after the
+    /// widenings allowed): the grid cuts the density off
     /// and the estimate is not to be trusted. A note or the report's `edge` names the axis and
     /// the time; give a wider `--grid` (a closure's `domain`).
     GridEdge,

@@ -885,6 +885,41 @@ fn a_box_that_cuts_the_density_off_is_widened_or_reported() {
 }
 
 #[test]
+fn a_sweep_that_fails_against_the_box_edge_is_solved_on_a_wider_box() {
+    // The quartic closure with the prior x0 ~ N(lo − 0.7, 0.1²) on a box that starts at lo − 0.1
+    // (lo the lowest datum): the prior's density, truncated to the box, piles against its lower
+    // end and the sweep fails there (the moment covariance is not positive definite). With
+    // `widen` left the estimate is solved again on the box widened at that axis, a quarter of
+    // its width at each end, and equals the estimate on that box; with `widen = 0` it ends
+    // `grid-edge` with the edge and the sweep's failure in its details, not `numerical-failure`
+    // (as before widening after a failure).
+    let case = double_well_case(5, 20.0);
+    let (lo, hi) = (case.data.values.iter())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| (a.min(y[0]), b.max(y[0])));
+    let case = case.with_x0_prior(Prior::gaussian(lo - 0.7, 0.1));
+    let problem = case.problem();
+    let options = ClosureOptions::new().with_dispersion(false);
+    let run = |family: ExponentialFamily| exp_closure(&problem, family, &options);
+    let (a, b) = (lo - 0.1, hi + 0.1);
+    let narrow = || ExponentialFamily::of_degree(4).with_domain(&[(a, b)]);
+    let widened = run(narrow());
+    let stopped = run(narrow().with_widen(0));
+    let wide = run(ExponentialFamily::of_degree(4).with_domain(&[(a - 0.25 * (b - a), b + 0.25 * (b - a))]));
+    assert_eq!(stopped.status, Status::GridEdge);
+    let edge = &stopped.details["edge"];
+    assert!(stopped.details["sweep_failure"].as_str().is_some_and(|w| w.starts_with("at t = 0:")));
+    assert_eq!(edge["axis"], 0);
+    assert!(edge["mass"].as_f64().unwrap() > 1e-3);
+    assert!(widened.status.is_success(), "{}", widened.status);
+    assert_eq!(wide.status, Status::Converged);
+    // One widening more than the estimate on the wider box (which widens once more itself: the
+    // prior sits 4 sd inside it), and the same path.
+    let widenings = |e: &PathEstimate| e.details["widenings"].as_u64().unwrap_or(0);
+    assert_eq!(widenings(&widened), widenings(&wide) + 1);
+    assert!(sup_diff(&widened.path.values, &wide.path.values) < 1e-12);
+}
+
+#[test]
 fn the_quadrature_check_refines_a_box_that_does_not_resolve_the_density() {
     // The quartic closure on a double-well record, on boxes of P panels, against 24 panels. After
     // the dual converges on P, the history at its multipliers is recomputed on ⌈1.5 P⌉ panels;

@@ -588,7 +588,7 @@ impl<'a, S: Sde + ?Sized> AreaAction<'a, S> {
 
     /// A sweep's value, or its failure kept as [`EffectiveAction::last_failure`].
     fn failed<T>(&mut self, swept: std::result::Result<T, FailureAt>) -> Swept<T> {
-        swept.map_err(|FailureAt(why)| {
+        swept.map_err(|FailureAt { why, .. }| {
             self.last_failure = Some(why);
             SweepFailure::Unrealizable
         })

@@ -51,9 +51,13 @@ use super::mean_optimal::{self, CoarseStage, DualStart, Plan, QuadratureCheck};
 use crate::Status;
 
 /// How a closure's sweep failed (a numerical outcome): where and why, in words for the report
-/// ([`EffectiveAction::last_failure`]).
+/// ([`EffectiveAction::last_failure`]), and where the density stood against its box's edge
+/// when that is a likely cause (see [`ClosureAction::failure_edge`]).
 #[derive(Debug, Clone)]
-struct FailureAt(String);
+struct FailureAt {
+    why: String,
+    edge: Option<GridEdge>,
+}
 
 impl FailureAt {
     /// A failure at time `t` of the sweep.
@@ -63,7 +67,12 @@ impl FailureAt {
             a if a >= 1e-3 => format!("{t:.4}"),
             _ => format!("{t:.2e}"),
         };
-        FailureAt(format!("at t = {t}: {why}"))
+        FailureAt { why: format!("at t = {t}: {why}"), edge: None }
+    }
+
+    /// A failure whose time is not known.
+    fn anywhere(why: impl Into<String>) -> Self {
+        FailureAt { why: why.into(), edge: None }
     }
 }
 
@@ -536,7 +545,9 @@ fn common_checks<S: Sde + ?Sized, F: ClosureFamily>(
 /// than two states). Non-convergence of the dual, or sweeps that leave the moment space, are
 /// the estimate's [`Status`](crate::Status); so is a converged estimate whose density reaches
 /// the edge of the family's box on the history's sweep ([`ClosureAction::box_edge`]) where a
-/// wider box moves the means and no widening is left ([`Status::GridEdge`]), or on nodes that
+/// wider box moves the means and no widening is left ([`Status::GridEdge`]; also an estimate
+/// whose sweeps failed with the density against the box's edge,
+/// [`ClosureAction::failure_edge`], when no widening is left), or on nodes that
 /// did not pass the quadrature check when no refinement was left ([`Status::Unresolved`]).
 pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
     problem: &EstimationProblem<'_, S, StateMeasurement>,
@@ -549,6 +560,7 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
     // The refinements and widenings below keep the family's node rule, and with it its noise.
     let plan = dual_plan(&data, options, closure.family.quadrature_noise());
     let (mut family, mut warm, mut widenings) = (closure.family.clone(), None, 0);
+    let mut failed_at_edge = false;
     let (mut iterations, mut evaluations, mut work) = (0, 0, Work::default());
     // The last estimate whose box cut its density off, with the shift of its means on a wider
     // box (beyond the tolerance).
@@ -559,6 +571,24 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
         checked.sol.dual.iterations += iterations;
         checked.sol.dual.evaluations += evaluations;
         work += checked.work;
+        // A sweep that failed with the density against the box's edge: solved again on the
+        // box widened at that axis while widenings are left, else it ends there.
+        if let (false, None, Some(e)) = (checked.sol.status.is_success(), &cut, checked.action.failure_edge())
+        {
+            let support = checked.action.drift().support();
+            match support.and_then(|s| checked.family.widened(&family, &s, &e)) {
+                Some(Widening { wider, may_solve: true, .. }) => {
+                    (iterations, evaluations) = (checked.sol.dual.iterations, checked.sol.dual.evaluations);
+                    (family, warm, widenings) = (wider, None, widenings + 1);
+                    continue;
+                }
+                _ => {
+                    failed_at_edge = true;
+                    checked.edge = Some(e);
+                    break (checked, None, false);
+                }
+            }
+        }
         // A wider box that fails falls back on the estimate whose box cut the density off.
         if !checked.sol.status.is_success() {
             let Some((mut last, shift)) = cut else { break (checked, None, false) };
@@ -590,7 +620,7 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
     };
     // An estimate whose box cuts the density off in a way that moves the means, or on nodes
     // that did not pass the quadrature check, is not labelled converged.
-    if sol.status.is_success() && edge.is_some() && !kept {
+    if (sol.status.is_success() && edge.is_some() && !kept) || failed_at_edge {
         sol.status = Status::GridEdge;
     }
     if sol.status.is_success() && check.as_ref().is_some_and(|c| !c.accepted) {
@@ -637,9 +667,11 @@ fn solve_checked<'a, S: Sde + ?Sized, F: ClosureFamily>(
     let (mut check, mut refinements, mut work) = (None, 0, Work::default());
     while let Some(refinement) = family.refined() {
         let converged = sol.status.is_success();
+        // (A failure at the box's edge is for a wider box, not finer nodes.)
         let retry = sol.status == Status::NumericalFailure
             && refinements == 0
-            && options.branch == BranchRule::Filter;
+            && options.branch == BranchRule::Filter
+            && action.failure_edge().is_none();
         if !(converged || retry) {
             break;
         }

@@ -391,6 +391,8 @@ pub struct ClosureAction<D: ClosureDrift> {
     fresh_start_cap: bool,
     /// Where and why the last sweep that failed failed.
     last_failure: Option<String>,
+    /// [`ClosureAction::failure_edge`].
+    failure_edge: Option<GridEdge>,
     /// [`Forward::edge`] of the last history sweep.
     edge: Option<GridEdge>,
 }
@@ -490,6 +492,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             rejected: 0,
             fresh_start_cap: true,
             last_failure: None,
+            failure_edge: None,
             edge: None,
         })
     }
@@ -723,7 +726,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                     ),
                     None => format!("the error control rejected {rejections} steps, down to {h:.1e}"),
                 };
-                return Err(FailureAt::at(tc, why));
+                return Err(self.at_edge(FailureAt::at(tc, why), tc, y));
             }
         }
         steps.rejected += rejections;
@@ -796,7 +799,8 @@ impl<D: ClosureDrift> ClosureAction<D> {
             out.lambda_minus.push(y.clone());
             let te = events.times[e];
             weigh_edge(&y, te, &mut out.edge);
-            let mut m = self.drift.moments(&y).map_err(|why| FailureAt::at(te, why.0))?;
+            let mut m =
+                self.drift.moments(&y).map_err(|why| self.at_edge(FailureAt::at(te, why.0), te, &y))?;
             if let Some(k) = events.meas[e] {
                 let before = m;
                 let lk = choose(k, &y)?;
@@ -1075,7 +1079,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
             self.cache = Some((l, fw, g0));
         }
         if out.values.iter().any(|v| !v.is_finite()) {
-            return Err(FailureAt("the tangents of the sweep are not finite".into()));
+            return Err(FailureAt::anywhere("the tangents of the sweep are not finite"));
         }
         Ok((base, out))
     }
@@ -1351,9 +1355,33 @@ impl<D: ClosureDrift> ClosureAction<D> {
         self.edge.filter(|e| e.mass > EDGE_MASS)
     }
 
-    /// The value of a sweep, or `None` with its failure kept as [`EffectiveAction::last_failure`].
+    /// The value of a sweep, or `None` with its failure kept as [`EffectiveAction::last_failure`]
+    /// (and its edge as [`ClosureAction::failure_edge`]).
     fn failed<T>(&mut self, swept: std::result::Result<T, FailureAt>) -> Option<T> {
-        swept.map_err(|FailureAt(why)| self.last_failure = Some(why)).ok()
+        swept
+            .map_err(|FailureAt { why, edge }| {
+                self.last_failure = Some(why);
+                self.failure_edge = edge;
+            })
+            .ok()
+    }
+
+    /// `failure` with the density at λ = `y`, the last point the sweep reached (time `t`),
+    /// where more than [`EDGE_MASS`] of its mass lies near its box's edge
+    /// ([`ClosureDrift::edge_mass`]).
+    fn at_edge(&self, mut failure: FailureAt, t: f64, y: &[f64]) -> FailureAt {
+        failure.edge = (self.drift.edge_mass(y))
+            .filter(|&(_, mass)| mass > EDGE_MASS)
+            .map(|(axis, mass)| GridEdge { axis, time: t, mass });
+        failure
+    }
+
+    /// Where the density stood against its box's edge when the last sweep that failed stopped
+    /// (more than [`EDGE_MASS`] of its mass near an end of an axis, at the last λ it reached):
+    /// the likely cause of that failure, which a wider box removes. `None` when the last
+    /// failure was elsewhere, or for a family without a fixed box.
+    pub fn failure_edge(&self) -> Option<GridEdge> {
+        self.failure_edge
     }
 
     /// The linear moment of every state (index into M).
