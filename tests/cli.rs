@@ -314,3 +314,37 @@ fn messages_name_what_the_user_typed() {
     assert!(err.contains("`--dt`"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn the_example_grid_of_an_unmeasured_state_has_one_axis_per_state() {
+    // Van der Pol measures u only: the grid methods have no default grid, and the error gives an
+    // example with two axes, which the CLI then accepts.
+    let dir = scratch("example-grid");
+    let data = dir.join("vdp.csv");
+    let sim = onsager()
+        .args(["simulate", "--model", "van-der-pol", "--likelihood", "gaussian:sigma=0.1"])
+        .args(["--t-end", "0.5", "--seed", "1", "--out"])
+        .arg(&data)
+        .output()
+        .unwrap();
+    assert!(sim.status.success(), "{}", String::from_utf8_lossy(&sim.stderr));
+    let estimate = |grid: Option<&str>| {
+        let mut cmd = onsager();
+        cmd.args(["estimate", "--model", "van-der-pol", "--likelihood", "gaussian:sigma=0.1"]);
+        cmd.args(["--method", "ksp", "--data"]).arg(&data);
+        cmd.arg("--out").arg(dir.join("ksp.csv"));
+        if let Some(g) = grid {
+            cmd.args(["--grid", g]);
+        }
+        cmd.output().unwrap()
+    };
+    let out = estimate(None);
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    let example =
+        err.split('`').find(|s| s.starts_with("lo=")).unwrap_or_else(|| panic!("no example: {err}"));
+    assert_eq!(example, "lo=-2.5;-2.5,hi=2.5;2.5,cells=120;120");
+    let out = estimate(Some(example));
+    assert_ne!(out.status.code(), Some(1), "{}", String::from_utf8_lossy(&out.stderr));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -181,7 +181,13 @@ pub fn default_grid<S: Sde + ?Sized, O: Observation + ?Sized>(
     problem: &EstimationProblem<'_, S, O>,
 ) -> Result<GridSpec> {
     let n = problem.sde.dims().states();
-    let need = |why: String| invalid("grid", format!("{why}; give one, e.g. `lo=-2.5,hi=2.5,cells=500`"));
+    // An example grid with one axis per state (`;` between the axes), for up to three states.
+    let example = match n {
+        2 => "`lo=-2.5;-2.5,hi=2.5;2.5,cells=120;120`",
+        3 => "`lo=-2.5;-2.5;-2.5,hi=2.5;2.5;2.5,cells=40;40;40`",
+        _ => "`lo=-2.5,hi=2.5,cells=500`",
+    };
+    let need = |why: String| invalid("grid", format!("{why}; give one, e.g. {example}"));
     if !(1..=MAX_AXES).contains(&n) {
         return Err(need(format!("the grid methods take 1 to {MAX_AXES} states, the model has {n}")));
     }
