@@ -367,7 +367,10 @@ impl Preset {
         if !(0.0..=self.t_end).contains(&self.first_sample) {
             return Err(Error::InvalidOption {
                 name: "first_sample".into(),
-                reason: format!("must lie in [0, t_end = {}], got {}", self.t_end, self.first_sample),
+                reason: format!(
+                    "the first measurement time {} must lie in [0, t_end = {}]",
+                    self.first_sample, self.t_end
+                ),
             });
         }
         Ok(())
@@ -383,6 +386,17 @@ impl Preset {
         scheme: crate::simulate::Scheme,
         rng: &mut R,
     ) -> Result<(StatePath, Dataset)> {
+        // The measurements are taken at points of the simulated path, every dt from 0.
+        let steps = self.sample_every / self.dt;
+        if (steps - steps.round()).abs() > 1e-6 * steps.max(1.0) {
+            return Err(Error::InvalidOption {
+                name: "sample_every".into(),
+                reason: format!(
+                    "must be a multiple of the simulation step dt = {}, got {}",
+                    self.dt, self.sample_every
+                ),
+            });
+        }
         let path = self.simulate_path(scheme, rng)?;
         let times = self.measurement_times();
         let data = crate::simulate::sample_measurements_at(

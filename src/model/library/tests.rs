@@ -510,6 +510,15 @@ fn validate_rejects_bad_settings() {
     let mut p = preset("ou").unwrap();
     p.dt = -0.1;
     assert!(matches!(p.validate(), Err(Error::InvalidOption { .. })));
+    let mut p = preset("ou").unwrap();
+    p.sample_every = 0.015;
+    let mut rng = rand::rngs::StdRng::seed_from_u64(0);
+    let simulated = p.simulate(crate::simulate::Scheme::EulerMaruyama, &mut rng);
+    let Err(Error::InvalidOption { name, reason }) = simulated else { panic!("simulated every 0.015") };
+    assert_eq!(name, "sample_every");
+    assert!(reason.contains("multiple of the simulation step dt = 0.01"), "{reason}");
+    p.sample_every = 0.03;
+    assert_eq!(p.simulate(crate::simulate::Scheme::EulerMaruyama, &mut rng).unwrap().1.len(), 334);
     let mut p = preset("tanh").unwrap();
     p.first_sample = 6.0;
     assert!(matches!(p.validate(), Err(Error::InvalidOption { .. })));
