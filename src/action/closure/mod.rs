@@ -571,10 +571,11 @@ pub fn closure_estimate<S: Sde + ?Sized, F: ClosureFamily>(
         checked.sol.dual.iterations += iterations;
         checked.sol.dual.evaluations += evaluations;
         work += checked.work;
-        // A sweep that failed with the density against the box's edge: solved again on the
-        // box widened at that axis while widenings are left, else it ends there.
-        if let (false, None, Some(e)) = (checked.sol.status.is_success(), &cut, checked.action.failure_edge())
-        {
+        // A sweep that failed with the density against the box's edge (the estimate's numerical
+        // failure): solved again on the box widened at that axis while widenings are left, else
+        // it ends there.
+        let failed = checked.sol.status == Status::NumericalFailure;
+        if let (true, None, Some(e)) = (failed, &cut, checked.action.failure_edge()) {
             let support = checked.action.drift().support();
             match support.and_then(|s| checked.family.widened(&family, &s, &e)) {
                 Some(Widening { wider, may_solve: true, .. }) => {
