@@ -519,6 +519,9 @@ fn validate_rejects_bad_settings() {
     assert!(reason.contains("multiple of the simulation step dt = 0.01"), "{reason}");
     p.sample_every = 0.03;
     assert_eq!(p.simulate(crate::simulate::Scheme::EulerMaruyama, &mut rng).unwrap().1.len(), 334);
+    // One measurement (at t = 0): its spacing does not matter.
+    p.sample_every = 10.015;
+    assert_eq!(p.simulate(crate::simulate::Scheme::EulerMaruyama, &mut rng).unwrap().1.len(), 1);
     let mut p = preset("tanh").unwrap();
     p.first_sample = 6.0;
     assert!(matches!(p.validate(), Err(Error::InvalidOption { .. })));
