@@ -386,8 +386,10 @@ impl Preset {
         scheme: crate::simulate::Scheme,
         rng: &mut R,
     ) -> Result<(StatePath, Dataset)> {
+        let path = self.simulate_path(scheme, rng)?;
         // The measurements are taken at points of the simulated path, every dt from 0 (the
-        // spacing matters only where there is more than one).
+        // spacing matters only where there is more than one); checked after the path, whose
+        // own step error comes first.
         let steps = self.sample_every / self.dt;
         let several = self.t_end - self.first_sample >= self.sample_every;
         if several && (steps - steps.round()).abs() > 1e-6 * steps.max(1.0) {
@@ -399,7 +401,6 @@ impl Preset {
                 ),
             });
         }
-        let path = self.simulate_path(scheme, rng)?;
         let times = self.measurement_times();
         let data = crate::simulate::sample_measurements_at(
             &self.observation,
