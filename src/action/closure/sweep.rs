@@ -656,13 +656,16 @@ impl<D: ClosureDrift> ClosureAction<D> {
         let first_step = steps.len();
         let r = y.len();
         let rr = r * r;
+        // The spectral radius of ∂W/∂λ at tc (work.jac[..rr]), kept until a step is accepted:
+        // a rejected step leaves tc and its Jacobian as they were.
+        let mut rho_at_tc: Option<f64> = None;
         if work.k1_time != Some(tc) {
             work.k1_time = None;
             let hess = if self.keep_hessians { &mut work.hess[..rr * r] } else { &mut [][..] };
             self.stage_derivatives(tc, y, &mut work.k[..r], &mut work.jac[..rr], hess)
                 .map_err(|e| FailureAt::at(tc, e.0))?;
             work.k1_time = Some(tc);
-            let rho = spectral_radius(&work.jac[..rr], r);
+            let rho = *rho_at_tc.insert(spectral_radius(&work.jac[..rr], r));
             if self.fresh_start_cap && rho > 0.0 {
                 h = h.min(self.mode_steps[0] / rho);
             }
@@ -670,7 +673,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
         while tc < t_end {
             // A step that would end within the window before the next measurement.
             if let Some(tm) = next_measurement {
-                let rho = spectral_radius(&work.jac[..rr], r);
+                let rho = *rho_at_tc.get_or_insert_with(|| spectral_radius(&work.jac[..rr], r));
                 let h0 = h.min(t_end - tc);
                 if rho > 0.0 && (tm - tc - h0) * rho < ADJOINT_WINDOW {
                     // The cap at the step's end, a fixed point of h = cap(tm − tc − h); the odd
@@ -698,6 +701,7 @@ impl<D: ClosureDrift> ClosureAction<D> {
                         work.hess.copy_within(6 * rr * r..7 * rr * r, 0);
                     }
                     work.k1_time = Some(tc + C[6] * hh);
+                    rho_at_tc = None;
                     stage_failed = false;
                     tc = if last { t_end } else { tc + hh };
                     let fac = if err == 0.0 { 5.0 } else { (0.9 * err.powf(-0.2)).clamp(0.2, 5.0) };
